@@ -1,0 +1,13 @@
+//! The native module `evsplat._core`: numpy/torch-facing conversions only; logic lives in the
+//! crates it wraps.
+
+use pyo3::prelude::*;
+
+mod gpu;
+
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    gpu::register(m)?;
+    Ok(())
+}

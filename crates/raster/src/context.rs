@@ -1,0 +1,279 @@
+//! One wgpu instance/adapter/device/queue per process, with cached compute pipelines.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
+
+use thiserror::Error;
+
+#[derive(Debug, Error)]
+pub enum GpuError {
+    #[error(
+        "no Vulkan adapter found ({0}); install the software driver with \
+         `apt-get install -y mesa-vulkan-drivers libvulkan1` or a GPU driver"
+    )]
+    NoAdapter(String),
+    #[error("EVSPLAT_ADAPTER={0:?} is not one of auto, cpu, gpu")]
+    BadAdapterChoice(String),
+    #[error("could not open the GPU device on {adapter}: {reason}")]
+    Device { adapter: String, reason: String },
+    #[error("GPU readback failed: {0}")]
+    Readback(String),
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// Which kind of adapter to use, from `EVSPLAT_ADAPTER`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AdapterChoice {
+    /// Prefer a real GPU, fall back to a CPU (lavapipe) adapter.
+    Auto,
+    /// Only a CPU adapter (lavapipe / fallback).
+    Cpu,
+    /// Only a real GPU.
+    Gpu,
+}
+
+impl AdapterChoice {
+    pub fn from_env() -> Result<Self, GpuError> {
+        match std::env::var("EVSPLAT_ADAPTER") {
+            Err(_) => Ok(Self::Auto),
+            Ok(v) => match v.trim().to_ascii_lowercase().as_str() {
+                "" | "auto" => Ok(Self::Auto),
+                "cpu" | "lavapipe" => Ok(Self::Cpu),
+                "gpu" => Ok(Self::Gpu),
+                _ => Err(GpuError::BadAdapterChoice(v)),
+            },
+        }
+    }
+}
+
+/// How float gradients are accumulated in shaders.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AtomicMode {
+    /// Native `atomicAdd` on `atomic<f32>` (SHADER_FLOAT32_ATOMIC).
+    Float,
+    /// Compare-and-swap loop on `atomic<u32>` bit patterns; works everywhere.
+    Cas,
+}
+
+pub struct GpuContext {
+    pub adapter: wgpu::Adapter,
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: wgpu::AdapterInfo,
+    pub limits: wgpu::Limits,
+    /// The adapter offers (and the device enabled) float32 atomic add on storage buffers.
+    pub float_atomics: bool,
+    pipelines: Mutex<HashMap<String, Arc<wgpu::ComputePipeline>>>,
+}
+
+static GLOBAL: OnceLock<Result<GpuContext, String>> = OnceLock::new();
+
+fn is_cpu(info: &wgpu::AdapterInfo) -> bool {
+    info.device_type == wgpu::DeviceType::Cpu
+}
+
+impl GpuContext {
+    /// The process-wide context, created on first use and printed once to stderr.
+    pub fn global() -> Result<&'static GpuContext, GpuError> {
+        GLOBAL
+            .get_or_init(|| {
+                let ctx = GpuContext::new(AdapterChoice::from_env().map_err(|e| e.to_string())?)
+                    .map_err(|e| e.to_string())?;
+                if std::env::var_os("EVSPLAT_QUIET").is_none() {
+                    eprintln!(
+                        "evsplat: using adapter \"{}\" ({:?}, {:?}, float32 atomics: {})",
+                        ctx.info.name, ctx.info.device_type, ctx.info.backend, ctx.float_atomics
+                    );
+                }
+                Ok(ctx)
+            })
+            .as_ref()
+            .map_err(|e| GpuError::Invalid(e.clone()))
+    }
+
+    pub fn new(choice: AdapterChoice) -> Result<Self, GpuError> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
+            backends: wgpu::Backends::VULKAN,
+            ..wgpu::InstanceDescriptor::new_without_display_handle_from_env()
+        });
+        let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::VULKAN));
+        let seen: Vec<String> = adapters.iter().map(|a| a.get_info().name).collect();
+        let pick = |want_cpu: bool| {
+            adapters
+                .iter()
+                .find(|a| is_cpu(&a.get_info()) == want_cpu)
+                .cloned()
+        };
+        let adapter = match choice {
+            AdapterChoice::Cpu => pick(true),
+            AdapterChoice::Gpu => pick(false),
+            AdapterChoice::Auto => pick(false).or_else(|| pick(true)),
+        }
+        .ok_or_else(|| {
+            GpuError::NoAdapter(if seen.is_empty() {
+                "none visible".to_string()
+            } else {
+                format!("EVSPLAT_ADAPTER={choice:?} but only {seen:?}")
+            })
+        })?;
+        let info = adapter.get_info();
+        let float_atomics = adapter
+            .features()
+            .contains(wgpu::Features::SHADER_FLOAT32_ATOMIC);
+        let features = if float_atomics {
+            wgpu::Features::SHADER_FLOAT32_ATOMIC
+        } else {
+            wgpu::Features::empty()
+        };
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("evsplat"),
+            required_features: features,
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::Device {
+            adapter: info.name.clone(),
+            reason: e.to_string(),
+        })?;
+        Ok(Self {
+            adapter,
+            device,
+            queue,
+            info,
+            limits,
+            float_atomics,
+            pipelines: Mutex::new(HashMap::new()),
+        })
+    }
+
+    /// The atomic mode shaders should use: float atomics when present unless
+    /// `EVSPLAT_ATOMICS=cas` forces the compare-and-swap path.
+    pub fn default_atomic_mode(&self) -> AtomicMode {
+        let forced_cas = std::env::var("EVSPLAT_ATOMICS")
+            .map(|v| v.eq_ignore_ascii_case("cas"))
+            .unwrap_or(false);
+        if self.float_atomics && !forced_cas {
+            AtomicMode::Float
+        } else {
+            AtomicMode::Cas
+        }
+    }
+
+    /// A compute pipeline for `entry` in `source`, built once per `key` and cached.
+    pub fn pipeline(&self, key: &str, source: &str, entry: &str) -> Arc<wgpu::ComputePipeline> {
+        let full_key = format!("{key}::{entry}");
+        let mut cache = self.pipelines.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(p) = cache.get(&full_key) {
+            return p.clone();
+        }
+        let module = self
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(key),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+        let pipeline = Arc::new(self.device.create_compute_pipeline(
+            &wgpu::ComputePipelineDescriptor {
+                label: Some(&full_key),
+                layout: None,
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            },
+        ));
+        cache.insert(full_key, pipeline.clone());
+        pipeline
+    }
+
+    /// A bind group for group 0 of `pipeline` with `buffers` bound at 0, 1, 2, ...
+    pub fn bind_buffers(
+        &self,
+        pipeline: &wgpu::ComputePipeline,
+        buffers: &[&wgpu::Buffer],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        })
+    }
+
+    /// A storage buffer of at least `bytes` (never zero-sized), usable as copy source and target.
+    pub fn storage_buffer(&self, label: &str, bytes: u64) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: bytes.max(16).next_multiple_of(4),
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// Block until the queue is idle.
+    pub fn wait(&self) -> Result<(), GpuError> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| GpuError::Readback(e.to_string()))
+    }
+
+    /// Copy `bytes` bytes from the start of `src` back to the host (one staging copy).
+    pub fn read_buffer(&self, src: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, GpuError> {
+        if bytes == 0 {
+            return Ok(Vec::new());
+        }
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: bytes.next_multiple_of(4),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(src, 0, &staging, 0, bytes.next_multiple_of(4));
+        self.queue.submit([enc.finish()]);
+        self.map_read(&staging, bytes)
+    }
+
+    /// Map an already-filled MAP_READ buffer and copy out its first `bytes` bytes.
+    pub fn map_read(&self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, GpuError> {
+        let slice = staging.slice(..bytes.next_multiple_of(4));
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        rx.recv()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let out = {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| GpuError::Readback(e.to_string()))?;
+            view[..bytes as usize].to_vec()
+        };
+        staging.unmap();
+        Ok(out)
+    }
+}
+
+/// Workgroup counts for `groups` workgroups, folded into 2-D when over the 65535 per-dimension limit.
+pub fn dispatch_dims(groups: u32) -> (u32, u32) {
+    const MAX: u32 = 65535;
+    if groups <= MAX {
+        (groups.max(1), 1)
+    } else {
+        (MAX, groups.div_ceil(MAX))
+    }
+}
