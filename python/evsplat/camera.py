@@ -1,0 +1,36 @@
+"""Camera helpers shared by training, rendering and evaluation (OpenCV convention, +z forward)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+
+def world_to_camera(c2w: np.ndarray) -> np.ndarray:
+    """Rigid inverse of camera-to-world poses ``[...,4,4]`` (float64), without a general inverse."""
+    c2w = np.asarray(c2w, dtype=np.float64)
+    r = c2w[..., :3, :3]
+    t = c2w[..., :3, 3:]
+    out = np.zeros_like(c2w)
+    rt = np.swapaxes(r, -1, -2)
+    out[..., :3, :3] = rt
+    out[..., :3, 3:] = -rt @ t
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def viewmat(c2w: np.ndarray) -> torch.Tensor:
+    """World-to-camera matrix as the float32 tensor the rasterizer takes."""
+    return torch.from_numpy(world_to_camera(c2w).astype(np.float32))
+
+
+def project_points(points: torch.Tensor, w2c: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """Pixel coordinates ``[N,2]`` (x, y; pixel centres at +0.5) of world points ``[N,3]``.
+
+    Depth is clamped to a small positive value so points behind the camera stay finite; callers
+    that care filter them with the rasterizer's visibility.
+    """
+    cam = points @ w2c[:3, :3].T + w2c[:3, 3]
+    z = cam[:, 2:3].clamp(min=1e-6)
+    uv = cam[:, :2] / z
+    return uv * torch.stack([K[0, 0], K[1, 1]]) + torch.stack([K[0, 2], K[1, 2]])

@@ -1,0 +1,23 @@
+"""`evsplat eval RUN DATA`: PSNR/SSIM/LPIPS on the held-out intermediate frames."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+HELP = "score a trained run on a dataset's held-out test frames (table + JSON)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", type=Path, help="run folder written by `evsplat train`")
+    parser.add_argument("data", type=Path, help="dataset folder with test/frames.json")
+    parser.add_argument("--out", type=Path, default=None, help="where eval.json/eval.md go")
+
+
+def run(args: argparse.Namespace) -> int:
+    from evsplat.eval import evaluate_run, format_table
+
+    result = evaluate_run(args.run, args.data, args.out)
+    print(format_table(result), end="")
+    print(f"written: {(args.out or args.run) / 'eval.json'}")
+    return 0

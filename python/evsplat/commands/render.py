@@ -1,0 +1,82 @@
+"""`evsplat render RUN --times a:b:step --out DIR`: images and depth over time."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+HELP = "render a trained run at many times (PNG, depth EXR + colour-mapped PNG)"
+
+
+def parse_times(spec: str) -> np.ndarray:
+    """``a:b:step`` (fractions of the sequence, b inclusive) or a comma list of fractions."""
+    from evsplat.errors import EvsplatError
+
+    try:
+        if ":" in spec:
+            a, b, step = (float(v) for v in spec.split(":"))
+            if step <= 0:
+                raise ValueError
+            times = np.arange(a, b + step * 0.5, step)
+        else:
+            times = np.array([float(v) for v in spec.split(",")])
+    except ValueError:
+        raise EvsplatError(
+            f"--times {spec!r}: expected a:b:step with step > 0 or a comma list, e.g. 0:1:0.05"
+        ) from None
+    if times.size == 0 or times.min() < 0 or times.max() > 1:
+        raise EvsplatError(f"--times {spec!r}: times are fractions of the sequence in [0, 1]")
+    return times
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", type=Path, help="run folder written by `evsplat train`")
+    parser.add_argument("--times", default="0:1:0.05", help="a:b:step fractions of the sequence")
+    parser.add_argument(
+        "--pose",
+        type=Path,
+        default=None,
+        help="TUM file with one c2w pose to render from (default: the training trajectory)",
+    )
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from evsplat.data.images import write_exr, write_png
+    from evsplat.data.poses import read_tum
+    from evsplat.data.trajectory import Trajectory
+    from evsplat.render import Renderer
+
+    renderer, state = Renderer.from_run(args.run)
+    fractions = parse_times(args.times)
+    span = renderer.t_end_us - renderer.t_start_us
+    traj = state["trajectory"]
+    trajectory = Trajectory.fit(np.asarray(traj["times_us"]), np.asarray(traj["c2w"]))
+    fixed = read_tum(args.pose)[1][0] if args.pose is not None else None
+    args.out.mkdir(parents=True, exist_ok=True)
+    for i, frac in enumerate(fractions):
+        t_us = renderer.t_start_us + float(frac) * span
+        c2w = fixed if fixed is not None else trajectory.pose(t_us)
+        with torch.no_grad():
+            out = renderer.render(t_us, c2w)
+        img = out.image.clamp(0, 1).numpy()
+        write_png(args.out / f"frame_{i:05d}.png", img[..., 0] if img.shape[-1] == 1 else img)
+        depth = out.depth.numpy()
+        write_exr(args.out / f"depth_{i:05d}.exr", depth)
+        write_png(args.out / f"depth_{i:05d}.png", _colour_depth(depth))
+    print(f"rendered {len(fractions)} frames to {args.out}")
+    return 0
+
+
+def _colour_depth(depth: np.ndarray) -> np.ndarray:
+    """Turbo colour map of depth (near = warm), background black."""
+    import matplotlib
+
+    valid = depth > 0
+    vmax = float(np.percentile(depth[valid], 99)) if valid.any() else 1.0
+    rgb = matplotlib.colormaps["turbo"](np.clip(depth / max(vmax, 1e-9), 0, 1))[..., :3]
+    return np.where(valid[..., None], rgb, 0.0).astype(np.float32)

@@ -1,0 +1,129 @@
+"""Rendering a trained dynamic scene: Gaussians deformed to a time, rasterized from a pose.
+
+``Renderer`` is the one place that turns (model, deformation MLP, time, pose) into images; the
+trainer, ``evsplat render``, ``evsplat eval`` and ``evsplat export`` all go through it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from evsplat.camera import viewmat
+from evsplat.model.deform import DeformationMLP, deformed
+from evsplat.model.gaussians import GaussianModel
+from evsplat.raster import rasterize
+
+ALPHA_EPS = 1e-4  # below this coverage, alpha-normalised extra channels are set to 0
+
+
+@dataclass
+class RenderOut:
+    """One rendered view. ``extra`` holds alpha-normalised extra feature channels, if any."""
+
+    image: torch.Tensor  # [H,W,C] linear intensity
+    depth: torch.Tensor  # [H,W] expected camera z (0 where nothing is hit)
+    alpha: torch.Tensor  # [H,W]
+    meta: dict
+    means: torch.Tensor  # [N,3] the deformed means that were rendered
+    extra: torch.Tensor | None = None  # [H,W,E]
+
+
+@dataclass
+class Renderer:
+    """A dynamic Gaussian scene with its camera: renders at any time and pose."""
+
+    model: GaussianModel
+    mlp: DeformationMLP | None
+    K: torch.Tensor  # [3,3] float32
+    width: int
+    height: int
+    t_start_us: int
+    t_end_us: int
+    background: float = 0.5
+    static_mask: torch.Tensor | None = None  # Gaussians that skip the MLP (classified static)
+
+    def time(self, t_us: float) -> float:
+        """Normalised time in [0, 1] that the deformation MLP takes."""
+        span = max(self.t_end_us - self.t_start_us, 1)
+        return float(t_us - self.t_start_us) / span
+
+    def gaussians_at(self, t_us: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Deformed (means, rotations, scales) at time ``t_us``."""
+        moving = None if self.static_mask is None else ~self.static_mask
+        return deformed(self.model, self.mlp, self.time(t_us), mask=moving)
+
+    def render(
+        self,
+        t_us: float,
+        c2w: np.ndarray,
+        extra: torch.Tensor | None = None,
+        gaussians: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
+    ) -> RenderOut:
+        """Render at time ``t_us`` from camera-to-world pose ``c2w``.
+
+        ``extra`` ``[N,E]`` are additional per-Gaussian features rendered beside the colour;
+        ``gaussians`` reuses an already deformed set (to share one MLP evaluation).
+        """
+        means, rotations, scales = gaussians if gaussians is not None else self.gaussians_at(t_us)
+        w2c = viewmat(c2w)
+        colors = self.model.colors(torch.from_numpy(np.asarray(c2w, np.float32)[:3, 3]))
+        channels = colors.shape[1]
+        features = colors if extra is None else torch.cat([colors, extra], dim=1)
+        background = torch.zeros(features.shape[1])
+        background[:channels] = self.background
+        image, depth, alpha, meta = rasterize(
+            means,
+            rotations,
+            scales,
+            self.model.opacities(),
+            features,
+            w2c,
+            self.K,
+            self.width,
+            self.height,
+            background=background,
+        )
+        out_extra = None
+        if extra is not None:
+            cover = alpha.unsqueeze(-1)
+            out_extra = torch.where(
+                cover > ALPHA_EPS, image[..., channels:] / cover.clamp(min=ALPHA_EPS), 0.0
+            )
+        return RenderOut(image[..., :channels], depth, alpha, meta, means, out_extra)
+
+    @classmethod
+    def from_state(cls, state: dict) -> Renderer:
+        """Rebuild a renderer from a checkpoint's state (see ``evsplat.train``)."""
+        from evsplat.train.config import TrainConfig
+
+        cfg = TrainConfig.from_dict(state["config"])
+        model = GaussianModel.from_checkpoint(state["gaussians"])
+        mlp = None
+        if state.get("mlp") is not None:
+            mlp = DeformationMLP(cfg.model)
+            mlp.load_state_dict(state["mlp"])
+        cam = state["camera"]
+        static = state.get("static_mask")
+        return cls(
+            model=model,
+            mlp=mlp,
+            K=torch.tensor(cam["K"], dtype=torch.float32),
+            width=int(cam["width"]),
+            height=int(cam["height"]),
+            t_start_us=int(cam["t_start_us"]),
+            t_end_us=int(cam["t_end_us"]),
+            background=cfg.background,
+            static_mask=None if static is None else torch.as_tensor(static, dtype=torch.bool),
+        )
+
+    @classmethod
+    def from_run(cls, run_dir: str | Path) -> tuple[Renderer, dict]:
+        """The renderer of a run folder's newest checkpoint, and that checkpoint's state."""
+        from evsplat.train.checkpoint import load_run
+
+        state = load_run(Path(run_dir))
+        return cls.from_state(state), state

@@ -1,0 +1,60 @@
+"""Training: stages, schedule, checkpoints, depth priors and the loop.
+
+``train`` is the Python API behind ``evsplat train``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from evsplat.data.dataset import load_dataset
+from evsplat.errors import EvsplatError
+from evsplat.train.config import TrainConfig, preset
+from evsplat.train.depth_prior import make_depth_prior
+from evsplat.train.loop import Trainer, TrainStats
+
+__all__ = ["train", "TrainConfig", "Trainer", "TrainStats", "preset"]
+
+
+def train(
+    data_dir: str | Path,
+    out_dir: str | Path,
+    *,
+    config: TrainConfig | None = None,
+    preset_name: str = "default",
+    iterations: int | None = None,
+    resume: bool = False,
+    depth_prior: str = "auto",
+    progress: bool = True,
+) -> TrainStats:
+    """Train a dynamic Gaussian scene on a dataset folder, writing checkpoints to ``out_dir``.
+
+    With ``resume`` the newest complete checkpoint in ``out_dir`` is continued (its saved
+    configuration wins); without it, an ``out_dir`` that already holds checkpoints is an error so
+    a finished run is never overwritten by accident.
+    """
+    from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint
+
+    out = Path(out_dir)
+    data = load_dataset(data_dir)
+    latest = latest_checkpoint(out)
+    if latest is not None and not resume:
+        raise EvsplatError(
+            f"{out}: already holds a trained run; pass --resume to continue it or choose a new --out"
+        )
+    if latest is not None:
+        cfg = TrainConfig.from_dict(load_checkpoint(latest)["config"])
+    else:
+        cfg = config or preset(preset_name)
+    if iterations is not None:
+        if iterations < 1:
+            raise EvsplatError(f"--iters {iterations}: must be at least 1")
+        cfg.schedule.iterations = iterations
+    if cfg.threads:
+        import torch
+
+        torch.set_num_threads(cfg.threads)
+    trainer = Trainer(data, cfg, out, make_depth_prior(depth_prior, data))
+    if latest is not None:
+        trainer.resume()
+    return trainer.run(progress=progress)

@@ -1,0 +1,88 @@
+"""Checkpoints: written atomically, validated on load, and found again for ``--resume``.
+
+Layout inside a run folder: ``checkpoints/ckpt_<iteration>.pt`` (complete files only, thanks to
+the atomic rename) and ``checkpoints/latest`` naming the newest one.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from evsplat.atomic import atomic_path, write_text_atomic
+from evsplat.errors import EvsplatError
+
+FORMAT = "evsplat-checkpoint"
+VERSION = 1
+_NAME = re.compile(r"^ckpt_(\d+)\.pt$")
+
+
+def checkpoint_dir(run_dir: Path) -> Path:
+    return Path(run_dir) / "checkpoints"
+
+
+def save_checkpoint(run_dir: Path, iteration: int, state: dict[str, Any], keep: int = 2) -> Path:
+    """Write ``state`` as the checkpoint of ``iteration`` and prune all but the newest ``keep``."""
+    folder = checkpoint_dir(run_dir)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"ckpt_{iteration:07d}.pt"
+    payload = {"format": FORMAT, "version": VERSION, "iteration": iteration, **state}
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    write_text_atomic(folder / "latest", path.name + "\n")
+    for old in list_checkpoints(run_dir)[:-keep]:
+        old.unlink(missing_ok=True)
+    return path
+
+
+def list_checkpoints(run_dir: Path) -> list[Path]:
+    """Complete checkpoints of a run, oldest first (temporary files are never listed)."""
+    folder = checkpoint_dir(run_dir)
+    if not folder.is_dir():
+        return []
+    found = [(int(m.group(1)), p) for p in folder.iterdir() if (m := _NAME.match(p.name))]
+    return [p for _, p in sorted(found)]
+
+
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    """Load and validate one checkpoint file; foreign or damaged files are one-line errors."""
+    path = Path(path)
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except FileNotFoundError:
+        raise EvsplatError(f"{path}: checkpoint not found; train first or pass a run folder") from None
+    except Exception as e:  # torch raises many types for damaged zip/pickle data
+        raise EvsplatError(
+            f"{path}: not a readable checkpoint ({type(e).__name__}); delete it and resume from an "
+            "earlier one or retrain"
+        ) from None
+    if not isinstance(state, dict) or state.get("format") != FORMAT:
+        raise EvsplatError(f"{path}: not an evsplat checkpoint; pass a run folder made by `evsplat train`")
+    if state.get("version") != VERSION:
+        raise EvsplatError(
+            f"{path}: checkpoint format version {state.get('version')} but this evsplat reads "
+            f"version {VERSION}; retrain with this version"
+        )
+    return state
+
+
+def latest_checkpoint(run_dir: Path) -> Path | None:
+    """The newest complete checkpoint of a run, or None when it has none."""
+    found = list_checkpoints(run_dir)
+    return found[-1] if found else None
+
+
+def load_run(run_dir: Path) -> dict[str, Any]:
+    """The newest checkpoint of a run folder (or a checkpoint file given directly)."""
+    run_dir = Path(run_dir)
+    if run_dir.is_file():
+        return load_checkpoint(run_dir)
+    if not run_dir.is_dir():
+        raise EvsplatError(f"{run_dir}: no such run folder; pass the --out folder of `evsplat train`")
+    latest = latest_checkpoint(run_dir)
+    if latest is None:
+        raise EvsplatError(f"{run_dir}: no checkpoint in this run folder; train it first")
+    return load_checkpoint(latest)

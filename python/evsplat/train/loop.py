@@ -1,0 +1,424 @@
+"""The training loop: event windows -> renders -> the paper's losses -> an optimizer step.
+
+One ``Trainer`` owns the Gaussians, the deformation MLP, their optimizers and the densifier.
+Each iteration draws its random choices from ``default_rng([seed, iteration])`` so a resumed
+run makes the same choices as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from evsplat.atomic import write_text_atomic
+from evsplat.camera import project_points, viewmat
+from evsplat.data.dataset import Dataset
+from evsplat.data.events import bayer_channel_map
+from evsplat.errors import EvsplatError
+from evsplat.losses.depth import silog
+from evsplat.losses.event import bayer_select, event_loss, log_intensity
+from evsplat.losses.flow import (
+    camera_flow,
+    event_flow_loss,
+    gaussian_flow_features,
+    linearized_brightness_change,
+)
+from evsplat.losses.patch import patch_motion_loss, select_visible
+from evsplat.losses.reg import non_event_loss, spatial_gradient_loss
+from evsplat.model.deform import DeformationMLP
+from evsplat.model.densify import Densifier
+from evsplat.model.gaussians import GaussianModel
+from evsplat.render import RenderOut, Renderer
+from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
+from evsplat.train.config import TrainConfig
+from evsplat.train.depth_prior import DepthPrior
+from evsplat.train.stages import Stage, stage_at
+
+MAX_BAD_STEPS = 20  # consecutive non-finite steps before training stops
+
+
+@dataclass
+class StepResult:
+    losses: dict[str, float]
+    stage: Stage
+    skipped: str | None = None  # why the step made no update, if it did not
+
+
+@dataclass
+class TrainStats:
+    iterations: int = 0
+    skipped_nonfinite: int = 0
+    skipped_empty: int = 0
+    seconds: float = 0.0
+    history: list[dict] = field(default_factory=list)
+
+
+def _init_points(data: Dataset, n: int, rng: np.random.Generator, depth_range: tuple[float, float]):
+    """Random points in the volume the trajectory sees: random time, pixel and inverse depth.
+
+    Event data carries no RGB or SfM points, so the frusta are the only geometric prior.
+    Returns (points [n,3], depths [n]) — depth sets each Gaussian's initial size.
+    """
+    times = rng.uniform(data.trajectory.t_min_us, data.trajectory.t_max_us, size=n)
+    c2w = data.trajectory.pose(times)
+    px = np.stack([rng.uniform(0, data.width, n), rng.uniform(0, data.height, n)], axis=1)
+    near, far = depth_range
+    depth = 1.0 / rng.uniform(1.0 / far, 1.0 / near, size=n)
+    kinv = np.linalg.inv(data.K)
+    rays = (np.concatenate([px, np.ones((n, 1))], axis=1) @ kinv.T) * depth[:, None]
+    points = np.einsum("nij,nj->ni", c2w[:, :3, :3], rays) + c2w[:, :3, 3]
+    return points, depth
+
+
+def scene_extent(data: Dataset, depth_range: tuple[float, float]) -> float:
+    """Radius used to scale learning rates and densification (3DGS: camera spread x 1.1),
+    never below the far depth so a nearly static camera still gets a sensible scale."""
+    times = np.linspace(data.trajectory.t_min_us, data.trajectory.t_max_us, 64)
+    centres = data.trajectory.pose(times)[:, :3, 3]
+    spread = float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) * 1.1
+    return max(spread, depth_range[1])
+
+
+class Trainer:
+    """Trains a dynamic Gaussian scene from one dataset; see ``run``."""
+
+    def __init__(
+        self,
+        data: Dataset,
+        cfg: TrainConfig,
+        run_dir: Path,
+        depth_prior: DepthPrior | None = None,
+    ):
+        self.data = data
+        self.cfg = cfg
+        self.run_dir = Path(run_dir)
+        self.depth_prior = depth_prior
+        torch.manual_seed(cfg.seed)
+        self.channels = 1 if data.bayer == "mono" else 3
+        self.depth_range = tuple(data.meta.get("depth_range", cfg.model.init_depth_range))
+        self.extent = scene_extent(data, self.depth_range)
+
+        rng = np.random.default_rng(cfg.seed)
+        points, depth = _init_points(data, cfg.num_gaussians, rng, self.depth_range)
+        lo, hi = points.min(0), points.max(0)
+        self.model = GaussianModel.random_init(
+            cfg.num_gaussians, self.channels, lo, hi, sh_degree=cfg.model.sh_degree, seed=cfg.seed
+        )
+        focal = float(data.K[0, 0])
+        with torch.no_grad():
+            self.model.means.copy_(torch.from_numpy(points.astype(np.float32)))
+            # About two pixels wide where it was sampled: visible, but no initial blur.
+            size = np.log(np.maximum(2.0 * depth / focal, 1e-6)).astype(np.float32)
+            self.model.log_scales.copy_(torch.from_numpy(size)[:, None].expand(-1, 3))
+        self.mlp = DeformationMLP(cfg.model)
+        self.optimizer = torch.optim.Adam(self.model.param_groups(cfg.model), eps=1e-15)
+        self.mlp_optimizer = torch.optim.Adam(self.mlp.parameters(), lr=cfg.model.mlp_lr)
+        self.densifier = Densifier(cfg.densify, self.extent)
+        self.renderer = Renderer(
+            model=self.model,
+            mlp=None,
+            K=torch.from_numpy(data.K.astype(np.float32)),
+            width=data.width,
+            height=data.height,
+            t_start_us=data.t_start_us,
+            t_end_us=data.t_end_us,
+            background=cfg.background,
+        )
+        self.channel_map = None
+        if self.channels == 3:
+            cmap = bayer_channel_map(data.bayer, data.width, data.height)
+            self.channel_map = torch.from_numpy(cmap.astype(np.int64))
+        self.stats = TrainStats()
+        self.start_iteration = 0
+        self.bad_in_a_row = 0
+
+    # ---- one iteration -------------------------------------------------------------------
+
+    def _log_image(self, out: RenderOut) -> torch.Tensor:
+        """Log intensity each pixel's sensor sees: its own Bayer channel, or the one channel."""
+        img = out.image
+        own = bayer_select(img, self.channel_map) if self.channel_map is not None else img[..., 0]
+        return log_intensity(own)
+
+    def _esi(self, t0: int, t1: int) -> tuple[torch.Tensor, torch.Tensor, int]:
+        ev = self.data.events
+        i0, i1 = ev.window(t0, t1)
+        esi = ev.esi(i0, i1, self.data.c_pos, self.data.c_neg)
+        mask = ev.event_mask(i0, i1)
+        return torch.from_numpy(esi), torch.from_numpy(mask), i1 - i0
+
+    def _pose(self, t_us: float) -> np.ndarray:
+        return self.data.trajectory.pose(float(t_us))
+
+    def step(self, iteration: int) -> StepResult:
+        cfg, lc = self.cfg, self.cfg.loss
+        stage = stage_at(iteration, cfg.schedule)
+        rng = np.random.default_rng([cfg.seed, iteration])
+        duration = self.data.t_end_us - self.data.t_start_us
+        self.renderer.mlp = None if stage is Stage.WARMUP else self.mlp
+        moving = stage is not Stage.WARMUP
+
+        # Long window [t0, t1) of random length for L_e; the short flow window starts at t1.
+        dt = int(rng.uniform(lc.window_min, lc.window_max) * duration)
+        dtau = max(int(lc.flow_window * duration), 1) if moving else 0
+        t1 = int(rng.integers(self.data.t_start_us + dt, self.data.t_end_us - dtau + 1))
+        t0 = t1 - dt
+        esi, mask, count = self._esi(t0, t1)
+        if count == 0:
+            return StepResult({}, stage, skipped="no events in window")
+
+        pose0, pose1 = self._pose(t0), self._pose(t1)
+        g1 = self.renderer.gaussians_at(t1)
+        extra = None
+        if moving:
+            # Gaussian flow: 2-D motion of each Gaussian over [t1, t1 + dtau] at the pose of t1.
+            means_later = self.renderer.gaussians_at(t1 + dtau)[0]
+            extra = gaussian_flow_features(g1[0], means_later, viewmat(pose1), self.renderer.K)
+        out1 = self.renderer.render(t1, pose1, extra=extra, gaussians=g1)
+        out0 = self.renderer.render(t0, pose0)
+        log1, log0 = self._log_image(out1), self._log_image(out0)
+        delta = log1 - log0
+        losses: dict[str, torch.Tensor] = {"e": event_loss(delta, esi, mask, lc.lambda_ssim)}
+
+        if moving:
+            losses.update(self._motion_losses(t1, dtau, pose1, out1, log1, rng))
+        if stage is Stage.REFINE:
+            losses.update(self._refine_losses(t1, out1, delta, mask))
+
+        weights = {
+            "e": 1.0,
+            "ef": lc.w_flow,
+            "m": lc.w_motion,
+            "d": lc.w_depth,
+            "ne": lc.w_non_event,
+            "sp": lc.w_spatial,
+        }
+        total = sum(weights[k] * v for k, v in losses.items())
+        values = {k: float(v.detach()) for k, v in losses.items()}
+        values["total"] = float(total.detach())
+        bad = next((k for k, v in values.items() if not math.isfinite(v)), None)
+        if bad is None:
+            total.backward()
+            bad = self._first_nonfinite_grad()
+        if bad is not None:
+            self._zero_grads()
+            return StepResult(values, stage, skipped=f"non-finite {bad}")
+
+        self.densifier.accumulate(
+            out1.meta["means2d_grad"], out1.meta["radii"], self.data.width, self.data.height
+        )
+        self.optimizer.step()
+        if moving:
+            self.mlp_optimizer.step()
+        self._zero_grads()
+        self._schedule_learning_rates(iteration)
+        counts = self.densifier.step(self.model, self.optimizer, iteration)
+        if counts:
+            values.update({f"n_{k}": float(v) for k, v in counts.items()})
+        values["gaussians"] = float(self.model.means.shape[0])
+        return StepResult(values, stage)
+
+    def _motion_losses(self, t1, dtau, pose1, out1, log1, rng) -> dict[str, torch.Tensor]:
+        lc, data = self.cfg.loss, self.data
+        out: dict[str, torch.Tensor] = {}
+        # L_ef (eq. 13): linearised event model over [t1, t1 + dtau].
+        short, _, count = self._esi(t1, t1 + dtau)
+        if count > 0:
+            flow_cam = camera_flow(
+                out1.depth, self.renderer.K, viewmat(pose1), viewmat(self._pose(t1 + dtau))
+            )
+            flow = flow_cam + out1.extra
+            pred = linearized_brightness_change(log1, flow)
+            out["ef"] = event_flow_loss(short, pred)
+        # L_m (eq. 15): patches of m equal-count sub-windows around the moving centres.
+        ev = data.events
+        span = int(lc.motion_window * (data.t_end_us - data.t_start_us))
+        i0, i1 = ev.window(t1, min(t1 + span, data.t_end_us))
+        if i1 - i0 >= lc.patch_m:
+            gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
+            idx = select_visible(
+                out1.meta["means2d"], out1.meta["depths"], out1.depth.detach(),
+                lc.patch_n, lc.depth_tolerance, gen,
+            )
+            if idx.numel() > 0:
+                bounds = ev.split_equal_count(i0, i1, lc.patch_m)
+                frames, centres = [], []
+                for j in range(lc.patch_m):
+                    a, b = int(bounds[j]), int(bounds[j + 1])
+                    frames.append(torch.from_numpy(ev.esi(a, b, data.c_pos, data.c_neg)))
+                    t_mid = 0.5 * (int(ev.t[a]) + int(ev.t[max(b - 1, a)]))
+                    means = self.model.means[idx]
+                    dx = self.mlp(means, self.renderer.time(t_mid))[0]
+                    centres.append(
+                        project_points(means + dx, viewmat(self._pose(t_mid)), self.renderer.K)
+                    )
+                out["m"] = patch_motion_loss(
+                    torch.stack(frames), torch.stack(centres, dim=1), lc.patch_side
+                )
+        return out
+
+    def _refine_losses(self, t1, out1, delta, mask) -> dict[str, torch.Tensor]:
+        lc = self.cfg.loss
+        out = {
+            "ne": non_event_loss(delta, mask, min(self.data.c_pos, self.data.c_neg)),
+            "sp": spatial_gradient_loss(out1.image),
+        }
+        if self.depth_prior is not None:
+            prior = self.depth_prior.depth(t1, out1.image.detach())
+            if prior is not None:
+                valid = (prior > 0) & (out1.alpha.detach() > lc.depth_min_alpha)
+                if bool(valid.any()):
+                    out["d"] = silog(out1.depth, prior, valid)
+        return out
+
+    def _first_nonfinite_grad(self) -> str | None:
+        for name, p in [*self.model.named_parameters(), *self.mlp.named_parameters()]:
+            if p.grad is not None and not bool(torch.isfinite(p.grad).all()):
+                return f"gradient of {name}"
+        return None
+
+    def _zero_grads(self) -> None:
+        self.optimizer.zero_grad(set_to_none=True)
+        self.mlp_optimizer.zero_grad(set_to_none=True)
+
+    def _schedule_learning_rates(self, iteration: int) -> None:
+        """Exponential decay of the position and MLP learning rates (3DGS / Deformable-3DGS)."""
+        mc = self.cfg.model
+        frac = min(iteration / max(self.cfg.schedule.iterations, 1), 1.0)
+        for group in self.optimizer.param_groups:
+            if group.get("name") == "means":
+                start = mc.means_lr * self.extent
+                group["lr"] = start * (mc.means_lr_final / mc.means_lr) ** frac
+        for group in self.mlp_optimizer.param_groups:
+            group["lr"] = mc.mlp_lr * (mc.mlp_lr_final / mc.mlp_lr) ** frac
+
+    # ---- checkpoints ---------------------------------------------------------------------
+
+    def state(self, iteration: int) -> dict:
+        """Everything needed to resume at ``iteration`` or to render the result."""
+        data = self.data
+        return {
+            "config": self.cfg.to_dict(),
+            "gaussians": self.model.state_for_checkpoint(),
+            "mlp": self.mlp.state_dict() if iteration > self.cfg.schedule.warmup_end else None,
+            "mlp_full": self.mlp.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "mlp_optimizer": self.mlp_optimizer.state_dict(),
+            "densifier": self.densifier.state_dict(),
+            "camera": {
+                "K": data.K.tolist(),
+                "width": data.width,
+                "height": data.height,
+                "t_start_us": data.t_start_us,
+                "t_end_us": data.t_end_us,
+                "channels": self.channels,
+                "bayer": data.bayer,
+            },
+            "trajectory": {
+                "times_us": data.trajectory_samples[0],
+                "c2w": data.trajectory_samples[1],
+            },
+            "dataset": str(data.root),
+            "stats": {
+                "skipped_nonfinite": self.stats.skipped_nonfinite,
+                "skipped_empty": self.stats.skipped_empty,
+                "seconds": self.stats.seconds,
+            },
+            "history": self.stats.history,
+        }
+
+    def restore(self, state: dict, path: Path) -> None:
+        """Load a checkpoint of the same dataset and configuration shape."""
+        if state["camera"]["width"] != self.data.width or state["camera"]["height"] != self.data.height:
+            raise EvsplatError(
+                f"{path}: checkpoint is for a {state['camera']['width']}x"
+                f"{state['camera']['height']} sensor but the data is {self.data.width}x"
+                f"{self.data.height}; resume with the dataset it was trained on"
+            )
+        self.model = GaussianModel.from_checkpoint(state["gaussians"])
+        self.renderer.model = self.model
+        self.mlp.load_state_dict(state["mlp_full"])
+        self.optimizer = torch.optim.Adam(self.model.param_groups(self.cfg.model), eps=1e-15)
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.mlp_optimizer.load_state_dict(state["mlp_optimizer"])
+        self.densifier.load_state_dict(state["densifier"])
+        s = state["stats"]
+        self.stats.skipped_nonfinite = s["skipped_nonfinite"]
+        self.stats.skipped_empty = s["skipped_empty"]
+        self.stats.seconds = s["seconds"]
+        self.stats.history = list(state["history"])
+        self.start_iteration = int(state["iteration"])
+
+    def save(self, iteration: int) -> Path:
+        self.renderer.mlp = None if iteration <= self.cfg.schedule.warmup_end else self.mlp
+        path = save_checkpoint(
+            self.run_dir, iteration, self.state(iteration), keep=self.cfg.schedule.keep_checkpoints
+        )
+        lines = "".join(json.dumps(h) + "\n" for h in self.stats.history)
+        write_text_atomic(self.run_dir / "log.jsonl", lines)
+        return path
+
+    def resume(self) -> bool:
+        """Continue from the newest complete checkpoint of the run folder, if there is one."""
+        latest = latest_checkpoint(self.run_dir)
+        if latest is None:
+            return False
+        self.restore(load_checkpoint(latest), latest)
+        return True
+
+    # ---- the loop ------------------------------------------------------------------------
+
+    def run(self, progress: bool = True) -> TrainStats:
+        """Train from ``start_iteration`` to the end of the schedule, checkpointing on the way."""
+        from tqdm import tqdm
+
+        sc = self.cfg.schedule
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(self.run_dir / "config.json", json.dumps(self.cfg.to_dict(), indent=2))
+        bar = tqdm(
+            range(self.start_iteration, sc.iterations),
+            initial=self.start_iteration,
+            total=sc.iterations,
+            disable=not progress,
+            unit="it",
+            dynamic_ncols=True,
+        )
+        last = self.start_iteration
+        for it in bar:
+            t = time.perf_counter()
+            result = self.step(it)
+            self.stats.seconds += time.perf_counter() - t
+            last = it + 1
+            self._account(it, result)
+            if it % sc.log_every == 0 or last == sc.iterations:
+                entry = {"iteration": it, "stage": result.stage.value, **result.losses}
+                self.stats.history.append(entry)
+                shown = {k: f"{v:.3g}" for k, v in result.losses.items() if not k.startswith("n_")}
+                bar.set_postfix({"stage": result.stage.value, **shown}, refresh=False)
+            if last % sc.checkpoint_every == 0 and last < sc.iterations:
+                self.save(last)
+        self.save(last)
+        self.stats.iterations = last
+        return self.stats
+
+    def _account(self, iteration: int, result: StepResult) -> None:
+        if result.skipped is None:
+            self.bad_in_a_row = 0
+            return
+        if result.skipped.startswith("non-finite"):
+            self.stats.skipped_nonfinite += 1
+            self.bad_in_a_row += 1
+            if self.bad_in_a_row >= MAX_BAD_STEPS:
+                raise EvsplatError(
+                    f"training stopped at iteration {iteration}: {result.skipped} in "
+                    f"{self.bad_in_a_row} steps in a row; the last good checkpoint is kept in "
+                    f"{self.run_dir / 'checkpoints'}; lower the learning rates or check the data"
+                )
+        else:
+            self.stats.skipped_empty += 1
