@@ -57,9 +57,9 @@ def run(args: argparse.Namespace) -> int:
         title=f"{args.scene} (tiny): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}",
     )
     plot_losses(state["history"], args.out / "losses.png")
+    lpips = "missing" if m["lpips"] is None else f"{m['lpips']:.3f}"
     print(
-        f"PSNR {m['psnr']:.2f} dB  SSIM {m['ssim']:.3f}  "
-        f"LPIPS {'missing' if m['lpips'] is None else f'{m['lpips']:.3f}'}  "
+        f"PSNR {m['psnr']:.2f} dB  SSIM {m['ssim']:.3f}  LPIPS {lpips}  "
         f"({time.perf_counter() - start:.0f} s in all)"
     )
     print(f"side-by-side picture: {args.out / 'side_by_side.png'}")

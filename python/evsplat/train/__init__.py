@@ -40,7 +40,8 @@ def train(
     latest = latest_checkpoint(out)
     if latest is not None and not resume:
         raise EvsplatError(
-            f"{out}: already holds a trained run; pass --resume to continue it or choose a new --out"
+            f"{out}: already holds a trained run; pass --resume to continue it "
+            "or choose a new --out"
         )
     if latest is not None:
         cfg = TrainConfig.from_dict(load_checkpoint(latest)["config"])

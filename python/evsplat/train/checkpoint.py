@@ -53,14 +53,18 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     try:
         state = torch.load(path, map_location="cpu", weights_only=False)
     except FileNotFoundError:
-        raise EvsplatError(f"{path}: checkpoint not found; train first or pass a run folder") from None
+        raise EvsplatError(
+            f"{path}: checkpoint not found; train first or pass a run folder"
+        ) from None
     except Exception as e:  # torch raises many types for damaged zip/pickle data
         raise EvsplatError(
             f"{path}: not a readable checkpoint ({type(e).__name__}); delete it and resume from an "
             "earlier one or retrain"
         ) from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:
-        raise EvsplatError(f"{path}: not an evsplat checkpoint; pass a run folder made by `evsplat train`")
+        raise EvsplatError(
+            f"{path}: not an evsplat checkpoint; pass a run folder made by `evsplat train`"
+        )
     if state.get("version") != VERSION:
         raise EvsplatError(
             f"{path}: checkpoint format version {state.get('version')} but this evsplat reads "
@@ -81,7 +85,9 @@ def load_run(run_dir: Path) -> dict[str, Any]:
     if run_dir.is_file():
         return load_checkpoint(run_dir)
     if not run_dir.is_dir():
-        raise EvsplatError(f"{run_dir}: no such run folder; pass the --out folder of `evsplat train`")
+        raise EvsplatError(
+            f"{run_dir}: no such run folder; pass the --out folder of `evsplat train`"
+        )
     latest = latest_checkpoint(run_dir)
     if latest is None:
         raise EvsplatError(f"{run_dir}: no checkpoint in this run folder; train it first")

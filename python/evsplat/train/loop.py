@@ -34,7 +34,7 @@ from evsplat.losses.reg import non_event_loss, spatial_gradient_loss
 from evsplat.model.deform import DeformationMLP
 from evsplat.model.densify import Densifier
 from evsplat.model.gaussians import GaussianModel
-from evsplat.render import RenderOut, Renderer
+from evsplat.render import Renderer, RenderOut
 from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from evsplat.train.config import TrainConfig
 from evsplat.train.depth_prior import DepthPrior
@@ -243,8 +243,12 @@ class Trainer:
         if i1 - i0 >= lc.patch_m:
             gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
             idx = select_visible(
-                out1.meta["means2d"], out1.meta["depths"], out1.depth.detach(),
-                lc.patch_n, lc.depth_tolerance, gen,
+                out1.meta["means2d"],
+                out1.meta["depths"],
+                out1.depth.detach(),
+                lc.patch_n,
+                lc.depth_tolerance,
+                gen,
             )
             if idx.numel() > 0:
                 bounds = ev.split_equal_count(i0, i1, lc.patch_m)
@@ -335,7 +339,8 @@ class Trainer:
 
     def restore(self, state: dict, path: Path) -> None:
         """Load a checkpoint of the same dataset and configuration shape."""
-        if state["camera"]["width"] != self.data.width or state["camera"]["height"] != self.data.height:
+        cam = state["camera"]
+        if (cam["width"], cam["height"]) != (self.data.width, self.data.height):
             raise EvsplatError(
                 f"{path}: checkpoint is for a {state['camera']['width']}x"
                 f"{state['camera']['height']} sensor but the data is {self.data.width}x"
