@@ -6,14 +6,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from evsplat.data.dataset import load_dataset
 from evsplat.errors import EvsplatError
-from evsplat.train.config import TrainConfig, preset
-from evsplat.train.depth_prior import make_depth_prior
-from evsplat.train.loop import Trainer, TrainStats
 
-__all__ = ["train", "TrainConfig", "Trainer", "TrainStats", "preset"]
+if TYPE_CHECKING:
+    from evsplat.train.config import TrainConfig
+    from evsplat.train.loop import TrainStats
+
+__all__ = ["train"]
 
 
 def train(
@@ -33,7 +34,12 @@ def train(
     configuration wins); without it, an ``out_dir`` that already holds checkpoints is an error so
     a finished run is never overwritten by accident.
     """
+    # Imported here so `evsplat.train.checkpoint` & co. load without the data/model stack.
+    from evsplat.data.dataset import load_dataset
     from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint
+    from evsplat.train.config import TrainConfig, preset
+    from evsplat.train.depth_prior import make_depth_prior
+    from evsplat.train.loop import Trainer
 
     out = Path(out_dir)
     data = load_dataset(data_dir)
