@@ -160,6 +160,9 @@ class Trainer:
         cfg, lc = self.cfg, self.cfg.loss
         stage = stage_at(iteration, cfg.schedule)
         rng = np.random.default_rng([cfg.seed, iteration])
+        # torch's own randomness (densification splits) is re-seeded per iteration too, so a
+        # resumed run makes exactly the choices an uninterrupted one makes.
+        torch.manual_seed(int(rng.integers(2**62)))
         duration = self.data.t_end_us - self.data.t_start_us
         self.renderer.mlp = None if stage is Stage.WARMUP else self.mlp
         moving = stage is not Stage.WARMUP
