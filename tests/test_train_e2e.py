@@ -133,9 +133,8 @@ def test_sigkill_mid_training_then_resume_matches_an_uninterrupted_run(tiny_data
 
     killed = tmp_path / "killed"
     cmd = [sys.executable, "-m", "evsplat.cli", "train", str(tiny_data), "--out", str(killed)]
-    cmd += ["--preset", "tiny", "--iters", str(iters), "--no-progress"]
-    env = {**os.environ, "EVSPLAT_CHECKPOINT_EVERY": "10"}
-    proc = subprocess.Popen(cmd, env=env)
+    cmd += ["--preset", "tiny", "--iters", str(iters), "--checkpoint-every", "10", "--no-progress"]
+    proc = subprocess.Popen(cmd)
     deadline = time.time() + 300
     while time.time() < deadline and not list_checkpoints(killed):
         time.sleep(0.2)

@@ -17,6 +17,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--iters", type=int, default=None, help="override the iteration count")
     parser.add_argument("--resume", action="store_true", help="continue the newest checkpoint")
     parser.add_argument(
+        "--checkpoint-every", type=int, default=None, help="iterations between checkpoints"
+    )
+    parser.add_argument(
         "--depth-prior",
         default="auto",
         help="none | auto | oracle | vggt | FOLDER of <time_us>.npy/.exr depth maps",
@@ -32,6 +35,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = preset(args.preset)
     if args.seed is not None:
         cfg.seed = args.seed
+    if args.checkpoint_every is not None:
+        cfg.schedule.checkpoint_every = max(1, args.checkpoint_every)
     stats = train(
         args.data,
         args.out,
