@@ -409,7 +409,8 @@ class Trainer:
                 self.stats.history.append(entry)
                 shown = {k: f"{v:.3g}" for k, v in result.losses.items() if not k.startswith("n_")}
                 bar.set_postfix({"stage": result.stage.value, **shown}, refresh=False)
-            if last % sc.checkpoint_every == 0 and last < sc.iterations:
+            # No checkpoint during a streak of skipped steps: the last one stays the last good one.
+            if last % sc.checkpoint_every == 0 and last < sc.iterations and not self.bad_in_a_row:
                 self.save(last)
         self.save(last)
         self.stats.iterations = last
