@@ -3,11 +3,13 @@
 
 use pyo3::prelude::*;
 
+mod events;
 mod gpu;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     gpu::register(m)?;
+    events::register(m)?;
     Ok(())
 }
