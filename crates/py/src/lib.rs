@@ -4,6 +4,7 @@
 use pyo3::prelude::*;
 
 mod camera;
+mod events;
 mod gpu;
 mod io;
 mod sim;
@@ -12,6 +13,7 @@ mod sim;
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     gpu::register(m)?;
+    events::register(m)?;
     camera::register(m)?;
     sim::register(m)?;
     io::register(m)?;
