@@ -3,11 +3,19 @@
 
 use pyo3::prelude::*;
 
+mod camera;
+mod events;
 mod gpu;
+mod io;
+mod sim;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     gpu::register(m)?;
+    events::register(m)?;
+    camera::register(m)?;
+    sim::register(m)?;
+    io::register(m)?;
     Ok(())
 }

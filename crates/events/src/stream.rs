@@ -1,0 +1,381 @@
+//! Validation at the boundary (lengths, sorted time, sensor bounds, polarity), safe casts from
+//! other dtypes, and index windows (by time, by count, equal-count splits).
+
+use std::borrow::Cow;
+
+use rayon::prelude::*;
+
+use crate::error::EventError;
+
+/// Sensor size in pixels. Coordinates are u16, so each side is at most 65536.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sensor {
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Sensor {
+    pub fn new(width: u64, height: u64) -> Result<Self, EventError> {
+        let ok = |v: u64| (1..=65536).contains(&v);
+        if !ok(width) || !ok(height) {
+            return Err(EventError::BadSensor { width, height });
+        }
+        Ok(Self {
+            width: width as u32,
+            height: height as u32,
+        })
+    }
+
+    pub fn pixels(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+}
+
+/// Events whose coordinates are known to lie inside `sensor`: the hot loops index without
+/// bounds checks. Built only through [`EventSlice::new`], which checks that promise.
+#[derive(Clone, Copy, Debug)]
+pub struct EventSlice<'a> {
+    x: &'a [u16],
+    y: &'a [u16],
+    p: &'a [i8],
+    sensor: Sensor,
+}
+
+impl<'a> EventSlice<'a> {
+    /// Checks equal lengths and in-sensor coordinates (a vectorised max, cheap next to the
+    /// accumulation that follows). Polarity is read as `p < 0` → negative, so any i8 is safe.
+    pub fn new(
+        x: &'a [u16],
+        y: &'a [u16],
+        p: &'a [i8],
+        sensor: Sensor,
+    ) -> Result<Self, EventError> {
+        if x.len() != y.len() || x.len() != p.len() {
+            return Err(EventError::LengthMismatch {
+                x: x.len(),
+                y: y.len(),
+                t: x.len(),
+                p: p.len(),
+            });
+        }
+        check_below(x, "x", "width", sensor.width)?;
+        check_below(y, "y", "height", sensor.height)?;
+        Ok(Self { x, y, p, sensor })
+    }
+
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    pub fn sensor(&self) -> Sensor {
+        self.sensor
+    }
+
+    /// Sub-range `[start, stop)`, still validated.
+    pub fn range(&self, start: usize, stop: usize) -> Self {
+        Self {
+            x: &self.x[start..stop],
+            y: &self.y[start..stop],
+            p: &self.p[start..stop],
+            sensor: self.sensor,
+        }
+    }
+
+    pub(crate) fn parts(&self) -> (&'a [u16], &'a [u16], &'a [i8]) {
+        (self.x, self.y, self.p)
+    }
+}
+
+fn check_below(
+    v: &[u16],
+    axis: &'static str,
+    dim: &'static str,
+    limit: u32,
+) -> Result<(), EventError> {
+    // Max over fixed chunks vectorises; only a failing stream pays for finding the index.
+    let max = v
+        .par_chunks(1 << 16)
+        .map(|c| c.iter().copied().max().unwrap_or(0))
+        .max()
+        .unwrap_or(0);
+    if u32::from(max) < limit {
+        return Ok(());
+    }
+    let index = v
+        .par_iter()
+        .position_first(|&a| u32::from(a) >= limit)
+        .unwrap_or(0);
+    Err(EventError::OutsideSensor {
+        axis,
+        dim,
+        index,
+        value: i64::from(v[index]),
+        limit,
+    })
+}
+
+/// Full validation of a stream in canonical dtypes: lengths, sensor bounds, sorted time and
+/// polarity values (±1 or 0/1). Returns the polarity mapped to ±1 when it used 0/1.
+pub fn validate<'a>(
+    x: &[u16],
+    y: &[u16],
+    t: &[i64],
+    p: &'a [i8],
+    sensor: Sensor,
+) -> Result<Cow<'a, [i8]>, EventError> {
+    if x.len() != y.len() || x.len() != t.len() || x.len() != p.len() {
+        return Err(EventError::LengthMismatch {
+            x: x.len(),
+            y: y.len(),
+            t: t.len(),
+            p: p.len(),
+        });
+    }
+    check_below(x, "x", "width", sensor.width)?;
+    check_below(y, "y", "height", sensor.height)?;
+    check_sorted(t)?;
+    polarity_to_pm1(p)
+}
+
+/// First index where time decreases, as an error.
+pub fn check_sorted(t: &[i64]) -> Result<(), EventError> {
+    match t.par_windows(2).position_first(|w| w[1] < w[0]) {
+        None => Ok(()),
+        Some(i) => Err(EventError::NotSorted {
+            index: i + 1,
+            t: t[i + 1],
+            prev: t[i],
+        }),
+    }
+}
+
+/// Maps polarities to ±1: {-1,+1} stays (borrowed), {0,1} becomes {-1,+1}; anything else,
+/// or a mix of 0 and -1, is an error at its first index.
+pub fn polarity_to_pm1<T: Copy + Into<i64> + Sync + 'static>(
+    p: &[T],
+) -> Result<Cow<'_, [i8]>, EventError> {
+    let bad = p
+        .par_iter()
+        .position_first(|&v| !matches!(v.into(), -1..=1));
+    if let Some(index) = bad {
+        return Err(EventError::Polarity {
+            index,
+            value: p[index].into(),
+        });
+    }
+    let first_zero = p.par_iter().position_first(|&v| v.into() == 0);
+    let first_neg = p.par_iter().position_first(|&v| v.into() == -1);
+    match (first_zero, first_neg) {
+        (Some(z), Some(n)) => Err(EventError::MixedPolarity { index: z.max(n) }),
+        (Some(_), None) => Ok(Cow::Owned(
+            p.par_iter()
+                .map(|&v| if v.into() == 0 { -1 } else { 1 })
+                .collect(),
+        )),
+        (None, _) => Ok(match as_i8(p) {
+            Some(s) => Cow::Borrowed(s),
+            None => Cow::Owned(p.par_iter().map(|&v| v.into() as i8).collect()),
+        }),
+    }
+}
+
+/// The same slice as `&[i8]` when `T` is i8 (no copy), else None.
+fn as_i8<T: 'static>(p: &[T]) -> Option<&[i8]> {
+    (std::any::TypeId::of::<T>() == std::any::TypeId::of::<i8>())
+        // SAFETY: T is i8, so the layout is identical.
+        .then(|| unsafe { std::slice::from_raw_parts(p.as_ptr().cast::<i8>(), p.len()) })
+}
+
+/// Casts float values to i64, refusing NaN/inf, fractions and values beyond i64.
+pub fn float_to_i64(v: &[f64], name: &'static str) -> Result<Vec<i64>, EventError> {
+    let bad = v.par_iter().position_first(|&a| {
+        !a.is_finite() || a.fract() != 0.0 || !(-9.2e18..=9.2e18).contains(&a)
+    });
+    if let Some(index) = bad {
+        let value = v[index];
+        return Err(if !value.is_finite() {
+            EventError::NotFinite { name, index, value }
+        } else if value.fract() != 0.0 {
+            EventError::NotInteger { name, index, value }
+        } else {
+            EventError::OutOfRange { name, index, value }
+        });
+    }
+    Ok(v.par_iter().map(|&a| a as i64).collect())
+}
+
+/// Casts i64 coordinates to u16, checking `0 <= v < limit`.
+pub fn coords_to_u16(
+    v: &[i64],
+    axis: &'static str,
+    dim: &'static str,
+    limit: u32,
+) -> Result<Vec<u16>, EventError> {
+    if let Some(index) = v
+        .par_iter()
+        .position_first(|&a| a < 0 || a >= i64::from(limit))
+    {
+        let value = v[index];
+        return Err(if value < 0 {
+            EventError::Negative { axis, index, value }
+        } else {
+            EventError::OutsideSensor {
+                axis,
+                dim,
+                index,
+                value,
+                limit,
+            }
+        });
+    }
+    Ok(v.par_iter().map(|&a| a as u16).collect())
+}
+
+/// Checks `0 <= start <= stop <= len`.
+pub fn check_range(start: i64, stop: i64, len: usize) -> Result<(usize, usize), EventError> {
+    if start < 0 || stop < start || stop as u64 > len as u64 {
+        return Err(EventError::BadRange { start, stop, len });
+    }
+    Ok((start as usize, stop as usize))
+}
+
+/// Index range `[i0, i1)` of the events with `t0 <= t < t1` (binary search on sorted `t`).
+/// An inverted window (`t1 < t0`) is empty.
+pub fn window_by_time(t: &[i64], t0: i64, t1: i64) -> (usize, usize) {
+    let i0 = t.partition_point(|&v| v < t0);
+    let i1 = t.partition_point(|&v| v < t1).max(i0);
+    (i0, i1)
+}
+
+/// Index range of `count` events from `start`, clipped to the stream.
+pub fn window_by_count(len: usize, start: i64, count: i64) -> Result<(usize, usize), EventError> {
+    if count < 0 {
+        return Err(EventError::NotPositive {
+            name: "count",
+            value: count,
+        });
+    }
+    let s = start.clamp(0, len as i64) as usize;
+    let e = (s as u64).saturating_add(count as u64).min(len as u64) as usize;
+    Ok((s, e))
+}
+
+/// `m + 1` boundaries splitting `[i0, i1)` into `m` sub-windows whose event counts differ by
+/// at most one (`b_k = i0 + floor(k * n / m)`).
+pub fn split_equal_count(i0: usize, i1: usize, m: usize) -> Result<Vec<i64>, EventError> {
+    if m == 0 {
+        return Err(EventError::NotPositive {
+            name: "m",
+            value: 0,
+        });
+    }
+    let n = (i1 - i0) as u128;
+    Ok((0..=m)
+        .map(|k| (i0 as u128 + k as u128 * n / m as u128) as i64)
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sensor() -> Sensor {
+        Sensor::new(4, 3).unwrap()
+    }
+
+    #[test]
+    fn validate_reports_first_unsorted_index() {
+        let e = validate(&[0, 1, 2], &[0, 0, 0], &[5, 7, 6], &[1, 1, 1], sensor()).unwrap_err();
+        assert_eq!(
+            e,
+            EventError::NotSorted {
+                index: 2,
+                t: 6,
+                prev: 7
+            }
+        );
+        assert!(e.to_string().contains("index 2 (t=6 < 7)"));
+    }
+
+    #[test]
+    fn validate_reports_coordinates_outside_sensor() {
+        let e = validate(&[0, 4], &[0, 0], &[0, 1], &[1, 1], sensor()).unwrap_err();
+        assert!(matches!(
+            e,
+            EventError::OutsideSensor {
+                axis: "x",
+                index: 1,
+                value: 4,
+                ..
+            }
+        ));
+        let e = validate(&[0, 0], &[3, 0], &[0, 1], &[1, 1], sensor()).unwrap_err();
+        assert!(matches!(
+            e,
+            EventError::OutsideSensor {
+                axis: "y",
+                index: 0,
+                ..
+            }
+        ));
+    }
+
+    #[test]
+    fn polarity_zero_one_maps_to_minus_plus_one() {
+        assert_eq!(
+            polarity_to_pm1(&[0i8, 1, 0]).unwrap().as_ref(),
+            &[-1, 1, -1]
+        );
+        assert!(matches!(
+            polarity_to_pm1(&[1i8, -1]).unwrap(),
+            Cow::Borrowed(_)
+        ));
+        assert_eq!(
+            polarity_to_pm1(&[1i64, 3]).unwrap_err(),
+            EventError::Polarity { index: 1, value: 3 }
+        );
+        assert_eq!(
+            polarity_to_pm1(&[0i8, -1]).unwrap_err(),
+            EventError::MixedPolarity { index: 1 }
+        );
+    }
+
+    #[test]
+    fn float_casts_refuse_nan_and_fractions() {
+        assert_eq!(float_to_i64(&[1.0, 2.0], "x").unwrap(), vec![1, 2]);
+        assert!(matches!(
+            float_to_i64(&[1.0, f64::NAN], "x"),
+            Err(EventError::NotFinite { index: 1, .. })
+        ));
+        assert!(matches!(
+            float_to_i64(&[1.5], "x"),
+            Err(EventError::NotInteger { index: 0, .. })
+        ));
+        assert!(matches!(
+            coords_to_u16(&[0, -1], "y", "height", 3),
+            Err(EventError::Negative { index: 1, .. })
+        ));
+    }
+
+    #[test]
+    fn windows_by_time_are_half_open() {
+        let t = [1, 2, 2, 5, 9];
+        assert_eq!(window_by_time(&t, 2, 5), (1, 3));
+        assert_eq!(window_by_time(&t, 0, 100), (0, 5));
+        assert_eq!(window_by_time(&t, 6, 3), (4, 4));
+        assert_eq!(window_by_count(5, 3, 10).unwrap(), (3, 5));
+    }
+
+    #[test]
+    fn equal_count_split_differs_by_at_most_one() {
+        let b = split_equal_count(3, 13, 3).unwrap();
+        assert_eq!(b, vec![3, 6, 9, 13]);
+        let sizes: Vec<i64> = b.windows(2).map(|w| w[1] - w[0]).collect();
+        assert!(sizes.iter().max().unwrap() - sizes.iter().min().unwrap() <= 1);
+        assert_eq!(split_equal_count(0, 0, 2).unwrap(), vec![0, 0, 0]);
+    }
+}

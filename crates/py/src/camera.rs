@@ -1,0 +1,113 @@
+//! The SE(3) B-spline trajectory: numpy poses in, numpy poses and velocities out.
+
+use glam::{DMat4, DVec4};
+use numpy::{PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray3};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use evsplat_camera::{Se3, SplineError, SplineSe3};
+
+fn spline_err(e: SplineError) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+/// Cumulative cubic B-spline on SE(3). Times are float64 µs relative to an origin the caller
+/// keeps (so absolute int64 timestamps never lose precision in a float).
+#[pyclass(frozen, module = "evsplat._core")]
+struct SplineTrajectory {
+    inner: SplineSe3,
+}
+
+#[pymethods]
+impl SplineTrajectory {
+    /// Fit to `c2w` [N,4,4] at strictly increasing `times` [N]; `knot_interval` in µs or None.
+    #[new]
+    #[pyo3(signature = (times, c2w, knot_interval=None))]
+    fn new(
+        py: Python<'_>,
+        times: PyReadonlyArray1<'_, f64>,
+        c2w: PyReadonlyArray3<'_, f64>,
+        knot_interval: Option<f64>,
+    ) -> PyResult<Self> {
+        let times = times.as_slice()?.to_vec();
+        let m = c2w.as_array();
+        if m.shape()[1..] != [4, 4] {
+            return Err(PyValueError::new_err(format!(
+                "poses must be [N,4,4], got {:?}",
+                m.shape()
+            )));
+        }
+        let poses: Vec<Se3> = m
+            .outer_iter()
+            .map(|p| {
+                let col = |c: usize| DVec4::new(p[[0, c]], p[[1, c]], p[[2, c]], p[[3, c]]);
+                Se3::from_mat4(&DMat4::from_cols(col(0), col(1), col(2), col(3)))
+            })
+            .collect();
+        let inner = py
+            .detach(|| SplineSe3::fit(&times, &poses, knot_interval))
+            .map_err(spline_err)?;
+        Ok(SplineTrajectory { inner })
+    }
+
+    #[getter]
+    fn t_min(&self) -> f64 {
+        self.inner.t_min()
+    }
+
+    #[getter]
+    fn t_max(&self) -> f64 {
+        self.inner.t_max()
+    }
+
+    #[getter]
+    fn knot_interval(&self) -> f64 {
+        self.inner.knot_interval()
+    }
+
+    /// Camera-to-world poses [N,4,4] at `times` [N].
+    fn pose<'py>(
+        &self,
+        py: Python<'py>,
+        times: PyReadonlyArray1<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray3<f64>>> {
+        let t = times.as_slice()?;
+        let mats = py.detach(|| self.inner.poses(t)).map_err(spline_err)?;
+        let rows: Vec<Vec<Vec<f64>>> = mats
+            .iter()
+            .map(|m| {
+                (0..4)
+                    .map(|r| (0..4).map(|c| m.col(c)[r]).collect())
+                    .collect()
+            })
+            .collect();
+        if rows.is_empty() {
+            return Ok(PyArray3::zeros(py, [0, 4, 4], false));
+        }
+        Ok(PyArray3::from_vec3(py, &rows)?)
+    }
+
+    /// Body-frame (angular rad/s [N,3], linear m/s [N,3]) velocities at `times` [N].
+    fn velocity<'py>(
+        &self,
+        py: Python<'py>,
+        times: PyReadonlyArray1<'py, f64>,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
+        let t = times.as_slice()?;
+        let vel = py.detach(|| self.inner.velocities(t)).map_err(spline_err)?;
+        let w: Vec<Vec<f64>> = vel.iter().map(|(w, _)| w.to_array().to_vec()).collect();
+        let v: Vec<Vec<f64>> = vel.iter().map(|(_, v)| v.to_array().to_vec()).collect();
+        if vel.is_empty() {
+            return Ok((
+                PyArray2::zeros(py, [0, 3], false),
+                PyArray2::zeros(py, [0, 3], false),
+            ));
+        }
+        Ok((PyArray2::from_vec2(py, &w)?, PyArray2::from_vec2(py, &v)?))
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<SplineTrajectory>()?;
+    Ok(())
+}

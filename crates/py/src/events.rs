@@ -1,0 +1,358 @@
+//! The event core (`evsplat_events`) for numpy: arrays in as borrowed slices, results out as
+//! new arrays, the GIL released while Rust works. Errors become ValueError; the Python layer
+//! adds the file or argument name.
+
+use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use evsplat_events as ev;
+use evsplat_events::{Contrast, EventError, EventSlice, Sensor, Threshold};
+
+fn err(e: EventError) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+/// A contrast threshold from Python: a float, or a contiguous float32 array with one value per
+/// pixel (flattened row-major).
+#[derive(FromPyObject)]
+enum ThresholdArg<'py> {
+    Scalar(f32),
+    Map(PyReadonlyArray1<'py, f32>),
+}
+
+impl ThresholdArg<'_> {
+    fn get(&self) -> PyResult<Threshold<'_>> {
+        Ok(match self {
+            ThresholdArg::Scalar(v) => Threshold::Scalar(*v),
+            ThresholdArg::Map(a) => Threshold::Map(a.as_slice()?),
+        })
+    }
+}
+
+/// The validated events `[i0, i1)` of a stream.
+fn events<'a>(
+    x: &'a [u16],
+    y: &'a [u16],
+    p: &'a [i8],
+    sensor: Sensor,
+    i0: i64,
+    i1: i64,
+) -> Result<EventSlice<'a>, EventError> {
+    let (a, b) = ev::check_range(i0, i1, x.len())?;
+    EventSlice::new(x, y, p, sensor)?;
+    EventSlice::new(&x[a..b], &y[a..b], &p[a..b], sensor)
+}
+
+fn sensor(width: u64, height: u64) -> PyResult<Sensor> {
+    Sensor::new(width, height).map_err(err)
+}
+
+/// Validates a stream in canonical dtypes. Returns the polarity mapped to ±1 when the input
+/// used 0/1, else None (the input is already canonical).
+#[pyfunction]
+fn validate_events<'py>(
+    py: Python<'py>,
+    x: PyReadonlyArray1<'py, u16>,
+    y: PyReadonlyArray1<'py, u16>,
+    t: PyReadonlyArray1<'py, i64>,
+    p: PyReadonlyArray1<'py, i8>,
+    width: u64,
+    height: u64,
+) -> PyResult<Option<Bound<'py, PyArray1<i8>>>> {
+    let s = sensor(width, height)?;
+    let (x, y, t, p) = (x.as_slice()?, y.as_slice()?, t.as_slice()?, p.as_slice()?);
+    let mapped = py.detach(|| {
+        ev::validate(x, y, t, p, s).map(|c| match c {
+            std::borrow::Cow::Owned(v) => Some(v),
+            std::borrow::Cow::Borrowed(_) => None,
+        })
+    });
+    Ok(mapped.map_err(err)?.map(|v| PyArray1::from_vec(py, v)))
+}
+
+/// Polarities given as integers of any width, mapped to ±1 (i8).
+#[pyfunction]
+fn polarity_from_int64<'py>(
+    py: Python<'py>,
+    p: PyReadonlyArray1<'py, i64>,
+) -> PyResult<Bound<'py, PyArray1<i8>>> {
+    let p = p.as_slice()?;
+    let out = py
+        .detach(|| ev::polarity_to_pm1(p).map(|c| c.into_owned()))
+        .map_err(err)?;
+    Ok(PyArray1::from_vec(py, out))
+}
+
+/// Whole-numbered floats to int64; NaN, infinities, fractions and overflow are errors.
+#[pyfunction]
+fn float_to_int64<'py>(
+    py: Python<'py>,
+    values: PyReadonlyArray1<'py, f64>,
+    name: &str,
+) -> PyResult<Bound<'py, PyArray1<i64>>> {
+    let name = static_name(name);
+    let v = values.as_slice()?;
+    let out = py.detach(|| ev::float_to_i64(v, name)).map_err(err)?;
+    Ok(PyArray1::from_vec(py, out))
+}
+
+/// int64 coordinates to uint16, checking `0 <= v < limit` (limit = width for x, height for y).
+#[pyfunction]
+fn coords_to_uint16<'py>(
+    py: Python<'py>,
+    values: PyReadonlyArray1<'py, i64>,
+    axis: &str,
+    limit: u32,
+) -> PyResult<Bound<'py, PyArray1<u16>>> {
+    let (axis, dim) = if axis == "x" {
+        ("x", "width")
+    } else {
+        ("y", "height")
+    };
+    let v = values.as_slice()?;
+    let out = py
+        .detach(|| ev::coords_to_u16(v, axis, dim, limit))
+        .map_err(err)?;
+    Ok(PyArray1::from_vec(py, out))
+}
+
+/// Error messages name the array; these are the names the Python layer uses.
+fn static_name(name: &str) -> &'static str {
+    match name {
+        "x" => "x",
+        "y" => "y",
+        "t" => "t",
+        "p" => "p",
+        _ => "value",
+    }
+}
+
+/// Index range of the events with `t0 <= t < t1`.
+#[pyfunction]
+fn window_by_time(
+    py: Python<'_>,
+    t: PyReadonlyArray1<'_, i64>,
+    t0: i64,
+    t1: i64,
+) -> PyResult<(usize, usize)> {
+    let t = t.as_slice()?;
+    Ok(py.detach(|| ev::window_by_time(t, t0, t1)))
+}
+
+/// Index range of `count` events from `start`, clipped to a stream of `len` events.
+#[pyfunction]
+fn window_by_count(len: usize, start: i64, count: i64) -> PyResult<(usize, usize)> {
+    ev::window_by_count(len, start, count).map_err(err)
+}
+
+/// `m + 1` boundaries splitting `[i0, i1)` of a stream of `len` events into equal counts.
+#[pyfunction]
+fn split_equal_count<'py>(
+    py: Python<'py>,
+    len: usize,
+    i0: i64,
+    i1: i64,
+    m: usize,
+) -> PyResult<Bound<'py, PyArray1<i64>>> {
+    let (a, b) = ev::check_range(i0, i1, len).map_err(err)?;
+    Ok(PyArray1::from_vec(
+        py,
+        ev::split_equal_count(a, b, m).map_err(err)?,
+    ))
+}
+
+/// ESI, event count and event mask of `[i0, i1)` from one counting pass; `want` selects which
+/// ("esi", "count", "mask"), so unused outputs cost nothing.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (x, y, p, width, height, i0, i1, c_pos, c_neg, want))]
+fn accumulate<'py>(
+    py: Python<'py>,
+    x: PyReadonlyArray1<'py, u16>,
+    y: PyReadonlyArray1<'py, u16>,
+    p: PyReadonlyArray1<'py, i8>,
+    width: u64,
+    height: u64,
+    i0: i64,
+    i1: i64,
+    c_pos: ThresholdArg<'py>,
+    c_neg: ThresholdArg<'py>,
+    want: Vec<String>,
+) -> PyResult<Vec<Bound<'py, PyAny>>> {
+    let s = sensor(width, height)?;
+    let (x, y, p) = (x.as_slice()?, y.as_slice()?, p.as_slice()?);
+    let c = Contrast {
+        pos: c_pos.get()?,
+        neg: c_neg.get()?,
+    };
+    let counts = py
+        .detach(|| {
+            c.check(s)?;
+            ev::polarity_counts(&events(x, y, p, s, i0, i1)?)
+        })
+        .map_err(err)?;
+    let shape = [s.height as usize, s.width as usize];
+    want.iter()
+        .map(|w| {
+            Ok(match w.as_str() {
+                "esi" => PyArray1::from_vec(py, py.detach(|| counts.esi(&c)))
+                    .reshape(shape)?
+                    .into_any(),
+                "count" => PyArray1::from_vec(py, py.detach(|| counts.total()))
+                    .reshape(shape)?
+                    .into_any(),
+                "mask" => PyArray1::from_vec(py, py.detach(|| counts.mask()))
+                    .reshape(shape)?
+                    .into_any(),
+                other => {
+                    return Err(PyValueError::new_err(format!(
+                        "unknown output '{other}'; use esi, count or mask"
+                    )))
+                }
+            })
+        })
+        .collect()
+}
+
+/// ESI of `[i0, i1)` split by colour-filter channel: (C, H, W), C = 3 for Bayer, 1 for mono.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn esi_by_channel<'py>(
+    py: Python<'py>,
+    x: PyReadonlyArray1<'py, u16>,
+    y: PyReadonlyArray1<'py, u16>,
+    p: PyReadonlyArray1<'py, i8>,
+    width: u64,
+    height: u64,
+    i0: i64,
+    i1: i64,
+    c_pos: ThresholdArg<'py>,
+    c_neg: ThresholdArg<'py>,
+    pattern: &str,
+) -> PyResult<Bound<'py, PyAny>> {
+    let s = sensor(width, height)?;
+    let bayer = ev::Bayer::parse(pattern).map_err(err)?;
+    let (x, y, p) = (x.as_slice()?, y.as_slice()?, p.as_slice()?);
+    let c = Contrast {
+        pos: c_pos.get()?,
+        neg: c_neg.get()?,
+    };
+    let out = py
+        .detach(|| {
+            c.check(s)?;
+            let esi = ev::polarity_counts(&events(x, y, p, s, i0, i1)?)?.esi(&c);
+            Ok(bayer.split(&esi, s))
+        })
+        .map_err(err)?;
+    Ok(PyArray1::from_vec(py, out)
+        .reshape([bayer.channels(), s.height as usize, s.width as usize])?
+        .into_any())
+}
+
+/// Channel index (0=R, 1=G, 2=B) of every pixel for a Bayer pattern; zeros for mono.
+#[pyfunction]
+fn bayer_channel_map<'py>(
+    py: Python<'py>,
+    pattern: &str,
+    width: u64,
+    height: u64,
+) -> PyResult<Bound<'py, PyAny>> {
+    let s = sensor(width, height)?;
+    let map = ev::Bayer::parse(pattern).map_err(err)?.channel_map(s);
+    Ok(PyArray1::from_vec(py, map)
+        .reshape([s.height as usize, s.width as usize])?
+        .into_any())
+}
+
+/// Patches (n, m, side, side) of the sub-window ESIs around `centres` and their validity.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn patches<'py>(
+    py: Python<'py>,
+    x: PyReadonlyArray1<'py, u16>,
+    y: PyReadonlyArray1<'py, u16>,
+    p: PyReadonlyArray1<'py, i8>,
+    width: u64,
+    height: u64,
+    bounds: PyReadonlyArray1<'py, i64>,
+    centres: PyReadonlyArray1<'py, f32>,
+    per_window: bool,
+    side: usize,
+    c_pos: ThresholdArg<'py>,
+    c_neg: ThresholdArg<'py>,
+    mode: &str,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let s = sensor(width, height)?;
+    let mode = ev::Sampling::parse(mode).map_err(err)?;
+    let (x, y, p) = (x.as_slice()?, y.as_slice()?, p.as_slice()?);
+    let (bounds, centres) = (bounds.as_slice()?, centres.as_slice()?);
+    let c = Contrast {
+        pos: c_pos.get()?,
+        neg: c_neg.get()?,
+    };
+    let out = py
+        .detach(|| {
+            let all = EventSlice::new(x, y, p, s)?;
+            ev::extract_patches(&all, bounds, centres, per_window, side, &c, mode)
+        })
+        .map_err(err)?;
+    let m = bounds.len() - 1;
+    let n = if m == 0 {
+        0
+    } else {
+        out.values.len() / (m * side * side)
+    };
+    let shape = [n, m, side, side];
+    Ok((
+        PyArray1::from_vec(py, out.values)
+            .reshape(shape)?
+            .into_any(),
+        PyArray1::from_vec(py, out.valid).reshape(shape)?.into_any(),
+    ))
+}
+
+/// Voxel grid (bins, H, W) of `[i0, i1)`, polarity bilinear in normalised time.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn voxel_grid<'py>(
+    py: Python<'py>,
+    x: PyReadonlyArray1<'py, u16>,
+    y: PyReadonlyArray1<'py, u16>,
+    t: PyReadonlyArray1<'py, i64>,
+    p: PyReadonlyArray1<'py, i8>,
+    width: u64,
+    height: u64,
+    i0: i64,
+    i1: i64,
+    bins: usize,
+) -> PyResult<Bound<'py, PyAny>> {
+    let s = sensor(width, height)?;
+    let (x, y, t, p) = (x.as_slice()?, y.as_slice()?, t.as_slice()?, p.as_slice()?);
+    let out = py
+        .detach(|| {
+            let e = events(x, y, p, s, i0, i1)?;
+            let (a, b) = ev::check_range(i0, i1, t.len())?;
+            ev::voxel_grid(&e, &t[a..b], bins)
+        })
+        .map_err(err)?;
+    Ok(PyArray1::from_vec(py, out)
+        .reshape([bins, s.height as usize, s.width as usize])?
+        .into_any())
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(validate_events, m)?)?;
+    m.add_function(wrap_pyfunction!(polarity_from_int64, m)?)?;
+    m.add_function(wrap_pyfunction!(float_to_int64, m)?)?;
+    m.add_function(wrap_pyfunction!(coords_to_uint16, m)?)?;
+    m.add_function(wrap_pyfunction!(window_by_time, m)?)?;
+    m.add_function(wrap_pyfunction!(window_by_count, m)?)?;
+    m.add_function(wrap_pyfunction!(split_equal_count, m)?)?;
+    m.add_function(wrap_pyfunction!(accumulate, m)?)?;
+    m.add_function(wrap_pyfunction!(esi_by_channel, m)?)?;
+    m.add_function(wrap_pyfunction!(bayer_channel_map, m)?)?;
+    m.add_function(wrap_pyfunction!(patches, m)?)?;
+    m.add_function(wrap_pyfunction!(voxel_grid, m)?)?;
+    Ok(())
+}

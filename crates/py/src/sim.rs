@@ -1,0 +1,196 @@
+//! The ESIM-style event simulator: push numpy log-intensity frames, get event arrays back.
+
+use numpy::ndarray::Array;
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2, PyReadonlyArray3,
+    PyReadonlyArrayDyn,
+};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use evsplat_sim::render::{self, Pose, Primitive, RenderError};
+use evsplat_sim::{Bayer, SimConfig, SimError};
+
+fn sim_err(e: SimError) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+type EventArrays<'py> = (
+    Bound<'py, PyArray1<u16>>,
+    Bound<'py, PyArray1<u16>>,
+    Bound<'py, PyArray1<i64>>,
+    Bound<'py, PyArray1<i8>>,
+);
+
+#[pyclass(module = "evsplat._core")]
+struct EventSimulator {
+    inner: evsplat_sim::EventSimulator,
+}
+
+#[pymethods]
+impl EventSimulator {
+    #[new]
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (width, height, c_pos, c_neg, sigma_c, refractory_us, noise_rate_hz, hot_pixels, hot_rate_hz, bayer, seed))]
+    fn new(
+        width: usize,
+        height: usize,
+        c_pos: f64,
+        c_neg: f64,
+        sigma_c: f64,
+        refractory_us: i64,
+        noise_rate_hz: f64,
+        hot_pixels: usize,
+        hot_rate_hz: f64,
+        bayer: &str,
+        seed: u64,
+    ) -> PyResult<Self> {
+        let bayer = match bayer {
+            "mono" => Bayer::Mono,
+            "RGGB" => Bayer::Rggb,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "bayer pattern '{other}' is not supported; use 'RGGB' or 'mono'"
+                )))
+            }
+        };
+        let cfg = SimConfig {
+            c_pos,
+            c_neg,
+            sigma_c,
+            refractory_us,
+            noise_rate_hz,
+            hot_pixels,
+            hot_rate_hz,
+            bayer,
+            seed,
+        };
+        let inner = evsplat_sim::EventSimulator::new(width, height, cfg).map_err(sim_err)?;
+        Ok(EventSimulator { inner })
+    }
+
+    /// Add the log frame at `t_us` ([H,W] mono or [H,W,3] RGB float32, C-contiguous) and return
+    /// the events since the previous frame as (x, y, t, p).
+    fn push<'py>(
+        &mut self,
+        py: Python<'py>,
+        t_us: i64,
+        frame: PyReadonlyArrayDyn<'py, f32>,
+    ) -> PyResult<EventArrays<'py>> {
+        let data = frame.as_slice()?;
+        let inner = &mut self.inner;
+        let ev = py.detach(|| inner.push(t_us, data)).map_err(sim_err)?;
+        Ok((
+            PyArray1::from_vec(py, ev.x),
+            PyArray1::from_vec(py, ev.y),
+            PyArray1::from_vec(py, ev.t),
+            PyArray1::from_vec(py, ev.p),
+        ))
+    }
+
+    /// Per-pixel thresholds (C+, C−) as flat row-major float64 arrays.
+    fn thresholds<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>) {
+        let (p, n) = self.inner.thresholds();
+        (PyArray1::from_vec(py, p), PyArray1::from_vec(py, n))
+    }
+}
+
+fn render_err(e: RenderError) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+fn pose_of(m: numpy::ndarray::ArrayView2<'_, f64>) -> Pose {
+    Pose {
+        r: [
+            m[[0, 0]],
+            m[[0, 1]],
+            m[[0, 2]],
+            m[[1, 0]],
+            m[[1, 1]],
+            m[[1, 2]],
+            m[[2, 0]],
+            m[[2, 1]],
+            m[[2, 2]],
+        ],
+        t: [m[[0, 3]], m[[1, 3]], m[[2, 3]]],
+    }
+}
+
+type FrameArrays<'py> = (
+    Bound<'py, PyArray3<f32>>,
+    Bound<'py, PyArray2<f32>>,
+    Bound<'py, PyArray2<bool>>,
+);
+
+/// Analytic ray caster for the synthetic scenes (independent of the splatting rasterizer).
+#[pyclass(frozen, module = "evsplat._core")]
+struct SceneRenderer {
+    prims: Vec<Primitive>,
+    width: usize,
+    height: usize,
+    k: [f64; 4],
+}
+
+#[pymethods]
+impl SceneRenderer {
+    /// `primitives`: (shape, size, texture, texture_params, moving) per primitive;
+    /// `k`: (fx, fy, cx, cy).
+    #[new]
+    fn new(
+        primitives: Vec<(String, Vec<f64>, String, Vec<f64>, bool)>,
+        width: usize,
+        height: usize,
+        k: [f64; 4],
+    ) -> PyResult<Self> {
+        let prims = primitives
+            .iter()
+            .map(|(shape, size, tex, params, moving)| {
+                Primitive::new(shape, size, tex, params, *moving)
+            })
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(render_err)?;
+        Ok(SceneRenderer {
+            prims,
+            width,
+            height,
+            k,
+        })
+    }
+
+    /// Render with camera-to-world `c2w` [4,4] and object-to-world `poses` [n,4,4]:
+    /// (rgb [H,W,3], depth [H,W], moving mask [H,W]).
+    fn render<'py>(
+        &self,
+        py: Python<'py>,
+        c2w: PyReadonlyArray2<'py, f64>,
+        poses: PyReadonlyArray3<'py, f64>,
+    ) -> PyResult<FrameArrays<'py>> {
+        let cam = pose_of(c2w.as_array());
+        let poses: Vec<Pose> = poses.as_array().outer_iter().map(pose_of).collect();
+        let (w, h) = (self.width, self.height);
+        let f = py
+            .detach(|| render::render(&self.prims, &poses, cam, self.k, w, h))
+            .map_err(render_err)?;
+        let shape_err = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
+        Ok((
+            Array::from_shape_vec((h, w, 3), f.rgb)
+                .map_err(shape_err)?
+                .into_pyarray(py),
+            Array::from_shape_vec((h, w), f.depth)
+                .map_err(shape_err)?
+                .into_pyarray(py),
+            Array::from_shape_vec((h, w), f.mask)
+                .map_err(shape_err)?
+                .into_pyarray(py),
+        ))
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<EventSimulator>()?;
+    m.add_class::<SceneRenderer>()?;
+    Ok(())
+}

@@ -1,0 +1,261 @@
+"""The dataset folder: events, poses, intrinsics, sensor metadata and ground-truth test frames.
+
+Layout (docs/dataset.md describes every field):
+    events.h5            events (x, y, t µs, p), written by evsplat.data.event_files
+    poses.txt            measured camera-to-world poses, TUM format (sparse, e.g. 100 Hz)
+    poses_gt.txt         optional dense ground-truth poses, TUM format
+    intrinsics.json      {"K": 3x3, "width", "height", "distortion": null}
+    meta.json            sensor and scene metadata (c_pos, c_neg, bayer, t_start_us, t_end_us, ...)
+    test/frames.json     optional [{"time_us", "c2w", "rgb", "depth", "mask"}] with the files in test/
+    depth_prior/         optional precomputed depth priors
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from evsplat.data.event_files import read_events
+from evsplat.data.events import EventStream
+from evsplat.data.poses import read_tum
+from evsplat.data.trajectory import Trajectory, validate_poses
+from evsplat.errors import EvsplatError
+
+REQUIRED_FILES = ("events.h5", "poses.txt", "intrinsics.json", "meta.json")
+BAYER_PATTERNS = ("RGGB", "mono")
+
+
+@dataclass
+class TestFrame:
+    """A ground-truth view at an intermediate time (mask marks moving-object pixels)."""
+
+    time_us: int
+    c2w: np.ndarray
+    rgb_path: Path
+    depth_path: Path
+    mask_path: Path | None
+
+
+@dataclass
+class Dataset:
+    """Everything training and evaluation need from a dataset folder."""
+
+    root: Path
+    events: EventStream
+    trajectory: Trajectory  # fitted to the sparse measured poses (poses.txt)
+    gt_trajectory: Trajectory | None  # dense ground truth (poses_gt.txt), if present
+    K: np.ndarray
+    width: int
+    height: int
+    c_pos: float
+    c_neg: float
+    bayer: str
+    t_start_us: int
+    t_end_us: int
+    test_frames: list[TestFrame]
+    meta: dict
+    depth_prior_dir: Path | None = None
+
+
+@dataclass
+class _Checker:
+    """Collects problems, one line each; values parsed so far are kept for the dataset."""
+
+    root: Path
+    problems: list[str] = field(default_factory=list)
+
+    def fail(self, msg: str) -> None:
+        self.problems.append(msg)
+
+    def json(self, name: str) -> dict | None:
+        path = self.root / name
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+        except OSError as e:
+            self.fail(f"{path}: cannot read ({e.strerror})")
+            return None
+        except json.JSONDecodeError as e:
+            self.fail(f"{path}: not valid JSON ({e.msg} at line {e.lineno})")
+            return None
+        if not isinstance(doc, (dict, list)):
+            self.fail(f"{path}: expected a JSON object")
+            return None
+        return doc
+
+    def attempt(self, fn, *args):
+        try:
+            return fn(*args)
+        except EvsplatError as e:
+            self.fail(str(e))
+            return None
+
+
+def _positive_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v > 0
+
+
+def _intrinsics(c: _Checker) -> tuple[np.ndarray, int, int] | None:
+    doc = c.json("intrinsics.json")
+    path = c.root / "intrinsics.json"
+    if not isinstance(doc, dict):
+        return None
+    try:
+        K = np.array(doc["K"], dtype=np.float64)
+        w, h = doc["width"], doc["height"]
+    except (KeyError, TypeError, ValueError):
+        c.fail(f"{path}: needs 'K' (3x3 numbers), 'width' and 'height'")
+        return None
+    ok = True
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        c.fail(f"{path}: K must be a finite 3x3 matrix with positive focal lengths")
+        ok = False
+    if not (_positive_int(w) and _positive_int(h)):
+        c.fail(f"{path}: width and height must be positive integers, got {w!r} and {h!r}")
+        ok = False
+    if doc.get("distortion") is not None:
+        c.fail(f"{path}: lens distortion is not supported; undistort the events and set \"distortion\": null")
+        ok = False
+    return (K, w, h) if ok else None
+
+
+def _meta(c: _Checker) -> dict | None:
+    doc = c.json("meta.json")
+    path = c.root / "meta.json"
+    if not isinstance(doc, dict):
+        return None
+    ok = True
+    for key in ("c_pos", "c_neg"):
+        v = doc.get(key)
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not (np.isfinite(v) and v > 0):
+            c.fail(f"{path}: '{key}' must be a positive number (contrast threshold), got {v!r}")
+            ok = False
+    if doc.get("bayer") not in BAYER_PATTERNS:
+        c.fail(f"{path}: 'bayer' must be one of {BAYER_PATTERNS}, got {doc.get('bayer')!r}")
+        ok = False
+    t0, t1 = doc.get("t_start_us"), doc.get("t_end_us")
+    if not (isinstance(t0, int) and isinstance(t1, int) and t0 < t1):
+        c.fail(f"{path}: 't_start_us' and 't_end_us' must be integers with start < end, got {t0!r}, {t1!r}")
+        ok = False
+    for key in ("width", "height"):
+        if not _positive_int(doc.get(key)):
+            c.fail(f"{path}: '{key}' (sensor size) must be a positive integer, got {doc.get(key)!r}")
+            ok = False
+    return doc if ok else None
+
+
+def _trajectory(c: _Checker, name: str, t0: int | None, t1: int | None) -> Trajectory | None:
+    path = c.root / name
+    poses = c.attempt(read_tum, path)
+    if poses is None:
+        return None
+    traj = c.attempt(Trajectory.fit, poses[0], poses[1], None, str(path))
+    if traj is not None and t0 is not None and (traj.t_min_us > t0 or traj.t_max_us < t1):
+        c.fail(
+            f"{path}: poses cover [{traj.t_min_us}, {traj.t_max_us}] µs but the data spans "
+            f"[{t0}, {t1}] µs (meta.json); add poses or shrink t_start_us/t_end_us"
+        )
+    return traj
+
+
+def _test_frames(c: _Checker, size: tuple[int, int] | None, t0: int | None, t1: int | None) -> list[TestFrame]:
+    from evsplat.data.images import read_exr, read_png
+
+    path = c.root / "test" / "frames.json"
+    if not path.exists():
+        return []
+    doc = c.json("test/frames.json")
+    if not isinstance(doc, list):
+        if doc is not None:
+            c.fail(f"{path}: expected a list of frames")
+        return []
+    frames = []
+    for i, f in enumerate(doc):
+        try:
+            t = f["time_us"]
+            m = np.array(f["c2w"], dtype=np.float64)
+            rgb, depth, mask = f["rgb"], f["depth"], f.get("mask")
+        except (KeyError, TypeError, ValueError):
+            c.fail(f"{path}: frame {i} needs 'time_us', 'c2w' (4x4), 'rgb' and 'depth'")
+            continue
+        if c.attempt(validate_poses, np.array([t, t + 1]), np.stack([m, m]), f"{path} frame {i}") is None:
+            continue
+        if t0 is not None and not (t0 <= t <= t1):
+            c.fail(f"{path}: frame {i} time {t} µs is outside [{t0}, {t1}] µs")
+        paths = [c.root / "test" / p for p in (rgb, depth) + ((mask,) if mask else ())]
+        missing = [p for p in paths if not p.is_file()]
+        if missing:
+            c.fail(f"{missing[0]}: missing (listed in {path} frame {i})")
+            continue
+        if size is not None:
+            for p, read in zip(paths, (read_png, read_exr, read_png)):
+                img = c.attempt(read, p)
+                if img is not None and img.shape[:2] != (size[1], size[0]):
+                    c.fail(f"{p}: image is {img.shape[1]}x{img.shape[0]} but the sensor is {size[0]}x{size[1]}")
+        frames.append(TestFrame(int(t), m, paths[0], paths[1], paths[2] if mask else None))
+    return frames
+
+
+def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
+    root = Path(root)
+    c = _Checker(root)
+    if not root.is_dir():
+        return [f"{root}: not a directory (expected a dataset folder, see docs/dataset.md)"], None
+    for name in REQUIRED_FILES:
+        if not (root / name).is_file():
+            c.fail(f"{root / name}: missing (a dataset folder needs {', '.join(REQUIRED_FILES)})")
+    intr = _intrinsics(c) if (root / "intrinsics.json").is_file() else None
+    meta = _meta(c) if (root / "meta.json").is_file() else None
+    if intr and meta and (meta["width"], meta["height"]) != (intr[1], intr[2]):
+        c.fail(
+            f"{root / 'meta.json'}: sensor size {meta['width']}x{meta['height']} differs from "
+            f"intrinsics.json {intr[1]}x{intr[2]}; make them agree"
+        )
+    size = (meta["width"], meta["height"]) if meta else (intr[1], intr[2]) if intr else None
+    t0, t1 = (meta["t_start_us"], meta["t_end_us"]) if meta else (None, None)
+    events = c.attempt(read_events, root / "events.h5") if (root / "events.h5").is_file() else None
+    if events is not None and size is not None and (events.width, events.height) != size:
+        c.fail(
+            f"{root / 'events.h5'}: sensor size {events.width}x{events.height} differs from "
+            f"meta.json {size[0]}x{size[1]}; the events belong to another sensor or the metadata is wrong"
+        )
+    traj = _trajectory(c, "poses.txt", t0, t1) if (root / "poses.txt").is_file() else None
+    gt = _trajectory(c, "poses_gt.txt", t0, t1) if (root / "poses_gt.txt").is_file() else None
+    frames = _test_frames(c, size, t0, t1)
+    if c.problems:
+        return c.problems, None
+    prior = root / "depth_prior"
+    return [], Dataset(
+        root=root,
+        events=events,
+        trajectory=traj,
+        gt_trajectory=gt,
+        K=intr[0],
+        width=size[0],
+        height=size[1],
+        c_pos=float(meta["c_pos"]),
+        c_neg=float(meta["c_neg"]),
+        bayer=meta["bayer"],
+        t_start_us=t0,
+        t_end_us=t1,
+        test_frames=frames,
+        meta=meta,
+        depth_prior_dir=prior if prior.is_dir() else None,
+    )
+
+
+def check_dataset(path: str | os.PathLike) -> list[str]:
+    """All problems with the dataset folder, one line each (empty list = usable)."""
+    return _inspect(path)[0]
+
+
+def load_dataset(path: str | os.PathLike) -> Dataset:
+    """Load and validate a dataset folder; raises EvsplatError with the first problem."""
+    problems, ds = _inspect(path)
+    if problems:
+        more = f" (and {len(problems) - 1} more; run `evsplat check {path}`)" if len(problems) > 1 else ""
+        raise EvsplatError(problems[0] + more)
+    return ds

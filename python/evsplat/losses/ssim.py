@@ -1,0 +1,49 @@
+"""Structural similarity (Wang et al. 2004) with a Gaussian window, as 3DGS computes it."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+
+def gaussian_window(window: int, sigma: float) -> Tensor:
+    """Normalised 1-D Gaussian weights of length ``window``."""
+    x = torch.arange(window, dtype=torch.float32) - (window - 1) / 2.0
+    w = torch.exp(-(x * x) / (2.0 * sigma * sigma))
+    return w / w.sum()
+
+
+def ssim(
+    a: Tensor, b: Tensor, window: int = 11, sigma: float = 1.5, data_range: float | None = None
+) -> Tensor:
+    """Mean SSIM of ``a`` and ``b`` ([H,W], [C,H,W] or [B,C,H,W]), per channel, averaged.
+
+    Local statistics use a ``window``-wide Gaussian (std ``sigma``) with zero padding so the
+    map has the image's size (3DGS convention). C1 = (0.01 L)^2, C2 = (0.03 L)^2 with
+    L = ``data_range`` (default 1, for images in [0, 1]); both are > 0, so constant or zero
+    images give finite values and gradients (identical images give exactly 1).
+    """
+    if a.shape != b.shape or a.dim() not in (2, 3, 4):
+        raise ValueError(f"ssim: shapes {tuple(a.shape)} and {tuple(b.shape)}; need equal 2-4-D")
+    shape4 = a.reshape(-1, *a.shape[-3:]) if a.dim() == 4 else a.reshape(1, -1, *a.shape[-2:])
+    a4, b4 = shape4, b.reshape(shape4.shape)
+    channels = a4.shape[1]
+    g = gaussian_window(window, sigma).to(a.dtype)
+    kernel = (g[:, None] * g[None, :]).expand(channels, 1, window, window).contiguous()
+
+    def blur(x: Tensor) -> Tensor:
+        return F.conv2d(x, kernel, padding=window // 2, groups=channels)
+
+    mu_a, mu_b = blur(a4), blur(b4)
+    # E[x^2] - mu^2 can round below zero; a variance cannot.
+    var_a = (blur(a4 * a4) - mu_a * mu_a).clamp_min(0.0)
+    var_b = (blur(b4 * b4) - mu_b * mu_b).clamp_min(0.0)
+    cov = blur(a4 * b4) - mu_a * mu_b
+    rng = 1.0 if data_range is None else float(data_range)
+    if not rng > 0:
+        raise ValueError(f"ssim: data_range={data_range}; it must be positive")
+    c1, c2 = (0.01 * rng) ** 2, (0.03 * rng) ** 2
+    num = (2 * mu_a * mu_b + c1) * (2 * cov + c2)
+    den = (mu_a * mu_a + mu_b * mu_b + c1) * (var_a + var_b + c2)
+    return (num / den).mean()

@@ -1,0 +1,1 @@
+"""Gaussians in canonical space, the deformation MLP and adaptive density control."""

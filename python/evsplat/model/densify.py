@@ -1,0 +1,189 @@
+"""3DGS adaptive density control: clone, split, prune and opacity reset, Adam state kept in sync."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import torch
+from torch import Tensor, nn
+
+from evsplat.config import DensifyConfig
+from evsplat.model.gaussians import PARAM_NAMES, GaussianModel, quat_to_rotmat
+
+RESET_OPACITY = 0.01  # 3DGS: opacities are capped to this at each reset
+
+
+def _update_params(
+    model: GaussianModel,
+    optimizer: torch.optim.Optimizer,
+    transform: Callable[[str, Tensor, bool], Tensor],
+) -> None:
+    """Replace every Gaussian parameter by ``transform(name, old, is_state)`` and apply the same
+    row operation to its per-row optimizer state (``is_state`` True), keeping the optimizer's
+    groups pointing at the new parameters."""
+    for name in PARAM_NAMES:
+        old = getattr(model, name)
+        new = nn.Parameter(transform(name, old.detach(), False))
+        for group in optimizer.param_groups:
+            for k, p in enumerate(group["params"]):
+                if p is old:
+                    group["params"][k] = new
+        state = optimizer.state.pop(old, None)
+        if state is not None:
+            for key, value in state.items():
+                if torch.is_tensor(value) and value.shape == old.shape:
+                    state[key] = transform(name, value, True)
+            optimizer.state[new] = state
+        setattr(model, name, new)
+
+
+class Densifier:
+    """Gradient statistics and the 3DGS density-control schedule.
+
+    ``accumulate`` after each backward pass, ``step`` after each optimizer step. Iteration
+    points come from fractions of ``total_iterations`` so short runs keep 3DGS's proportions.
+    """
+
+    def __init__(self, cfg: DensifyConfig, scene_extent: float, total_iterations: int = 30_000):
+        self.cfg = cfg
+        self.extent = float(scene_extent)
+        self.start = int(round(cfg.start_fraction * total_iterations))
+        self.stop = int(round(cfg.stop_fraction * total_iterations))
+        self.reset_interval = max(int(round(cfg.opacity_reset_fraction * total_iterations)), 1)
+        self.grad_accum = torch.zeros(0)
+        self.denom = torch.zeros(0)
+        self.max_radii = torch.zeros(0)
+
+    def _reset_stats(self, n: int) -> None:
+        self.grad_accum = torch.zeros(n)
+        self.denom = torch.zeros(n)
+        self.max_radii = torch.zeros(n)
+
+    def _ensure_size(self, n: int) -> None:
+        if self.grad_accum.shape[0] != n:
+            self._reset_stats(n)
+
+    def accumulate(
+        self, means2d_grad: Tensor | None, radii: Tensor, width: int, height: int
+    ) -> None:
+        """Add this view's screen-space gradient norms of the visible (radius > 0) Gaussians.
+
+        Pixel gradients are converted to NDC units (x W/2, x H/2) as in 3DGS, so its threshold
+        2e-4 keeps its meaning at any resolution.
+        """
+        if means2d_grad is None:
+            return
+        self._ensure_size(means2d_grad.shape[0])
+        visible = radii.reshape(-1) > 0
+        g = means2d_grad.detach().reshape(-1, 2) * torch.tensor([width / 2.0, height / 2.0])
+        norm = torch.nan_to_num(g.norm(dim=-1), nan=0.0, posinf=0.0)
+        self.grad_accum[visible] += norm[visible]
+        self.denom[visible] += 1
+        self.max_radii[visible] = torch.maximum(
+            self.max_radii[visible], radii.reshape(-1)[visible].to(self.max_radii.dtype)
+        )
+
+    def step(self, model: GaussianModel, optimizer: torch.optim.Adam, iteration: int) -> dict:
+        """Density control for ``iteration`` (after its optimizer step).
+
+        Inside [start, stop): every ``interval`` iterations clone small / split large
+        high-gradient Gaussians and prune transparent (and, after the first opacity reset, huge)
+        ones; every ``reset_interval`` iterations cap opacities at 0.01. Any time: prune the least
+        opaque Gaussians down to ``max_gaussians``. Returns the counts of what was done, empty
+        when nothing was.
+        """
+        cfg, counts = self.cfg, {}
+        if self.start < iteration < self.stop and iteration % cfg.interval == 0:
+            counts.update(self._densify_and_prune(model, optimizer, iteration))
+        if 0 < iteration < self.stop and iteration % self.reset_interval == 0:
+            self._reset_opacity(model, optimizer)
+            counts["reset"] = 1
+        excess = model.num_gaussians - cfg.max_gaussians
+        if excess > 0:
+            keep = torch.ones(model.num_gaussians, dtype=torch.bool)
+            keep[torch.argsort(model.opacity_logits.detach())[:excess]] = False
+            self._prune(model, optimizer, keep)
+            counts["capped"] = excess
+        return counts
+
+    def _densify_and_prune(self, model: GaussianModel, optimizer, iteration: int) -> dict:
+        cfg = self.cfg
+        n0 = model.num_gaussians
+        self._ensure_size(n0)
+        grads = self.grad_accum / self.denom.clamp_min(1)
+        high = grads >= cfg.grad_threshold
+        max_scale = model.scales().detach().max(dim=-1).values
+        small = max_scale <= cfg.percent_dense * self.extent
+        clone, split = high & small, high & ~small
+        n_clone, n_split = int(clone.sum()), int(split.sum())
+
+        # New rows: clones are copies; each split parent gives split_count children sampled
+        # from the parent Gaussian, with scales divided by split_scale_divisor.
+        k = cfg.split_count
+        with torch.no_grad():
+            rows = {
+                n: getattr(model, n).detach() for n in ("means", "quats", "opacity_logits", "sh")
+            }
+            parent_scale = model.scales().detach()[split].repeat(k, 1)
+            rot = quat_to_rotmat(model.rotations().detach()[split]).repeat(k, 1, 1)
+            offset = torch.bmm(rot, (torch.randn_like(parent_scale) * parent_scale)[..., None])
+            child_log = torch.log(parent_scale / cfg.split_scale_divisor)
+            new = {
+                "means": torch.cat([rows["means"][clone], rows["means"][split].repeat(k, 1)
+                                    + offset[..., 0]]),
+                "log_scales": torch.cat([model.log_scales.detach()[clone], child_log]),
+                "quats": torch.cat([rows["quats"][clone], rows["quats"][split].repeat(k, 1)]),
+                "opacity_logits": torch.cat(
+                    [rows["opacity_logits"][clone], rows["opacity_logits"][split].repeat(k)]
+                ),
+                "sh": torch.cat([rows["sh"][clone], rows["sh"][split].repeat(k, 1, 1)]),
+            }  # fmt: skip
+
+        def append(name: str, old: Tensor, is_state: bool) -> Tensor:
+            extra = torch.zeros_like(new[name]) if is_state else new[name]
+            return torch.cat([old, extra])
+
+        _update_params(model, optimizer, append)
+        n_new = model.num_gaussians - n0
+        opac = model.opacities().detach()
+        prune = torch.cat([split, torch.zeros(n_new, dtype=torch.bool)]) | (
+            opac < cfg.prune_opacity
+        )
+        if iteration > self.reset_interval:  # 3DGS: size pruning only once opacities were reset
+            radii = torch.cat([self.max_radii, torch.zeros(n_new)])
+            big_world = (
+                model.scales().detach().max(dim=-1).values > cfg.max_world_scale * self.extent
+            )
+            prune |= (radii > cfg.max_screen_radius) | big_world
+        n_pruned = int(prune.sum()) - n_split  # split parents are replaced, not pruned
+        self._prune(model, optimizer, ~prune)
+        self._reset_stats(model.num_gaussians)  # statistics restart after every density change
+        return {"cloned": n_clone, "split": n_split, "pruned": n_pruned}
+
+    def _prune(self, model: GaussianModel, optimizer, keep: Tensor) -> None:
+        _update_params(model, optimizer, lambda _n, old, _s: old[keep])
+        if self.grad_accum.shape[0] == keep.shape[0]:
+            self.grad_accum = self.grad_accum[keep]
+            self.denom = self.denom[keep]
+            self.max_radii = self.max_radii[keep]
+
+    def _reset_opacity(self, model: GaussianModel, optimizer) -> None:
+        cap = math.log(RESET_OPACITY / (1 - RESET_OPACITY))
+
+        def reset(name: str, old: Tensor, is_state: bool) -> Tensor:
+            if name != "opacity_logits":
+                return old
+            return torch.zeros_like(old) if is_state else old.clamp_max(cap)
+
+        _update_params(model, optimizer, reset)
+
+    def state_dict(self) -> dict:
+        """Gradient statistics, for checkpoints."""
+        return {"grad_accum": self.grad_accum, "denom": self.denom, "max_radii": self.max_radii}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore ``state_dict``."""
+        self.grad_accum = state["grad_accum"].clone()
+        self.denom = state["denom"].clone()
+        self.max_radii = state["max_radii"].clone()

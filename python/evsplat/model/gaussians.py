@@ -1,0 +1,215 @@
+"""Canonical 3-D Gaussians: parameters, guarded activations, SH colour and optimizer groups."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor, nn
+
+from evsplat.config import ModelConfig
+
+PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh")
+SCALE_MIN, SCALE_MAX = 1e-6, 1e3  # guard: keeps exp(log_scale) and its inverse finite
+QUAT_EPS = 1e-12  # below this norm a quaternion carries no rotation and becomes the identity
+
+# Real spherical-harmonic constants (as in 3DGS), bands 0..3.
+SH_C0 = 0.28209479177387814
+SH_C1 = 0.4886025119029199
+SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
+         0.5462742152960396)  # fmt: skip
+SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
+         -0.4570457994644658, 1.445305721320277, -0.5900435899266435)  # fmt: skip
+
+
+def scale_activation(log_scales: Tensor) -> Tensor:
+    """exp(log_scales) clamped to [SCALE_MIN, SCALE_MAX] (clamped in log space: no overflow)."""
+    return torch.exp(log_scales.clamp(math.log(SCALE_MIN), math.log(SCALE_MAX)))
+
+
+def normalize_quats(q: Tensor) -> Tensor:
+    """Unit quaternions (w, x, y, z); a (near) zero quaternion becomes the identity, never NaN."""
+    sq = (q * q).sum(-1, keepdim=True)
+    norm = torch.sqrt(sq.clamp_min(QUAT_EPS * QUAT_EPS))
+    identity = torch.zeros_like(q)
+    identity[..., 0] = 1.0
+    return torch.where(sq > QUAT_EPS * QUAT_EPS, q / norm, identity)
+
+
+def quat_to_rotmat(q: Tensor) -> Tensor:
+    """Rotation matrices [N,3,3] of unit quaternions [N,4] (w, x, y, z)."""
+    w, x, y, z = q.unbind(-1)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    ).reshape(*q.shape[:-1], 3, 3)  # fmt: skip
+
+
+def eval_sh(sh: Tensor, dirs: Tensor) -> Tensor:
+    """Evaluate real SH coefficients ``sh [N,K,C]`` (K = (deg+1)^2 <= 16) at unit ``dirs [N,3]``."""
+    k = sh.shape[1]
+    out = SH_C0 * sh[:, 0]
+    if k == 1:
+        return out
+    x, y, z = (dirs[:, i : i + 1] for i in range(3))
+    out = out - SH_C1 * y * sh[:, 1] + SH_C1 * z * sh[:, 2] - SH_C1 * x * sh[:, 3]
+    if k == 4:
+        return out
+    xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+    out = (
+        out
+        + SH_C2[0] * xy * sh[:, 4]
+        + SH_C2[1] * yz * sh[:, 5]
+        + SH_C2[2] * (2 * zz - xx - yy) * sh[:, 6]
+        + SH_C2[3] * xz * sh[:, 7]
+        + SH_C2[4] * (xx - yy) * sh[:, 8]
+    )
+    if k == 9:
+        return out
+    return (
+        out
+        + SH_C3[0] * y * (3 * xx - yy) * sh[:, 9]
+        + SH_C3[1] * xy * z * sh[:, 10]
+        + SH_C3[2] * y * (4 * zz - xx - yy) * sh[:, 11]
+        + SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy) * sh[:, 12]
+        + SH_C3[4] * x * (4 * zz - xx - yy) * sh[:, 13]
+        + SH_C3[5] * z * (xx - yy) * sh[:, 14]
+        + SH_C3[6] * x * (xx - 3 * yy) * sh[:, 15]
+    )
+
+
+class GaussianModel(nn.Module):
+    """N anisotropic 3-D Gaussians in canonical space.
+
+    Parameters: ``means [N,3]``, ``log_scales [N,3]``, ``quats [N,4]`` (w, x, y, z,
+    unnormalised), ``opacity_logits [N]`` and ``sh [N,(deg+1)^2,C]`` (C = 1 for a monochrome
+    sensor, 3 for a Bayer colour sensor). Activations are guarded so any finite parameter gives
+    finite outputs and gradients.
+    """
+
+    def __init__(self, num: int, channels: int, sh_degree: int = 0):
+        super().__init__()
+        if num < 0 or channels not in (1, 3) or not 0 <= sh_degree <= 3:
+            raise ValueError(
+                f"GaussianModel: num={num}, channels={channels}, sh_degree={sh_degree}; "
+                "need num >= 0, channels 1 or 3, sh_degree 0..3"
+            )
+        self.channels = channels
+        self.sh_degree = sh_degree
+        self.means = nn.Parameter(torch.zeros(num, 3))
+        self.log_scales = nn.Parameter(torch.zeros(num, 3))
+        self.quats = nn.Parameter(torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(num, 1))
+        self.opacity_logits = nn.Parameter(torch.zeros(num))
+        self.sh = nn.Parameter(torch.zeros(num, (sh_degree + 1) ** 2, channels))
+
+    @property
+    def num_gaussians(self) -> int:
+        """Current number of Gaussians (changes with densification)."""
+        return self.means.shape[0]
+
+    @classmethod
+    def random_init(
+        cls,
+        num: int,
+        channels: int,
+        bounds_min: Sequence[float] | Tensor,
+        bounds_max: Sequence[float] | Tensor,
+        sh_degree: int = 0,
+        seed: int = 0,
+        init_scale: float | None = None,
+    ) -> GaussianModel:
+        """Initialisation that needs no RGB or SfM: event data has neither.
+
+        Means uniform in the axis-aligned box [bounds_min, bounds_max] (the trainer passes the
+        volume seen by the trajectory); isotropic scales equal to the mean spacing of ``num``
+        uniform points in that box, (volume / num)^(1/3), unless ``init_scale`` is given;
+        identity rotations; opacity 0.1 (3DGS); grey colour 0.5 (zero SH, see ``colors``).
+        """
+        lo = torch.as_tensor(bounds_min, dtype=torch.float32).reshape(3)
+        hi = torch.as_tensor(bounds_max, dtype=torch.float32).reshape(3)
+        if not (torch.isfinite(lo).all() and torch.isfinite(hi).all() and (hi >= lo).all()):
+            raise ValueError(
+                f"random_init: bounds {lo.tolist()}..{hi.tolist()} must be finite with max >= min"
+            )
+        model = cls(num, channels, sh_degree)
+        gen = torch.Generator().manual_seed(seed)
+        extent = (hi - lo).clamp_min(SCALE_MIN)  # a flat box still gets a finite spacing
+        if init_scale is None:
+            init_scale = float((extent.prod() / max(num, 1)) ** (1.0 / 3.0))
+        init_scale = min(max(init_scale, SCALE_MIN), SCALE_MAX)
+        opacity = ModelConfig.init_opacity
+        with torch.no_grad():
+            model.means.copy_(lo + (hi - lo) * torch.rand(num, 3, generator=gen))
+            model.log_scales.fill_(math.log(init_scale))
+            model.opacity_logits.fill_(math.log(opacity / (1.0 - opacity)))
+        return model
+
+    def scales(self) -> Tensor:
+        """Scales [N,3]: exp(log_scales) clamped to [1e-6, 1e3]."""
+        return scale_activation(self.log_scales)
+
+    def opacities(self) -> Tensor:
+        """Opacities [N] in (0, 1): sigmoid of the logits."""
+        return torch.sigmoid(self.opacity_logits)
+
+    def rotations(self) -> Tensor:
+        """Unit quaternions [N,4] (w, x, y, z); zero quaternions give the identity."""
+        return normalize_quats(self.quats)
+
+    def colors(self, camera_center: Tensor | None = None) -> Tensor:
+        """Colour [N,C] seen from ``camera_center`` [3]: SH + 0.5 (3DGS offset), clamped >= 0.
+
+        Degree 0, or no camera centre given, uses the view-independent DC band only.
+        """
+        if self.sh_degree == 0 or camera_center is None:
+            value = SH_C0 * self.sh[:, 0]
+        else:
+            d = self.means.detach() - camera_center.to(self.means.dtype).reshape(1, 3)
+            dirs = d / torch.sqrt((d * d).sum(-1, keepdim=True).clamp_min(1e-12))
+            value = eval_sh(self.sh, dirs)
+        return (value + 0.5).clamp_min(0.0)
+
+    def param_groups(self, cfg: ModelConfig, scene_extent: float = 1.0) -> list[dict]:
+        """Adam parameter groups with 3DGS learning rates; the means' rate scales with the
+        scene extent. Each group carries ``name`` (the parameter's attribute name)."""
+        lrs = {
+            "means": cfg.means_lr * scene_extent,
+            "log_scales": cfg.scales_lr,
+            "quats": cfg.quats_lr,
+            "opacity_logits": cfg.opacity_lr,
+            "sh": cfg.colors_lr,
+        }
+        return [{"params": [getattr(self, n)], "lr": lrs[n], "name": n} for n in PARAM_NAMES]
+
+    def state_for_checkpoint(self) -> dict:
+        """Plain dict of detached CPU tensors plus the shape settings."""
+        state = {n: getattr(self, n).detach().cpu().clone() for n in PARAM_NAMES}
+        state["channels"] = self.channels
+        state["sh_degree"] = self.sh_degree
+        return state
+
+    @classmethod
+    def from_checkpoint(cls, state: dict) -> GaussianModel:
+        """Rebuild from ``state_for_checkpoint``; a missing or bad entry is a ValueError."""
+        missing = [k for k in (*PARAM_NAMES, "channels", "sh_degree") if k not in state]
+        if missing:
+            raise ValueError(f"Gaussian state lacks {', '.join(missing)}; not an evsplat model")
+        num = int(state["means"].shape[0])
+        model = cls(num, int(state["channels"]), int(state["sh_degree"]))
+        with torch.no_grad():
+            for n in PARAM_NAMES:
+                param, value = getattr(model, n), torch.as_tensor(state[n])
+                if value.shape != param.shape:
+                    raise ValueError(
+                        f"Gaussian state: {n} has shape {tuple(value.shape)}, "
+                        f"expected {tuple(param.shape)}"
+                    )
+                if not torch.isfinite(value).all():
+                    raise ValueError(f"Gaussian state: {n} contains NaN or Inf")
+                param.copy_(value)
+        return model

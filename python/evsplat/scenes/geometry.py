@@ -1,0 +1,97 @@
+"""Scene building blocks: primitives with time-dependent poses and procedural textures.
+
+The ray casting itself (nearest hit of spheres, boxes, thin quads and wing-shaped quads, texture
+lookup, Lambert shading) runs in Rust (`evsplat._core.SceneRenderer`, crates/sim/src/render.rs);
+it is independent of the splatting rasterizer on purpose, so ground truth cannot share its bugs.
+Here the scenes say what is where: shapes, sizes, textures and poses as functions of time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+Pose = Callable[[float], np.ndarray]  # time in seconds -> object-to-world 4x4
+Texture = tuple[str, list[float]]  # (name, flat parameters) understood by the Rust renderer
+Rgb = Sequence[float]
+
+
+def rot(axis: str, angle: float) -> np.ndarray:
+    """4x4 rotation about a coordinate axis by `angle` radians."""
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = {"x": (1, 2), "y": (2, 0), "z": (0, 1)}[axis]
+    m = np.eye(4)
+    m[i, i], m[i, j], m[j, i], m[j, j] = c, -s, s, c
+    return m
+
+
+def trans(x: float, y: float, z: float) -> np.ndarray:
+    """4x4 translation."""
+    m = np.eye(4)
+    m[:3, 3] = (x, y, z)
+    return m
+
+
+def static(m: np.ndarray) -> Pose:
+    """A pose that does not change with time."""
+    return lambda _t: m
+
+
+@dataclass
+class Primitive:
+    """A shape in its object frame: 'sphere' (size (r,)), 'box' (half extents (a, b, c)),
+    'quad' (plane z = 0, half sizes (a, b)) or 'wing' (a quad cut to butterfly-wing lobes,
+    size (a, b, side) with side = +1 right wing, -1 left wing)."""
+
+    kind: str
+    size: tuple[float, ...]
+    pose: Pose
+    texture: Texture
+    moving: bool
+
+    def spec(self) -> tuple[str, list[float], str, list[float], bool]:
+        """The tuple `_core.SceneRenderer` takes."""
+        name, params = self.texture
+        return self.kind, [float(v) for v in self.size], name, [float(v) for v in params], self.moving
+
+
+def _flat(colours: Sequence[Rgb]) -> list[float]:
+    return [float(c) for rgb in colours for c in rgb]
+
+
+def solid(colour: Rgb) -> Texture:
+    """One colour (linear RGB)."""
+    return "solid", list(colour)
+
+
+def checker(cells_u: float, cells_v: float, a: Rgb, b: Rgb, axes=(0, 1), scale=(1.0, 1.0)) -> Texture:
+    """Checkerboard: cell index floor(p[axis] / scale * cells) along two object-frame axes."""
+    return "checker", [cells_u, cells_v, *scale, *axes, *a, *b]
+
+
+def wall(palette: Sequence[Rgb], cell: float, seed: int) -> Texture:
+    """Tiles of `cell` metres in pseudo-random palette colours with dark grout; every third tile
+    carries diagonal stripes, so edges appear in all orientations."""
+    return "wall", [cell, seed, *_flat(palette)]
+
+
+def sphere_segments(n_lon: int, n_lat: int, colours: Sequence[Rgb]) -> Texture:
+    """Beach-ball segments around the object z axis, alternate latitude bands darkened."""
+    return "segments", [n_lon, n_lat, *_flat(colours)]
+
+
+def wing_pattern(half: tuple[float, float], side: float) -> Texture:
+    """Monarch-like wing: orange with black radial veins, black border with white spots."""
+    return "wing", [half[0], half[1], side]
+
+
+def clock_face(half: tuple[float, float]) -> Texture:
+    """Red clock case; on its -z face a white dial with 12 ticks and a brass rim."""
+    return "clock", list(half)
+
+
+def feathers() -> Texture:
+    """Yellow toy body with darker feather patches (a lon/lat checker)."""
+    return "feathers", []
