@@ -5,7 +5,7 @@ import os
 import pytest
 import torch
 
-from evsplat.atomic import atomic_path, write_text_atomic
+from evsplat.data.atomic import write_atomic, write_text_atomic
 from evsplat.errors import EvsplatError
 from evsplat.train.checkpoint import (
     latest_checkpoint,
@@ -68,9 +68,12 @@ def test_missing_run_folder_and_empty_run_folder_are_errors(tmp_path):
 def test_atomic_write_failure_leaves_old_file_and_no_temporary(tmp_path):
     target = tmp_path / "out.txt"
     write_text_atomic(target, "old")
+
+    def half_then_fail(tmp):
+        tmp.write_text("half")
+        raise RuntimeError("disk full")
+
     with pytest.raises(RuntimeError):
-        with atomic_path(target) as tmp:
-            tmp.write_text("half")
-            raise RuntimeError("disk full")
+        write_atomic(target, half_then_fail)
     assert target.read_text() == "old"
     assert os.listdir(tmp_path) == ["out.txt"]

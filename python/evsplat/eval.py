@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsplat.atomic import write_text_atomic
+from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset, load_dataset
 from evsplat.data.images import read_png
 from evsplat.metrics import Lpips, fit_log_linear, psnr, ssim

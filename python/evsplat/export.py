@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsplat.atomic import atomic_path
+from evsplat.data.atomic import write_atomic
 from evsplat.render import Renderer
 
 
@@ -54,10 +54,8 @@ def write_ply(path: Path, g: dict[str, np.ndarray]) -> None:
     header += f"element vertex {n}\n"
     header += "".join(f"property float {name}\n" for name in names)
     header += "end_header\n"
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            f.write(header.encode("ascii"))
-            f.write(np.ascontiguousarray(table).tobytes())
+    payload = header.encode("ascii") + np.ascontiguousarray(table).tobytes()
+    write_atomic(path, lambda tmp: tmp.write_bytes(payload))
 
 
 def export_ply(run_dir: Path, t_us: float, out: Path) -> int:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evsplat.atomic import atomic_path
+from evsplat.data.atomic import write_atomic
 
 
 def _pyplot():
@@ -40,8 +40,7 @@ def plot_losses(history: list[dict], out: Path) -> None:
     ax.legend(fontsize=8)
     ax.set_title("training losses")
     fig.tight_layout()
-    with atomic_path(out, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
+    write_atomic(out, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     plt.close(fig)
 
 
@@ -70,6 +69,5 @@ def side_by_side(frames: list[dict], out: Path, title: str = "") -> None:
     if title:
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    with atomic_path(out, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
+    write_atomic(out, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     plt.close(fig)

@@ -12,7 +12,7 @@ from typing import Any
 
 import torch
 
-from evsplat.atomic import atomic_path, write_text_atomic
+from evsplat.data.atomic import write_atomic, write_text_atomic
 from evsplat.errors import EvsplatError
 
 FORMAT = "evsplat-checkpoint"
@@ -30,8 +30,7 @@ def save_checkpoint(run_dir: Path, iteration: int, state: dict[str, Any], keep: 
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"ckpt_{iteration:07d}.pt"
     payload = {"format": FORMAT, "version": VERSION, "iteration": iteration, **state}
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+    write_atomic(path, lambda tmp: torch.save(payload, tmp))
     write_text_atomic(folder / "latest", path.name + "\n")
     for old in list_checkpoints(run_dir)[:-keep]:
         old.unlink(missing_ok=True)

@@ -173,6 +173,9 @@ def make_depth_prior(kind: str, dataset) -> DepthPrior | None:
 
 def _scene_of(dataset):
     """The built-in scene a simulated dataset came from, or None for other data."""
-    from evsplat.scenes import scene_from_meta
+    from evsplat.scenes import get_scene, scene_names
 
-    return scene_from_meta(dataset.meta)
+    meta = dataset.meta
+    if meta.get("generator") != "evsplat simulate" or meta.get("scene") not in scene_names():
+        return None
+    return get_scene(meta["scene"], size=(meta["width"], meta["height"]), tiny=meta["tiny"])

@@ -16,10 +16,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsplat.atomic import write_text_atomic
 from evsplat.camera import project_points, viewmat
+from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset
 from evsplat.data.events import bayer_channel_map
+from evsplat.data.poses import read_tum
 from evsplat.errors import EvsplatError
 from evsplat.losses.depth import silog
 from evsplat.losses.event import bayer_select, event_loss, log_intensity
@@ -117,9 +118,11 @@ class Trainer:
             size = np.log(np.maximum(2.0 * depth / focal, 1e-6)).astype(np.float32)
             self.model.log_scales.copy_(torch.from_numpy(size)[:, None].expand(-1, 3))
         self.mlp = DeformationMLP(cfg.model)
-        self.optimizer = torch.optim.Adam(self.model.param_groups(cfg.model), eps=1e-15)
+        self.optimizer = torch.optim.Adam(
+            self.model.param_groups(cfg.model, self.extent), eps=1e-15
+        )
         self.mlp_optimizer = torch.optim.Adam(self.mlp.parameters(), lr=cfg.model.mlp_lr)
-        self.densifier = Densifier(cfg.densify, self.extent)
+        self.densifier = Densifier(cfg.densify, self.extent, cfg.schedule.iterations)
         self.renderer = Renderer(
             model=self.model,
             mlp=None,
@@ -134,6 +137,8 @@ class Trainer:
         if self.channels == 3:
             cmap = bayer_channel_map(data.bayer, data.width, data.height)
             self.channel_map = torch.from_numpy(cmap.astype(np.int64))
+        # The measured poses travel with every checkpoint so renders need no dataset.
+        self.pose_samples = read_tum(data.root / "poses.txt")
         self.stats = TrainStats()
         self.start_iteration = 0
         self.bad_in_a_row = 0
@@ -327,10 +332,7 @@ class Trainer:
                 "channels": self.channels,
                 "bayer": data.bayer,
             },
-            "trajectory": {
-                "times_us": data.trajectory_samples[0],
-                "c2w": data.trajectory_samples[1],
-            },
+            "trajectory": {"times_us": self.pose_samples[0], "c2w": self.pose_samples[1]},
             "dataset": str(data.root),
             "stats": {
                 "skipped_nonfinite": self.stats.skipped_nonfinite,
@@ -352,7 +354,9 @@ class Trainer:
         self.model = GaussianModel.from_checkpoint(state["gaussians"])
         self.renderer.model = self.model
         self.mlp.load_state_dict(state["mlp_full"])
-        self.optimizer = torch.optim.Adam(self.model.param_groups(self.cfg.model), eps=1e-15)
+        self.optimizer = torch.optim.Adam(
+            self.model.param_groups(self.cfg.model, self.extent), eps=1e-15
+        )
         self.optimizer.load_state_dict(state["optimizer"])
         self.mlp_optimizer.load_state_dict(state["mlp_optimizer"])
         self.densifier.load_state_dict(state["densifier"])
