@@ -26,11 +26,11 @@ def test_colour_fit_of_a_constant_render_is_finite_and_matches_the_mean_log_leve
 def test_psnr_matches_the_analytic_value_and_respects_a_mask():
     a = np.zeros((10, 10, 3), np.float32)
     b = np.full_like(a, 0.1)
-    assert abs(psnr(a, b) - 20.0) < 1e-9
+    assert abs(psnr(a, b) - 20.0) < 1e-5  # 0.1 is not exact in float32
     mask = np.zeros((10, 10), bool)
     mask[:5] = True
     b[5:] = 1.0  # outside the mask: ignored
-    assert abs(psnr(a, b, mask) - 20.0) < 1e-9
+    assert abs(psnr(a, b, mask) - 20.0) < 1e-5
     assert psnr(a, a) == 100.0
 
 
