@@ -101,7 +101,7 @@ pub fn extract_patches(
     }
     let m = bounds.len() - 1;
     let per_centre = if per_window { 2 * m } else { 2 };
-    if centres.len() % per_centre != 0 {
+    if !centres.chunks_exact(per_centre).remainder().is_empty() {
         return Err(EventError::CentresShape {
             len: centres.len(),
             windows: m,
