@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from evsplat.config import ModelConfig
-from evsplat.model.gaussians import GaussianModel, quat_to_rotmat
+from evsplat.model.gaussians import GaussianModel, eval_sh, quat_to_rotmat
 
 
 def test_random_init_places_means_inside_bounds_with_spacing_scale_opacity_and_grey():
@@ -87,6 +87,23 @@ def test_colors_of_degree_one_follow_the_3dgs_sh_formula_seen_from_the_camera():
     np.testing.assert_allclose(got.detach().numpy(), np.maximum(expected, 0), atol=1e-6)
     # No camera centre: the view-independent DC band only.
     np.testing.assert_allclose(m.colors().detach().numpy(), np.maximum(c0 * sh[:, 0] + 0.5, 0))
+
+
+def test_sh_basis_up_to_degree_three_is_orthonormal_on_the_sphere():
+    # Fibonacci sphere: near-uniform directions, so the mean approximates (1/4π)∫ over S².
+    n = 40_000
+    k = torch.arange(n, dtype=torch.float64) + 0.5
+    z = 1 - 2 * k / n
+    phi = math.pi * (1 + 5**0.5) * k
+    r = torch.sqrt(1 - z * z)
+    dirs = torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=-1)
+    one_hot = torch.eye(16, dtype=torch.float64)
+    basis = torch.stack(
+        [eval_sh(one_hot[j].reshape(1, 16, 1).expand(n, 16, 1), dirs)[:, 0] for j in range(16)],
+        dim=1,
+    )
+    gram = 4 * math.pi * basis.T @ basis / n
+    assert torch.allclose(gram, torch.eye(16, dtype=torch.float64), atol=2e-3)
 
 
 def test_param_groups_cover_every_parameter_with_3dgs_rates_scaled_by_extent():
