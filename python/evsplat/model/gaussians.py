@@ -169,6 +169,7 @@ class GaussianModel(nn.Module):
         if self.sh_degree == 0 or camera_center is None:
             value = SH_C0 * self.sh[:, 0]
         else:
+            # The viewing direction is a constant: colour must not pull Gaussians around.
             d = self.means.detach() - camera_center.to(self.means.dtype).reshape(1, 3)
             dirs = d / torch.sqrt((d * d).sum(-1, keepdim=True).clamp_min(1e-12))
             value = eval_sh(self.sh, dirs)

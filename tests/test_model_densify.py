@@ -1,0 +1,154 @@
+"""Densifier: clone / split / prune / opacity reset / cap on constructed cases, Adam in sync."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+import torch
+
+from evsplat.config import DensifyConfig, ModelConfig
+from evsplat.model.densify import Densifier
+from evsplat.model.gaussians import PARAM_NAMES, GaussianModel
+
+W = H = 100
+
+
+def four_gaussians() -> GaussianModel:
+    """0 small, 1 large, 2 small, 3 small and nearly transparent (extent 1, dense size 0.01)."""
+    m = GaussianModel(4, 1)
+    with torch.no_grad():
+        m.means.copy_(torch.tensor([[0.0, 0, 2], [0.5, 0, 2], [-0.5, 0, 2], [0, 0.5, 2]]))
+        m.log_scales.copy_(
+            torch.log(torch.tensor([0.005, 0.05, 0.005, 0.005]))[:, None].repeat(1, 3)
+        )
+        m.opacity_logits.copy_(torch.logit(torch.tensor([0.5, 0.5, 0.5, 0.001])))
+        m.sh.copy_(torch.arange(4.0).reshape(4, 1, 1))
+    return m
+
+
+def adam_with_state(m: GaussianModel) -> torch.optim.Adam:
+    """Adam over the model with non-zero moments; parameter values are left as they were."""
+    opt = torch.optim.Adam(m.param_groups(ModelConfig()), eps=1e-15)
+    saved = [p.detach().clone() for p in m.parameters()]
+    for p in m.parameters():
+        p.grad = torch.ones_like(p)
+    opt.step()
+    opt.zero_grad(set_to_none=True)
+    with torch.no_grad():
+        for p, v in zip(m.parameters(), saved):
+            p.copy_(v)
+    return opt
+
+
+def assert_optimizer_matches_model(opt: torch.optim.Adam, m: GaussianModel) -> None:
+    by_name = {g["name"]: g["params"] for g in opt.param_groups}
+    for name in PARAM_NAMES:
+        p = getattr(m, name)
+        assert len(by_name[name]) == 1 and by_name[name][0] is p
+        state = opt.state[p]
+        assert state["exp_avg"].shape == p.shape and state["exp_avg_sq"].shape == p.shape
+
+
+def test_densifier_clones_small_splits_large_and_prunes_transparent_gaussians():
+    m = four_gaussians()
+    opt = adam_with_state(m)
+    old_state_2 = opt.state[m.means]["exp_avg"][2].clone()
+    d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=30_000)
+    high, low = 1e-4, 1e-7  # pixel units; x W/2 = 5e-3 and 5e-6 against the 2e-4 threshold
+    grads = torch.tensor([[high, 0.0], [0.0, high], [low, 0.0], [low, 0.0]])
+    for _ in range(3):
+        d.accumulate(grads, torch.tensor([3, 5, 3, 3]), W, H)
+    torch.manual_seed(0)
+    counts = d.step(m, opt, 600)
+    assert counts == {"cloned": 1, "split": 1, "pruned": 1}
+    # Kept originals 0 and 2, then the clone of 0, then the two children of 1.
+    assert m.num_gaussians == 5
+    assert torch.equal(m.sh.detach().reshape(-1), torch.tensor([0.0, 2.0, 0.0, 1.0, 1.0]))
+    assert torch.equal(m.means[2], m.means[0])
+    child_scale = math.log(0.05 / 1.6)
+    assert torch.allclose(m.log_scales[3:], torch.full((2, 3), child_scale))
+    assert float((m.means.detach()[3:] - torch.tensor([0.5, 0, 2])).norm(dim=-1).max()) < 0.25
+    assert torch.allclose(m.opacities()[2:], torch.full((3,), 0.5))
+    # Adam: shapes follow, old rows keep their moments, new rows start at zero.
+    assert_optimizer_matches_model(opt, m)
+    assert torch.equal(opt.state[m.means]["exp_avg"][1], old_state_2)
+    assert torch.equal(opt.state[m.means]["exp_avg"][2:], torch.zeros(3, 3))
+    # The optimizer still steps, and moves the new Gaussians too.
+    before = m.means.detach().clone()
+    for p in m.parameters():
+        p.grad = torch.ones_like(p)
+    opt.step()
+    assert bool((m.means.detach() != before).all())
+    # Statistics restart for the new set.
+    assert d.grad_accum.shape == (5,) and float(d.denom.sum()) == 0.0
+
+
+def test_densifier_does_nothing_outside_its_interval_or_window():
+    m = four_gaussians()
+    opt = adam_with_state(m)
+    d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=30_000)
+    d.accumulate(torch.full((4, 2), 1e-3), torch.ones(4, dtype=torch.int32), W, H)
+    assert d.step(m, opt, 650) == {}  # not a multiple of the interval
+    assert d.step(m, opt, 400) == {}  # before the start (500 of 30k)
+    assert d.step(m, opt, 15_100) == {}  # after the stop (15k of 30k)
+    assert m.num_gaussians == 4
+
+
+def test_densifier_iteration_points_scale_with_the_run_length():
+    d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=3000)
+    assert (d.start, d.stop, d.reset_interval) == (50, 1500, 300)
+
+
+def test_opacity_reset_caps_opacities_and_zeroes_their_adam_moments():
+    m = four_gaussians()
+    opt = adam_with_state(m)
+    means_state = opt.state[m.means]["exp_avg"].clone()
+    d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=30_000)
+    d.accumulate(torch.zeros(4, 2), torch.ones(4, dtype=torch.int32), W, H)
+    counts = d.step(m, opt, 3000)
+    assert counts["reset"] == 1 and counts["pruned"] == 1
+    assert torch.allclose(m.opacities(), torch.full((3,), 0.01), atol=1e-6)
+    assert torch.equal(opt.state[m.opacity_logits]["exp_avg"], torch.zeros(3))
+    assert torch.equal(opt.state[m.means]["exp_avg"], means_state[[0, 1, 2]])
+    assert_optimizer_matches_model(opt, m)
+
+
+def test_after_the_first_reset_huge_gaussians_are_pruned_by_screen_and_world_size():
+    m = four_gaussians()
+    with torch.no_grad():
+        m.log_scales[1] = math.log(0.5)  # > 0.1 x extent in the world
+        m.opacity_logits[3] = 0.0
+    opt = adam_with_state(m)
+    d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=30_000)
+    d.accumulate(torch.zeros(4, 2), torch.tensor([3, 3, 3, 40]), W, H)  # 3 is 40 px wide
+    counts = d.step(m, opt, 3100)
+    assert counts == {"cloned": 0, "split": 0, "pruned": 2}
+    assert torch.equal(m.sh.detach().reshape(-1), torch.tensor([0.0, 2.0]))
+    assert_optimizer_matches_model(opt, m)
+
+
+def test_max_gaussians_cap_prunes_the_least_opaque():
+    m = four_gaussians()
+    with torch.no_grad():
+        m.opacity_logits.copy_(torch.tensor([0.3, -2.0, 1.0, 0.5]))
+    opt = adam_with_state(m)
+    d = Densifier(dataclasses.replace(DensifyConfig(), max_gaussians=2), 1.0, 30_000)
+    assert d.step(m, opt, 7) == {"capped": 2}
+    assert torch.equal(m.sh.detach().reshape(-1), torch.tensor([2.0, 3.0]))
+    assert_optimizer_matches_model(opt, m)
+
+
+def test_accumulate_adds_ndc_gradient_norms_of_visible_gaussians_only():
+    d = Densifier(DensifyConfig(), scene_extent=1.0)
+    grads = torch.tensor([[3.0, 4.0], [1.0, 1.0], [float("nan"), 0.0]])
+    d.accumulate(grads, torch.tensor([2, 0, 1]), 100, 50)
+    d.accumulate(grads, torch.tensor([7, 0, 1]), 100, 50)
+    assert d.grad_accum[0] == pytest.approx(2 * math.hypot(3 * 50, 4 * 25))
+    assert d.grad_accum[1] == 0 and d.grad_accum[2] == 0  # invisible; NaN counted as 0
+    assert d.denom.tolist() == [2.0, 0.0, 2.0]
+    assert d.max_radii.tolist() == [7.0, 0.0, 1.0]
+    e = Densifier(DensifyConfig(), scene_extent=1.0)
+    e.load_state_dict(d.state_dict())
+    assert torch.equal(e.grad_accum, d.grad_accum) and torch.equal(e.max_radii, d.max_radii)

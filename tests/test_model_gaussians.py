@@ -1,0 +1,140 @@
+"""GaussianModel: initialisation, guarded activations, SH colour, optimizer groups, checkpoints."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from evsplat.config import ModelConfig
+from evsplat.model.gaussians import GaussianModel, eval_sh, quat_to_rotmat
+
+
+def test_random_init_places_means_inside_bounds_with_spacing_scale_opacity_and_grey():
+    lo, hi = [-1.0, 0.0, 2.0], [1.0, 0.5, 6.0]
+    m = GaussianModel.random_init(4000, 3, lo, hi, seed=3)
+    means = m.means.detach()
+    assert bool((means >= torch.tensor(lo)).all() and (means <= torch.tensor(hi)).all())
+    # The box is filled, not a corner of it.
+    assert torch.allclose(means.mean(0), torch.tensor([0.0, 0.25, 4.0]), atol=0.1)
+    spacing = (2.0 * 0.5 * 4.0 / 4000) ** (1 / 3)
+    assert torch.allclose(m.scales(), torch.full((4000, 3), spacing), rtol=1e-5)
+    assert torch.allclose(m.opacities(), torch.full((4000,), 0.1), atol=1e-6)
+    assert torch.allclose(m.colors(), torch.full((4000, 3), 0.5))
+    assert torch.equal(m.rotations(), torch.tensor([1.0, 0, 0, 0]).repeat(4000, 1))
+
+
+def test_random_init_is_reproducible_by_seed_and_accepts_a_flat_box_and_init_scale():
+    a = GaussianModel.random_init(50, 1, [0, 0, 0], [1, 1, 1], seed=7)
+    b = GaussianModel.random_init(50, 1, [0, 0, 0], [1, 1, 1], seed=7)
+    assert torch.equal(a.means, b.means)
+    flat = GaussianModel.random_init(50, 1, [0, 0, 1], [1, 1, 1])
+    assert torch.isfinite(flat.scales()).all() and bool((flat.means[:, 2] == 1).all())
+    fixed = GaussianModel.random_init(5, 1, [0, 0, 0], [1, 1, 1], init_scale=0.02)
+    assert torch.allclose(fixed.scales(), torch.full((5, 3), 0.02))
+    with pytest.raises(ValueError, match="bounds"):
+        GaussianModel.random_init(5, 1, [0, 0, 0], [1, -1, 1])
+
+
+def test_rotations_of_zero_quaternions_are_identity_with_finite_gradients():
+    m = GaussianModel(3, 1)
+    with torch.no_grad():
+        m.quats.copy_(torch.tensor([[0.0, 0, 0, 0], [2.0, 0, 0, 0], [0.0, 3.0, 0, 4.0]]))
+    r = m.rotations()
+    expected = torch.tensor([[1.0, 0, 0, 0], [1.0, 0, 0, 0], [0.0, 0.6, 0, 0.8]])
+    assert torch.allclose(r, expected)
+    (r * torch.arange(12.0).reshape(3, 4)).sum().backward()
+    assert torch.isfinite(m.quats.grad).all()
+
+
+def test_scales_are_clamped_and_finite_for_extreme_log_scales():
+    m = GaussianModel(3, 1)
+    with torch.no_grad():
+        m.log_scales.copy_(torch.tensor([[-100.0] * 3, [0.0] * 3, [100.0] * 3]))
+    s = m.scales()
+    assert torch.allclose(s[:, 0], torch.tensor([1e-6, 1.0, 1e3]), rtol=1e-5)
+    s.sum().backward()
+    assert torch.isfinite(m.log_scales.grad).all()
+
+
+def test_quat_to_rotmat_matches_rodrigues_formula():
+    axis = np.array([1.0, 2.0, -0.5])
+    axis /= np.linalg.norm(axis)
+    angle = 0.7
+    kx = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    expected = np.eye(3) + math.sin(angle) * kx + (1 - math.cos(angle)) * kx @ kx
+    q = torch.tensor([[math.cos(angle / 2), *(math.sin(angle / 2) * axis)]])
+    np.testing.assert_allclose(quat_to_rotmat(q)[0].numpy(), expected, atol=1e-12)
+
+
+def test_colors_of_degree_one_follow_the_3dgs_sh_formula_seen_from_the_camera():
+    m = GaussianModel(2, 3, sh_degree=1)
+    rng = np.random.default_rng(0)
+    sh = rng.normal(0, 0.3, (2, 4, 3))
+    means = np.array([[1.0, 2.0, 3.0], [-1.0, 0.5, 4.0]])
+    with torch.no_grad():
+        m.sh.copy_(torch.tensor(sh))
+        m.means.copy_(torch.tensor(means))
+    cam = np.array([0.5, -0.5, 0.0])
+    d = means - cam
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    c0, c1 = 0.28209479177387814, 0.4886025119029199
+    x, y, z = d[:, :1], d[:, 1:2], d[:, 2:]
+    expected = c0 * sh[:, 0] - c1 * y * sh[:, 1] + c1 * z * sh[:, 2] - c1 * x * sh[:, 3] + 0.5
+    got = m.colors(torch.tensor(cam, dtype=torch.float32))
+    np.testing.assert_allclose(got.detach().numpy(), np.maximum(expected, 0), atol=1e-6)
+    # No camera centre: the view-independent DC band only.
+    np.testing.assert_allclose(m.colors().detach().numpy(), np.maximum(c0 * sh[:, 0] + 0.5, 0))
+
+
+def test_sh_basis_up_to_degree_three_is_orthonormal_on_the_sphere():
+    # Fibonacci sphere: near-uniform directions, so the mean approximates (1/4π)∫ over S².
+    n = 40_000
+    k = torch.arange(n, dtype=torch.float64) + 0.5
+    z = 1 - 2 * k / n
+    phi = math.pi * (1 + 5**0.5) * k
+    r = torch.sqrt(1 - z * z)
+    dirs = torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=-1)
+    one_hot = torch.eye(16, dtype=torch.float64)
+    basis = torch.stack(
+        [eval_sh(one_hot[j].reshape(1, 16, 1).expand(n, 16, 1), dirs)[:, 0] for j in range(16)],
+        dim=1,
+    )
+    gram = 4 * math.pi * basis.T @ basis / n
+    assert torch.allclose(gram, torch.eye(16, dtype=torch.float64), atol=2e-3)
+
+
+def test_param_groups_cover_every_parameter_with_3dgs_rates_scaled_by_extent():
+    m = GaussianModel(4, 1)
+    cfg = ModelConfig()
+    groups = m.param_groups(cfg, scene_extent=5.0)
+    lrs = {g["name"]: g["lr"] for g in groups}
+    assert lrs == {
+        "means": pytest.approx(1.6e-4 * 5.0),
+        "log_scales": 5e-3,
+        "quats": 1e-3,
+        "opacity_logits": 5e-2,
+        "sh": 2.5e-3,
+    }
+    grouped = {id(p) for g in groups for p in g["params"]}
+    assert grouped == {id(p) for p in m.parameters()}
+    torch.optim.Adam(groups, eps=1e-15)  # accepted as is
+
+
+def test_checkpoint_round_trip_and_foreign_state_is_rejected():
+    m = GaussianModel.random_init(10, 3, [0, 0, 0], [1, 1, 1], sh_degree=2, seed=1)
+    state = m.state_for_checkpoint()
+    back = GaussianModel.from_checkpoint(state)
+    for name in ("means", "log_scales", "quats", "opacity_logits", "sh"):
+        assert torch.equal(getattr(back, name), getattr(m, name))
+    assert (back.channels, back.sh_degree) == (3, 2)
+    with pytest.raises(ValueError, match="lacks sh"):
+        GaussianModel.from_checkpoint({k: v for k, v in state.items() if k != "sh"})
+    bad = dict(state, quats=torch.zeros(10, 3))
+    with pytest.raises(ValueError, match="quats has shape"):
+        GaussianModel.from_checkpoint(bad)
+    nan = dict(state, means=torch.full((10, 3), float("nan")))
+    with pytest.raises(ValueError, match="NaN"):
+        GaussianModel.from_checkpoint(nan)
