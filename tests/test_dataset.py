@@ -54,7 +54,11 @@ def test_simulated_tiny_dataset_loads_and_is_consistent(tiny_ball):
 def test_same_seed_gives_identical_files_and_other_seed_different_events(tiny_ball, tmp_path):
     simulate_dataset("ball", tmp_path / "again", tiny=True, seed=0, progress=False)
     simulate_dataset("ball", tmp_path / "other", tiny=True, seed=1, progress=False)
-    h0, h1, h2 = folder_hashes(tiny_ball), folder_hashes(tmp_path / "again"), folder_hashes(tmp_path / "other")
+    h0, h1, h2 = (
+        folder_hashes(tiny_ball),
+        folder_hashes(tmp_path / "again"),
+        folder_hashes(tmp_path / "other"),
+    )
     assert h0 == h1
     assert h0["events.h5"] != h2["events.h5"]
 
@@ -79,7 +83,9 @@ def test_bad_simulate_inputs_fail_in_one_line_and_write_nothing(tmp_path, capsys
         (["--scene", "ball", "--speed", "0"], "--speed 0"),
         (["--scene", "ball", "--size", "2x2"], "--size 2x2"),
     ]:
-        assert main(["simulate", *argv, "--tiny", "--no-progress", "--out", str(tmp_path / "o")]) == 2
+        assert (
+            main(["simulate", *argv, "--tiny", "--no-progress", "--out", str(tmp_path / "o")]) == 2
+        )
         err = capsys.readouterr().err
         assert match in err and err.count("\n") == 1
     (tmp_path / "full").mkdir()
@@ -132,17 +138,39 @@ def _edit_poses(d, fn):
     [
         (lambda d: (d / "events.h5").unlink(), "events.h5: missing"),
         (_set_json("meta.json", width=97), "sensor size 97x96 differs from intrinsics.json"),
-        (lambda d: (_set_json("meta.json", width=64)(d), _set_json("intrinsics.json", width=64)(d)), "events.h5: sensor size 96x96 differs from meta.json 64x96"),
-        (lambda d: _edit_poses(d, lambda ls: [ls[0], ls[2], ls[1], *ls[3:]]), "not strictly increasing at index 1"),
-        (lambda d: _edit_poses(d, lambda ls: [ls[0], ls[1].rsplit(" ", 1)[0] + " nan", *ls[2:]]), "poses.txt:2: NaN"),
+        (
+            lambda d: (
+                _set_json("meta.json", width=64)(d),
+                _set_json("intrinsics.json", width=64)(d),
+            ),
+            "events.h5: sensor size 96x96 differs from meta.json 64x96",
+        ),
+        (
+            lambda d: _edit_poses(d, lambda ls: [ls[0], ls[2], ls[1], *ls[3:]]),
+            "not strictly increasing at index 1",
+        ),
+        (
+            lambda d: _edit_poses(d, lambda ls: [ls[0], ls[1].rsplit(" ", 1)[0] + " nan", *ls[2:]]),
+            "poses.txt:2: NaN",
+        ),
         (lambda d: _edit_poses(d, lambda ls: ls[:-10]), "poses cover"),
         (_set_json("meta.json", bayer="XYZ"), "'bayer' must be one of"),
         (_set_json("intrinsics.json", distortion=[0.1, 0, 0, 0]), "distortion is not supported"),
         (lambda d: (d / "test" / "depth_00002.exr").unlink(), "depth_00002.exr: missing"),
         (lambda d: (d / "meta.json").write_text("{oops"), "meta.json: not valid JSON"),
     ],
-    ids=["missing_events", "meta_vs_intrinsics", "events_vs_meta", "non_monotonic_poses", "nan_quaternion",
-         "poses_too_short", "bad_bayer", "distortion", "missing_test_file", "broken_json"],
+    ids=[
+        "missing_events",
+        "meta_vs_intrinsics",
+        "events_vs_meta",
+        "non_monotonic_poses",
+        "nan_quaternion",
+        "poses_too_short",
+        "bad_bayer",
+        "distortion",
+        "missing_test_file",
+        "broken_json",
+    ],
 )
 def test_check_reports_each_broken_dataset_in_one_line(tiny_ball, tmp_path, capsys, edit, match):
     d = break_copy(tiny_ball, tmp_path / "d", edit)

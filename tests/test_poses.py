@@ -47,7 +47,9 @@ def test_tum_round_trip_keeps_times_exact_and_poses_to_1e_12(tmp_path):
 
 def test_tum_seconds_are_parsed_exactly_and_comments_skipped(tmp_path):
     (tmp_path / "p.txt").write_text(
-        "# t tx ty tz qx qy qz qw\n\n1700000000.123456 1 2 3 0 0 0 1\n1700000000.1234575 0 0 0 0 0 0 1\n"
+        "# t tx ty tz qx qy qz qw\n\n"
+        "1700000000.123456 1 2 3 0 0 0 1\n"
+        "1700000000.1234575 0 0 0 0 0 0 1\n"
     )
     t, m = read_tum(tmp_path / "p.txt")
     assert t.tolist() == [1_700_000_000_123_456, 1_700_000_000_123_458]  # half-µs rounds to even
@@ -57,14 +59,24 @@ def test_tum_seconds_are_parsed_exactly_and_comments_skipped(tmp_path):
 @pytest.mark.parametrize(
     ("text", "match"),
     [
-        ("0.0 0 0 0 0 0 0 1\n0.0 0 0 0 0 0 0 1\n", r"p\.txt: pose times not strictly increasing at index 1"),
+        (
+            "0.0 0 0 0 0 0 0 1\n0.0 0 0 0 0 0 0 1\n",
+            r"p\.txt: pose times not strictly increasing at index 1",
+        ),
         ("0.0 0 0 0 0 0 0 1\n0.1 0 0 0 nan 0 0 1\n", r"p\.txt:2: NaN"),
         ("0.0 0 0 0 0 0 0 1\n0.1 0 0 0 0 0 0\n", r"p\.txt:2: expected 8 values"),
         ("0.0 0 0 0 0 0 0 1\n0.1 0 0 0 0 0 0 2\n", r"p\.txt:2: quaternion norm"),
         ("0.0 0 0 0 0 0 0 1\n0.1 a 0 0 0 0 0 1\n", r"p\.txt:2: not a number"),
         ("# only a comment\n", r"p\.txt: no poses"),
     ],
-    ids=["non_monotonic", "nan_quaternion", "short_line", "non_unit_quaternion", "garbage", "empty"],
+    ids=[
+        "non_monotonic",
+        "nan_quaternion",
+        "short_line",
+        "non_unit_quaternion",
+        "garbage",
+        "empty",
+    ],
 )
 def test_bad_tum_files_give_one_line_errors(tmp_path, text, match):
     (tmp_path / "p.txt").write_text(text)

@@ -15,7 +15,7 @@ def hat(w, v):
 
 
 def expm(a):
-    """Matrix exponential by scaling and squaring of a Taylor series (oracle independent of Rust)."""
+    """Matrix exponential by scaling and squaring of a Taylor series (independent of Rust)."""
     k = max(0, int(np.ceil(np.log2(max(np.abs(a).max(), 1e-300)))) + 1)
     b = a / 2**k
     term, out = np.eye(4), np.eye(4)

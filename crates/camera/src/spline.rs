@@ -169,7 +169,8 @@ impl SplineSe3 {
                 ctrl[k + 1] = ctrl[k + 1].mul(&Se3::exp(c.0, c.1));
             }
         }
-        if !(residual < ACCEPTABLE) {
+        // NaN residuals (degenerate input) fail too.
+        if residual.is_nan() || residual >= ACCEPTABLE {
             return Err(SplineError::NotConverged(residual));
         }
         Self::extend_ends(&mut ctrl);

@@ -11,6 +11,9 @@ fn spline_err(e: SplineError) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
 
+/// (angular, linear) body velocities, [N,3] each.
+type Velocities<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>);
+
 /// Cumulative cubic B-spline on SE(3). Times are float64 µs relative to an origin the caller
 /// keeps (so absolute int64 timestamps never lose precision in a float).
 #[pyclass(frozen, module = "evsplat._core")]
@@ -92,7 +95,7 @@ impl SplineTrajectory {
         &self,
         py: Python<'py>,
         times: PyReadonlyArray1<'py, f64>,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
+    ) -> PyResult<Velocities<'py>> {
         let t = times.as_slice()?;
         let vel = py.detach(|| self.inner.velocities(t)).map_err(spline_err)?;
         let w: Vec<Vec<f64>> = vel.iter().map(|(w, _)| w.to_array().to_vec()).collect();

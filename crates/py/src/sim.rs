@@ -45,15 +45,7 @@ impl EventSimulator {
         bayer: &str,
         seed: u64,
     ) -> PyResult<Self> {
-        let bayer = match bayer {
-            "mono" => Bayer::Mono,
-            "RGGB" => Bayer::Rggb,
-            other => {
-                return Err(PyValueError::new_err(format!(
-                    "bayer pattern '{other}' is not supported; use 'RGGB' or 'mono'"
-                )))
-            }
-        };
+        let bayer = Bayer::parse(bayer).map_err(|e| PyValueError::new_err(e.to_string()))?;
         let cfg = SimConfig {
             c_pos,
             c_neg,
@@ -125,6 +117,9 @@ type FrameArrays<'py> = (
     Bound<'py, PyArray2<bool>>,
 );
 
+/// (shape, size, texture, texture parameters, moving) as the Python scene library gives them.
+type PrimitiveSpec = (String, Vec<f64>, String, Vec<f64>, bool);
+
 /// Analytic ray caster for the synthetic scenes (independent of the splatting rasterizer).
 #[pyclass(frozen, module = "evsplat._core")]
 struct SceneRenderer {
@@ -140,7 +135,7 @@ impl SceneRenderer {
     /// `k`: (fx, fy, cx, cy).
     #[new]
     fn new(
-        primitives: Vec<(String, Vec<f64>, String, Vec<f64>, bool)>,
+        primitives: Vec<PrimitiveSpec>,
         width: usize,
         height: usize,
         k: [f64; 4],

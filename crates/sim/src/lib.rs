@@ -10,6 +10,9 @@ mod rng;
 
 use rayon::prelude::*;
 
+pub use evsplat_events::Bayer;
+use evsplat_events::Sensor;
+
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum SimError {
     #[error("sensor size {0}x{1} must be positive and at most 65535x65535")]
@@ -32,32 +35,6 @@ pub enum SimError {
     NotIncreasing { t: i64, prev: i64 },
     #[error("frame at {t} us has a non-finite log intensity at pixel (x={x}, y={y})")]
     NonFinite { t: i64, x: usize, y: usize },
-}
-
-/// Colour filter layout: which channel of an RGB frame each pixel sees.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Bayer {
-    /// One channel per frame; every pixel sees it.
-    Mono,
-    /// 2x2 tile R G / G B starting at pixel (0, 0).
-    Rggb,
-}
-
-impl Bayer {
-    pub fn channels(self) -> usize {
-        match self {
-            Bayer::Mono => 1,
-            Bayer::Rggb => 3,
-        }
-    }
-
-    /// Channel index (0=R, 1=G, 2=B) seen by pixel (x, y).
-    pub fn channel(self, x: usize, y: usize) -> usize {
-        match self {
-            Bayer::Mono => 0,
-            Bayer::Rggb => [0, 1, 1, 2][(y & 1) << 1 | (x & 1)],
-        }
-    }
 }
 
 #[derive(Clone, Debug)]
@@ -124,6 +101,8 @@ pub struct EventSimulator {
     height: usize,
     cfg: SimConfig,
     pixels: Vec<Pixel>,
+    /// Channel of the RGB frame that each pixel sees (all 0 for mono).
+    channel: Vec<u8>,
     last_t: Option<i64>,
     step: u64,
 }
@@ -179,11 +158,17 @@ impl EventSimulator {
             order.swap(k, j.min(n - 1));
             pixels[order[k]].hot = true;
         }
+        let sensor = Sensor {
+            width: width as u32,
+            height: height as u32,
+        };
+        let channel = cfg.bayer.channel_map(sensor);
         Ok(EventSimulator {
             width,
             height,
             cfg,
             pixels,
+            channel,
             last_t: None,
             step: 0,
         })
@@ -213,8 +198,9 @@ impl EventSimulator {
                 return Err(SimError::NotIncreasing { t: t_us, prev });
             }
         }
-        let bayer = self.cfg.bayer;
-        let seen = |x: usize, y: usize| frame[(y * w + x) * ch + bayer.channel(x, y)] as f64;
+        let channel = &self.channel;
+        let seen =
+            |x: usize, y: usize| frame[(y * w + x) * ch + channel[y * w + x] as usize] as f64;
         if let Some(i) = (0..w * h).find(|&i| !seen(i % w, i / w).is_finite()) {
             return Err(SimError::NonFinite {
                 t: t_us,

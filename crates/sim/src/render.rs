@@ -303,13 +303,15 @@ impl Texture {
                     (v.floor() as i64).rem_euclid(64),
                 );
                 let (fu, fv) = (frac(u), frac(v));
-                if fu < 0.06 || fv < 0.06 {
-                    return [0.06; 3]; // grout
-                }
                 let c = palette[table[(iv * 64 + iu) as usize] as usize];
+                // Grout and stripes are darker shades of the tile: clear edges of moderate
+                // contrast (~0.5-1 in log intensity, a few events per crossing).
+                if fu < 0.06 || fv < 0.06 {
+                    return scale(c, 0.35);
+                }
                 // Diagonal stripes in every third tile: edges in every orientation.
                 if (iu + iv) % 3 == 0 && frac((fu + fv) * 4.0) < 0.5 {
-                    scale(c, 0.45)
+                    scale(c, 0.6)
                 } else {
                     c
                 }
@@ -343,7 +345,7 @@ impl Texture {
                 let vein = (frac(ang * 7.0 / std::f64::consts::PI) - 0.5).abs() < 0.07
                     || (r - 1.1).abs() < 0.05;
                 if vein || border {
-                    [0.03, 0.02, 0.02]
+                    [0.12, 0.08, 0.06]
                 } else {
                     [0.95, 0.45, 0.05]
                 }
@@ -358,7 +360,7 @@ impl Texture {
                     let tick =
                         r > 0.68 && (frac(ang * 6.0 / std::f64::consts::PI) - 0.5).abs() > 0.42;
                     if tick {
-                        [0.05; 3]
+                        [0.12; 3]
                     } else {
                         [0.92, 0.92, 0.85]
                     }

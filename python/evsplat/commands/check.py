@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-HELP = "validate a dataset folder (events, poses, intrinsics, meta, test frames); exit 2 on problems"
+HELP = (
+    "validate a dataset folder (events, poses, intrinsics, meta, test frames); exit 2 on problems"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -6,7 +6,7 @@ Layout (docs/dataset.md describes every field):
     poses_gt.txt         optional dense ground-truth poses, TUM format
     intrinsics.json      {"K": 3x3, "width", "height", "distortion": null}
     meta.json            sensor and scene metadata (c_pos, c_neg, bayer, t_start_us, t_end_us, ...)
-    test/frames.json     optional [{"time_us", "c2w", "rgb", "depth", "mask"}] with the files in test/
+    test/frames.json     optional [{"time_us", "c2w", "rgb", "depth", "mask"}], files in test/
     depth_prior/         optional precomputed depth priors
 """
 
@@ -22,11 +22,11 @@ import numpy as np
 from evsplat.data.event_files import read_events
 from evsplat.data.events import EventStream
 from evsplat.data.poses import read_tum
+from evsplat.data.simulator import BAYER_PATTERNS
 from evsplat.data.trajectory import Trajectory, validate_poses
 from evsplat.errors import EvsplatError
 
 REQUIRED_FILES = ("events.h5", "poses.txt", "intrinsics.json", "meta.json")
-BAYER_PATTERNS = ("RGGB", "mono")
 
 
 @dataclass
@@ -117,7 +117,10 @@ def _intrinsics(c: _Checker) -> tuple[np.ndarray, int, int] | None:
         c.fail(f"{path}: width and height must be positive integers, got {w!r} and {h!r}")
         ok = False
     if doc.get("distortion") is not None:
-        c.fail(f"{path}: lens distortion is not supported; undistort the events and set \"distortion\": null")
+        c.fail(
+            f"{path}: lens distortion is not supported; "
+            'undistort the events and set "distortion": null'
+        )
         ok = False
     return (K, w, h) if ok else None
 
@@ -138,11 +141,16 @@ def _meta(c: _Checker) -> dict | None:
         ok = False
     t0, t1 = doc.get("t_start_us"), doc.get("t_end_us")
     if not (isinstance(t0, int) and isinstance(t1, int) and t0 < t1):
-        c.fail(f"{path}: 't_start_us' and 't_end_us' must be integers with start < end, got {t0!r}, {t1!r}")
+        c.fail(
+            f"{path}: 't_start_us' and 't_end_us' must be integers with start < end, "
+            f"got {t0!r}, {t1!r}"
+        )
         ok = False
     for key in ("width", "height"):
         if not _positive_int(doc.get(key)):
-            c.fail(f"{path}: '{key}' (sensor size) must be a positive integer, got {doc.get(key)!r}")
+            c.fail(
+                f"{path}: '{key}' (sensor size) must be a positive integer, got {doc.get(key)!r}"
+            )
             ok = False
     return doc if ok else None
 
@@ -161,7 +169,9 @@ def _trajectory(c: _Checker, name: str, t0: int | None, t1: int | None) -> Traje
     return traj
 
 
-def _test_frames(c: _Checker, size: tuple[int, int] | None, t0: int | None, t1: int | None) -> list[TestFrame]:
+def _test_frames(
+    c: _Checker, size: tuple[int, int] | None, t0: int | None, t1: int | None
+) -> list[TestFrame]:
     from evsplat.data.images import read_exr, read_png
 
     path = c.root / "test" / "frames.json"
@@ -181,7 +191,10 @@ def _test_frames(c: _Checker, size: tuple[int, int] | None, t0: int | None, t1: 
         except (KeyError, TypeError, ValueError):
             c.fail(f"{path}: frame {i} needs 'time_us', 'c2w' (4x4), 'rgb' and 'depth'")
             continue
-        if c.attempt(validate_poses, np.array([t, t + 1]), np.stack([m, m]), f"{path} frame {i}") is None:
+        if (
+            c.attempt(validate_poses, np.array([t, t + 1]), np.stack([m, m]), f"{path} frame {i}")
+            is None
+        ):
             continue
         if t0 is not None and not (t0 <= t <= t1):
             c.fail(f"{path}: frame {i} time {t} µs is outside [{t0}, {t1}] µs")
@@ -194,7 +207,10 @@ def _test_frames(c: _Checker, size: tuple[int, int] | None, t0: int | None, t1: 
             for p, read in zip(paths, (read_png, read_exr, read_png)):
                 img = c.attempt(read, p)
                 if img is not None and img.shape[:2] != (size[1], size[0]):
-                    c.fail(f"{p}: image is {img.shape[1]}x{img.shape[0]} but the sensor is {size[0]}x{size[1]}")
+                    c.fail(
+                        f"{p}: image is {img.shape[1]}x{img.shape[0]} "
+                        f"but the sensor is {size[0]}x{size[1]}"
+                    )
         frames.append(TestFrame(int(t), m, paths[0], paths[1], paths[2] if mask else None))
     return frames
 
@@ -220,7 +236,8 @@ def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
     if events is not None and size is not None and (events.width, events.height) != size:
         c.fail(
             f"{root / 'events.h5'}: sensor size {events.width}x{events.height} differs from "
-            f"meta.json {size[0]}x{size[1]}; the events belong to another sensor or the metadata is wrong"
+            f"meta.json {size[0]}x{size[1]}; "
+            "the events belong to another sensor or the metadata is wrong"
         )
     traj = _trajectory(c, "poses.txt", t0, t1) if (root / "poses.txt").is_file() else None
     gt = _trajectory(c, "poses_gt.txt", t0, t1) if (root / "poses_gt.txt").is_file() else None
@@ -256,6 +273,10 @@ def load_dataset(path: str | os.PathLike) -> Dataset:
     """Load and validate a dataset folder; raises EvsplatError with the first problem."""
     problems, ds = _inspect(path)
     if problems:
-        more = f" (and {len(problems) - 1} more; run `evsplat check {path}`)" if len(problems) > 1 else ""
+        more = (
+            f" (and {len(problems) - 1} more; run `evsplat check {path}`)"
+            if len(problems) > 1
+            else ""
+        )
         raise EvsplatError(problems[0] + more)
     return ds

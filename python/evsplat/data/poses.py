@@ -37,11 +37,21 @@ def matrix_to_quat(r: np.ndarray) -> np.ndarray:
     Shepperd's method: take the largest of the four squared components to divide by."""
     r = np.asarray(r, dtype=np.float64)
     m00, m11, m22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
-    sq = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
+    sq = np.stack(
+        [1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1
+    )
     k = np.argmax(sq, axis=-1)
     s = np.sqrt(np.maximum(np.take_along_axis(sq, k[..., None], -1)[..., 0], 1e-300)) * 2  # 4|q_k|
-    d21, d02, d10 = r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]
-    a01, a02, a12 = r[..., 0, 1] + r[..., 1, 0], r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1]
+    d21, d02, d10 = (
+        r[..., 2, 1] - r[..., 1, 2],
+        r[..., 0, 2] - r[..., 2, 0],
+        r[..., 1, 0] - r[..., 0, 1],
+    )
+    a01, a02, a12 = (
+        r[..., 0, 1] + r[..., 1, 0],
+        r[..., 0, 2] + r[..., 2, 0],
+        r[..., 1, 2] + r[..., 2, 1],
+    )
     cands = np.stack(
         [
             np.stack([s / 4, d21 / s, d02 / s, d10 / s], -1),
@@ -96,7 +106,8 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
             raise EvsplatError(f"{path}:{n}: NaN/inf in pose '{line}'")
         if abs(norm - 1) > QUAT_NORM_TOL:
             raise EvsplatError(
-                f"{path}:{n}: quaternion norm {norm:.6f} is not 1; store unit quaternions qx qy qz qw"
+                f"{path}:{n}: quaternion norm {norm:.6f} is not 1; "
+                "store unit quaternions qx qy qz qw"
             )
         m = np.eye(4)
         m[:3, :3] = quat_to_matrix(q / norm)
@@ -104,7 +115,9 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         times.append(t)
         poses.append(m)
     if not times:
-        raise EvsplatError(f"{path}: no poses found (TUM format: 't tx ty tz qx qy qz qw' per line)")
+        raise EvsplatError(
+            f"{path}: no poses found (TUM format: 't tx ty tz qx qy qz qw' per line)"
+        )
     return validate_poses(np.array(times, dtype=np.int64), np.stack(poses), str(path))
 
 
@@ -116,12 +129,15 @@ def write_tum(path: str | os.PathLike, times_us: np.ndarray, c2w: np.ndarray) ->
     for ti, mi, qi in zip(t, m, q):
         w, x, y, z = qi
         tx, ty, tz = mi[:3, 3]
-        rows.append(f"{_us_to_seconds(ti)} {tx:.17g} {ty:.17g} {tz:.17g} {x:.17g} {y:.17g} {z:.17g} {w:.17g}")
+        rows.append(
+            f"{_us_to_seconds(ti)} " + " ".join(f"{v:.17g}" for v in (tx, ty, tz, x, y, z, w))
+        )
     write_text_atomic(path, "\n".join(rows) + "\n")
 
 
 def read_transforms_json(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Read (times_us int64[N], c2w float64[N,4,4]) from `{"frames": [{"time_us", "transform_matrix"}]}`."""
+    """Read (times_us int64[N], c2w float64[N,4,4]) from a transforms.json style file:
+    `{"frames": [{"time_us": int, "transform_matrix": 4x4}, ...]}`."""
     path = Path(path)
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
@@ -142,7 +158,9 @@ def read_transforms_json(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarra
                 f"{path}: frame {i} needs 'time_us' (int) and 'transform_matrix' (4x4 numbers)"
             ) from None
         if not isinstance(t, int) or m.shape != (4, 4):
-            raise EvsplatError(f"{path}: frame {i}: time_us must be an integer and transform_matrix 4x4")
+            raise EvsplatError(
+                f"{path}: frame {i}: time_us must be an integer and transform_matrix 4x4"
+            )
         times.append(t)
         poses.append(m)
     return validate_poses(np.array(times, dtype=np.int64), np.stack(poses), str(path))

@@ -27,13 +27,13 @@ from evsplat.data.events import EventStream
 from evsplat.errors import EvsplatError
 
 LOG_EPS = 1e-3
-BAYER_PATTERNS = ("RGGB", "mono")
+BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG", "mono")
 # Luma weights (Rec. 709) for a monochrome sensor looking at an RGB scene.
 LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 
 
 def log_intensity(img: np.ndarray, bayer: str = "RGGB") -> np.ndarray:
-    """L = log(I + LOG_EPS) as the sensor sees it: [H,W,3] for RGGB (the simulator picks each
+    """L = log(I + LOG_EPS) as the sensor sees it: [H,W,3] for colour (the simulator picks each
     pixel's channel), [H,W] for mono (RGB input is converted with Rec. 709 luma first)."""
     i = np.asarray(img, dtype=np.float32)
     if bayer == "mono" and i.ndim == 3:
@@ -86,7 +86,7 @@ def simulate_events(
     sets the reference levels. Same inputs and seed give identical events."""
     if bayer not in BAYER_PATTERNS:
         raise EvsplatError(f"bayer pattern '{bayer}' is not supported; use one of {BAYER_PATTERNS}")
-    want_ndim = 3 if bayer == "RGGB" else 2
+    want_ndim = 2 if bayer == "mono" else 3
     sim = None
     chunks: list[tuple[np.ndarray, ...]] = []
     shape = None
@@ -101,9 +101,18 @@ def simulate_events(
             shape = f.shape[:2]
             try:
                 sim = _core.EventSimulator(
-                    shape[1], shape[0], c_pos, c_neg, sigma_c, refractory_us,
-                    noise_rate_hz, hot_pixels, hot_rate_hz, bayer, seed,
-                )  # fmt: skip
+                    shape[1],
+                    shape[0],
+                    c_pos,
+                    c_neg,
+                    sigma_c,
+                    refractory_us,
+                    noise_rate_hz,
+                    hot_pixels,
+                    hot_rate_hz,
+                    bayer,
+                    seed,
+                )
             except (ValueError, OverflowError) as e:
                 raise EvsplatError(f"simulate_events: {e}") from None
         try:
@@ -152,11 +161,20 @@ def simulate_dataset(
     from evsplat.data.poses import write_tum
     from evsplat.scenes import get_scene
 
-    if isinstance(speed, bool) or not isinstance(speed, (int, np.integer)) or not 1 <= speed <= MAX_SPEED:
-        raise EvsplatError(f"--speed {speed!r}: must be an integer from 1 to {MAX_SPEED} (1 = every rendered frame)")
+    if (
+        isinstance(speed, bool)
+        or not isinstance(speed, (int, np.integer))
+        or not 1 <= speed <= MAX_SPEED
+    ):
+        raise EvsplatError(
+            f"--speed {speed!r}: must be an integer from 1 to {MAX_SPEED} "
+            "(1 = every rendered frame)"
+        )
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise EvsplatError(f"{out}: already exists and is not empty; remove it or choose another --out")
+        raise EvsplatError(
+            f"{out}: already exists and is not empty; remove it or choose another --out"
+        )
     scene = get_scene(scene_name, size=size, tiny=tiny)
     if not out.parent.is_dir():
         raise EvsplatError(f"{out.parent}: parent folder does not exist; create it first")
@@ -169,19 +187,35 @@ def simulate_dataset(
         frame_times = _times(scene.duration_us, speed * 1e6 / scene.fps)
 
         def frames() -> Iterator[tuple[int, np.ndarray]]:
-            for t in tqdm(frame_times, desc=f"simulate {scene.name}", unit="frame", disable=not progress):
+            for t in tqdm(
+                frame_times, desc=f"simulate {scene.name}", unit="frame", disable=not progress
+            ):
                 yield int(t), log_intensity(scene.render(int(t))[0], bayer)
 
         events = simulate_events(
-            frames(), cfg.c_pos, cfg.c_neg, cfg.sigma_c, cfg.refractory_us, cfg.noise_rate_hz,
-            cfg.hot_pixels, cfg.hot_rate_hz, bayer, cfg.seed, source=str(out / "events.h5"),
-        )  # fmt: skip
+            frames(),
+            cfg.c_pos,
+            cfg.c_neg,
+            cfg.sigma_c,
+            cfg.refractory_us,
+            cfg.noise_rate_hz,
+            cfg.hot_pixels,
+            cfg.hot_rate_hz,
+            bayer,
+            cfg.seed,
+            source=str(out / "events.h5"),
+        )
         write_events_h5(tmp / "events.h5", events)
         pose_t = _times(scene.duration_us, 1e6 / MEASURED_POSE_HZ)
         write_tum(tmp / "poses.txt", pose_t, scene.c2w(pose_t))
         gt_t = _times(scene.duration_us, 1e6 / GT_POSE_HZ)
         write_tum(tmp / "poses_gt.txt", gt_t, scene.c2w(gt_t))
-        intrinsics = {"K": scene.K.tolist(), "width": scene.width, "height": scene.height, "distortion": None}
+        intrinsics = {
+            "K": scene.K.tolist(),
+            "width": scene.width,
+            "height": scene.height,
+            "distortion": None,
+        }
         write_text_atomic(tmp / "intrinsics.json", json.dumps(intrinsics, indent=1) + "\n")
         # Test views halfway between measured poses, spread over the sequence.
         n_test = TEST_FRAMES_TINY if tiny else TEST_FRAMES_FULL
@@ -195,7 +229,15 @@ def simulate_dataset(
             write_exr(tmp / "test" / names[1], depth)
             write_png(tmp / "test" / names[2], mask.astype(np.float32))
             c2w = scene.c2w(int(t)).tolist()
-            test.append({"time_us": int(t), "c2w": c2w, "rgb": names[0], "depth": names[1], "mask": names[2]})
+            test.append(
+                {
+                    "time_us": int(t),
+                    "c2w": c2w,
+                    "rgb": names[0],
+                    "depth": names[1],
+                    "mask": names[2],
+                }
+            )
         write_text_atomic(tmp / "test" / "frames.json", json.dumps(test, indent=1) + "\n")
         meta = {
             "generator": "evsplat simulate",

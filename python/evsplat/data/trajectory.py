@@ -16,7 +16,9 @@ from evsplat.errors import EvsplatError
 ORTHONORMAL_TOL = 1e-5
 
 
-def validate_poses(times_us: np.ndarray, c2w: np.ndarray, source: str) -> tuple[np.ndarray, np.ndarray]:
+def validate_poses(
+    times_us: np.ndarray, c2w: np.ndarray, source: str
+) -> tuple[np.ndarray, np.ndarray]:
     """Check shapes, finiteness, strictly increasing times and proper rotations; return copies
     as (int64[N], float64[N,4,4]). Raises EvsplatError naming `source` and the first bad index."""
     t = np.asarray(times_us)

@@ -22,6 +22,8 @@ BASE_FPS = 1000.0
 BASE_HEIGHT = 400
 # Focal length in units of the image height (a ~51° vertical field of view).
 FOCAL_PER_HEIGHT = 1.05
+# The tiny variant zooms in so the moving object covers a good part of its few pixels.
+TINY_ZOOM = 1.6
 
 
 @dataclass
@@ -65,7 +67,7 @@ def scene_names() -> list[str]:
 
 def get_scene(name: str, size: tuple[int, int] | None = None, tiny: bool = False) -> Scene:
     """The built-in scene `name` at its full size (400x400; duck 600x400), at `size` = (W, H),
-    or as the tiny variant (longer side 96 px, 0.6 s) for tests and the demo."""
+    or as the tiny variant (longer side 96 px, zoomed in 1.6x, 0.6 s) for tests and the demo."""
     if name not in SCENES:
         raise EvsplatError(f"unknown scene '{name}'; choose one of: {', '.join(SCENES)}")
     spec = SCENES[name]()
@@ -73,13 +75,15 @@ def get_scene(name: str, size: tuple[int, int] | None = None, tiny: bool = False
     if size is not None:
         w, h = (int(v) for v in size)
         if w < 8 or h < 8 or w > 8192 or h > 8192:
-            raise EvsplatError(f"--size {w}x{h}: width and height must be between 8 and 8192 pixels")
+            raise EvsplatError(
+                f"--size {w}x{h}: width and height must be between 8 and 8192 pixels"
+            )
     elif tiny:
         scale = TINY_SIZE / max(bw, bh)
         w, h = round(bw * scale), round(bh * scale)
     else:
         w, h = bw, bh
-    f = FOCAL_PER_HEIGHT * h
+    f = FOCAL_PER_HEIGHT * h * (TINY_ZOOM if tiny and size is None else 1.0)
     K = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1]], dtype=np.float64)
     return Scene(
         name=name,

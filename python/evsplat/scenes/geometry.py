@@ -54,7 +54,13 @@ class Primitive:
     def spec(self) -> tuple[str, list[float], str, list[float], bool]:
         """The tuple `_core.SceneRenderer` takes."""
         name, params = self.texture
-        return self.kind, [float(v) for v in self.size], name, [float(v) for v in params], self.moving
+        return (
+            self.kind,
+            [float(v) for v in self.size],
+            name,
+            [float(v) for v in params],
+            self.moving,
+        )
 
 
 def _flat(colours: Sequence[Rgb]) -> list[float]:
@@ -66,7 +72,9 @@ def solid(colour: Rgb) -> Texture:
     return "solid", list(colour)
 
 
-def checker(cells_u: float, cells_v: float, a: Rgb, b: Rgb, axes=(0, 1), scale=(1.0, 1.0)) -> Texture:
+def checker(
+    cells_u: float, cells_v: float, a: Rgb, b: Rgb, axes=(0, 1), scale=(1.0, 1.0)
+) -> Texture:
     """Checkerboard: cell index floor(p[axis] / scale * cells) along two object-frame axes."""
     return "checker", [cells_u, cells_v, *scale, *axes, *a, *b]
 

@@ -29,20 +29,32 @@ FLOOR_Y = 1.0
 
 
 def camera_path(ax: float, ay: float, yaw: float, pitch: float, f: float):
-    """A smooth hand-held-like camera: small sinusoidal translation and rotation about the origin."""
+    """A smooth hand-held-like camera: small sinusoidal translation and rotation."""
 
     def c2w(t: float) -> np.ndarray:
-        m = trans(ax * np.sin(TAU * f * t), ay * np.sin(TAU * 1.3 * f * t + 0.7), 0.05 * np.sin(TAU * 0.5 * f * t))
-        return m @ rot("y", yaw * np.sin(TAU * f * t + 0.3)) @ rot("x", pitch * np.sin(TAU * 0.8 * f * t))
+        m = trans(
+            ax * np.sin(TAU * f * t),
+            ay * np.sin(TAU * 1.3 * f * t + 0.7),
+            0.05 * np.sin(TAU * 0.5 * f * t),
+        )
+        return (
+            m
+            @ rot("y", yaw * np.sin(TAU * f * t + 0.3))
+            @ rot("x", pitch * np.sin(TAU * 0.8 * f * t))
+        )
 
     return c2w
 
 
 def room(palette: list, seed: int) -> list[Primitive]:
     """Static background: a tiled back wall and a checkered floor."""
-    back = Primitive("quad", (6.0, 6.0), static(trans(0, 0, BACK_WALL_Z)), wall(palette, 0.45, seed), False)
+    back = Primitive(
+        "quad", (6.0, 6.0), static(trans(0, 0, BACK_WALL_Z)), wall(palette, 0.45, seed), False
+    )
     floor_tex = checker(2.0, 2.0, (0.55, 0.5, 0.42), (0.18, 0.16, 0.14))
-    floor = Primitive("quad", (6.0, 4.0), static(trans(0, FLOOR_Y, 3.0) @ rot("x", np.pi / 2)), floor_tex, False)
+    floor = Primitive(
+        "quad", (6.0, 4.0), static(trans(0, FLOOR_Y, 3.0) @ rot("x", np.pi / 2)), floor_tex, False
+    )
     return [back, floor]
 
 
@@ -66,13 +78,26 @@ def butterfly() -> dict:
         return pose
 
     prims = room([(0.2, 0.45, 0.2), (0.35, 0.6, 0.25), (0.15, 0.3, 0.35), (0.5, 0.55, 0.3)], seed=1)
-    prims.append(Primitive("box", (0.035, 0.32, 0.035), body_pose, checker(0, 12.0, (0.1, 0.08, 0.05), (0.4, 0.3, 0.15), scale=(1, 0.64)), True))
+    prims.append(
+        Primitive(
+            "box",
+            (0.035, 0.32, 0.035),
+            body_pose,
+            checker(0, 12.0, (0.1, 0.08, 0.05), (0.4, 0.3, 0.15), scale=(1, 0.64)),
+            True,
+        )
+    )
     for side in (1.0, -1.0):
-        prims.append(Primitive("wing", (*half, side), wing_pose(side), wing_pattern(half, side), True))
+        prims.append(
+            Primitive("wing", (*half, side), wing_pose(side), wing_pattern(half, side), True)
+        )
     return dict(
-        description="butterfly with two thin quad wings flapping at 4 Hz (±43°) while drifting in a figure-8, in front of a tiled green wall",
+        description=(
+            "butterfly with two thin quad wings flapping at 4 Hz (±43°) while "
+            "drifting in a figure-8, in front of a tiled green wall"
+        ),
         primitives=prims,
-        camera=camera_path(0.1, 0.05, 0.04, 0.03, 0.8),
+        camera=camera_path(0.08, 0.04, 0.02, 0.015, 0.8),
         base_size=(400, 400),
     )
 
@@ -99,15 +124,38 @@ def duck() -> dict:
     prims = room([(0.25, 0.4, 0.6), (0.15, 0.25, 0.5), (0.4, 0.55, 0.7), (0.2, 0.3, 0.35)], seed=2)
     prims += [
         Primitive("sphere", (0.42,), body_pose, feathers(), True),
-        Primitive("sphere", (0.26,), part(trans(0.3, -0.5, 0.0)), sphere_segments(8, 4, [(0.95, 0.8, 0.1), (0.85, 0.65, 0.05)]), True),
-        Primitive("box", (0.14, 0.045, 0.09), part(trans(0.6, -0.46, 0.0) @ rot("z", 0.15)), solid((0.95, 0.35, 0.02)), True),
-        Primitive("sphere", (0.05,), part(trans(0.42, -0.62, -0.18)), solid((0.02, 0.02, 0.03)), True),
-        Primitive("box", (0.3, 0.08, 0.06), part(trans(-0.15, -0.1, -0.38) @ rot("z", -0.3)), checker(6.0, 1.0, (0.9, 0.6, 0.05), (0.6, 0.35, 0.02), scale=(0.6, 1)), True),
+        Primitive(
+            "sphere",
+            (0.26,),
+            part(trans(0.3, -0.5, 0.0)),
+            sphere_segments(8, 4, [(0.95, 0.8, 0.1), (0.85, 0.65, 0.05)]),
+            True,
+        ),
+        Primitive(
+            "box",
+            (0.14, 0.045, 0.09),
+            part(trans(0.6, -0.46, 0.0) @ rot("z", 0.15)),
+            solid((0.95, 0.35, 0.02)),
+            True,
+        ),
+        Primitive(
+            "sphere", (0.05,), part(trans(0.42, -0.62, -0.18)), solid((0.1, 0.1, 0.12)), True
+        ),
+        Primitive(
+            "box",
+            (0.3, 0.08, 0.06),
+            part(trans(-0.15, -0.1, -0.38) @ rot("z", -0.3)),
+            checker(6.0, 1.0, (0.9, 0.6, 0.05), (0.6, 0.35, 0.02), scale=(0.6, 1)),
+            True,
+        ),
     ]
     return dict(
-        description="duck-like toy (body, head, beak, wing) bobbing at 3 Hz on a sinusoid while crossing the view, in front of a tiled blue wall",
+        description=(
+            "duck-like toy (body, head, beak, wing) bobbing at 3 Hz on a sinusoid "
+            "while crossing the view, in front of a tiled blue wall"
+        ),
         primitives=prims,
-        camera=camera_path(0.12, 0.04, 0.035, 0.025, 0.7),
+        camera=camera_path(0.1, 0.03, 0.018, 0.012, 0.7),
         base_size=(600, 400),
     )
 
@@ -121,7 +169,11 @@ def clock() -> dict:
 
     def body_pose(t: float) -> np.ndarray:
         jitter = 0.04 * np.sin(TAU * 13.0 * t)
-        return trans(jitter, 0.05 + 0.02 * np.sin(TAU * 17.0 * t), 3.0) @ rot("z", 0.22 * np.sin(TAU * shake_hz * t)) @ rot("y", 0.3)
+        return (
+            trans(jitter, 0.05 + 0.02 * np.sin(TAU * 17.0 * t), 3.0)
+            @ rot("z", 0.22 * np.sin(TAU * shake_hz * t))
+            @ rot("y", 0.3)
+        )
 
     def part(offset: np.ndarray):
         return lambda t: body_pose(t) @ offset
@@ -131,23 +183,32 @@ def clock() -> dict:
             spin = rot("z", phase + TAU * rev_per_s * t)
             return body_pose(t) @ trans(0, 0, -half[2] - 0.01) @ spin @ trans(0, -length / 2, 0)
 
-        return Primitive("quad", (width, length / 2), pose, solid((0.02, 0.02, 0.08)), True)
+        return Primitive("quad", (width, length / 2), pose, solid((0.1, 0.1, 0.18)), True)
 
     bell = sphere_segments(10, 6, [(0.85, 0.75, 0.3), (0.55, 0.45, 0.15)])
-    prims = room([(0.6, 0.5, 0.35), (0.45, 0.35, 0.25), (0.7, 0.65, 0.5), (0.35, 0.25, 0.2)], seed=3)
+    prims = room(
+        [(0.6, 0.5, 0.35), (0.45, 0.35, 0.25), (0.7, 0.65, 0.5), (0.35, 0.25, 0.2)], seed=3
+    )
     prims += [
         Primitive("box", half, body_pose, clock_face(half[:2]), True),
         Primitive("sphere", (0.17,), part(trans(-0.3, -0.55, 0.0)), bell, True),
         Primitive("sphere", (0.17,), part(trans(0.3, -0.55, 0.0)), bell, True),
-        Primitive("box", (0.05, 0.08, 0.05), part(trans(-0.3, 0.5, 0.0)), solid((0.1, 0.1, 0.1)), True),
-        Primitive("box", (0.05, 0.08, 0.05), part(trans(0.3, 0.5, 0.0)), solid((0.1, 0.1, 0.1)), True),
+        Primitive(
+            "box", (0.05, 0.08, 0.05), part(trans(-0.3, 0.5, 0.0)), solid((0.1, 0.1, 0.1)), True
+        ),
+        Primitive(
+            "box", (0.05, 0.08, 0.05), part(trans(0.3, 0.5, 0.0)), solid((0.1, 0.1, 0.1)), True
+        ),
         hand(0.32, 0.025, 0.0, 1.0),
         hand(0.5, 0.012, 1.5, 0.0),
     ]
     return dict(
-        description="red alarm clock with bells shaking at 9 Hz (±13°) while its second hand sweeps 1.5 rev/s, in front of a tiled beige wall",
+        description=(
+            "red alarm clock with bells shaking at 9 Hz (±13°) while its second "
+            "hand sweeps 1.5 rev/s, in front of a tiled beige wall"
+        ),
         primitives=prims,
-        camera=camera_path(0.1, 0.05, 0.04, 0.03, 0.9),
+        camera=camera_path(0.08, 0.04, 0.02, 0.015, 0.9),
         base_size=(400, 400),
     )
 
@@ -161,15 +222,29 @@ def ball() -> dict:
 
     def pose(t: float) -> np.ndarray:
         height = 1.1 * np.abs(np.sin(np.pi * bounce_hz * t))  # parabola-like arcs, sharp at contact
-        return trans(0.9 * np.sin(TAU * 0.6 * t), FLOOR_Y - r - height, 3.0) @ rot("z", 9.0 * t) @ rot("x", 5.0 * t)
+        return (
+            trans(0.9 * np.sin(TAU * 0.6 * t), FLOOR_Y - r - height, 3.0)
+            @ rot("z", 9.0 * t)
+            @ rot("x", 5.0 * t)
+        )
 
-    colours = [(0.9, 0.1, 0.1), (0.95, 0.95, 0.9), (0.1, 0.3, 0.9), (0.95, 0.8, 0.1), (0.1, 0.7, 0.2), (0.95, 0.95, 0.9)]
+    colours = [
+        (0.9, 0.1, 0.1),
+        (0.95, 0.95, 0.9),
+        (0.1, 0.3, 0.9),
+        (0.95, 0.8, 0.1),
+        (0.1, 0.7, 0.2),
+        (0.95, 0.95, 0.9),
+    ]
     prims = room([(0.5, 0.3, 0.5), (0.35, 0.2, 0.4), (0.6, 0.45, 0.6), (0.25, 0.15, 0.3)], seed=4)
     prims.append(Primitive("sphere", (r,), pose, sphere_segments(6, 4, colours), True))
     return dict(
-        description="textured beach ball bouncing 2.5 times a second (up to 3.3 m/s) and spinning, in front of a tiled purple wall",
+        description=(
+            "textured beach ball bouncing 2.5 times a second (up to 3.3 m/s) and "
+            "spinning, in front of a tiled purple wall"
+        ),
         primitives=prims,
-        camera=camera_path(0.12, 0.05, 0.04, 0.03, 0.8),
+        camera=camera_path(0.1, 0.04, 0.02, 0.015, 0.8),
         base_size=(400, 400),
     )
 

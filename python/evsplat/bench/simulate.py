@@ -1,0 +1,92 @@
+"""`evsplat bench simulate`: time `simulate` on every built-in scene (full size and tiny) and
+optionally draw each scene's frame / event frame / depth picture for the docs."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HELP = "simulate every built-in scene at full and tiny size; events, events/s, wall time"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scenes", default=None, help="comma-separated scenes (default: all)")
+    parser.add_argument("--tiny-only", action="store_true", help="only the tiny variants")
+    parser.add_argument("--pictures", default=None, help="write NAME.png pictures to this folder")
+
+
+def picture(dataset: Path, out: Path, window_us: int = 10_000) -> None:
+    """Frame (gamma-encoded for display), event frame (±window/2 around it) and depth."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from evsplat.data.dataset import load_dataset
+    from evsplat.data.images import read_exr, read_png
+
+    ds = load_dataset(dataset)
+    f = ds.test_frames[len(ds.test_frames) // 2]
+    rgb, depth = read_png(f.rgb_path), read_exr(f.depth_path)
+    i0, i1 = ds.events.window(f.time_us - window_us // 2, f.time_us + window_us // 2)
+    ev = np.zeros((ds.height, ds.width))
+    np.add.at(ev, (ds.events.y[i0:i1], ds.events.x[i0:i1]), ds.events.p[i0:i1])
+    lim = max(1.0, np.percentile(np.abs(ev[ev != 0]), 95)) if (ev != 0).any() else 1.0
+    fig, axes = plt.subplots(1, 3, figsize=(12, 4 * ds.height / ds.width + 0.6))
+    axes[0].imshow(np.clip(rgb, 0, 1) ** (1 / 2.2), cmap="gray")
+    axes[0].set_title(f"{ds.meta['scene']}: frame at {f.time_us / 1e3:.1f} ms")
+    axes[1].imshow(ev, cmap="bwr_r", vmin=-lim, vmax=lim)
+    axes[1].set_title(f"events ±{window_us // 2000} ms ({i1 - i0} events; red +, blue −)")
+    im = axes[2].imshow(depth, cmap="viridis")
+    axes[2].set_title("depth (m)")
+    fig.colorbar(im, ax=axes[2], fraction=0.046)
+    for a in axes:
+        a.axis("off")
+    fig.tight_layout()
+    fig.savefig(out, dpi=80)
+    plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    from evsplat.data.simulator import simulate_dataset
+    from evsplat.scenes import get_scene, scene_names
+
+    names = args.scenes.split(",") if args.scenes else scene_names()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in names:
+            for tiny in (True,) if args.tiny_only else (False, True):
+                scene = get_scene(name, tiny=tiny)
+                # Baseline in the same run: rendering alone, on every 10th frame.
+                step = 10 * 1e6 / scene.fps
+                t = time.perf_counter()
+                n_base = 0
+                for ts in np.arange(0, scene.duration_us, step):
+                    scene.render(int(ts))
+                    n_base += 1
+                render_s = (time.perf_counter() - t) / n_base
+                out = Path(tmp) / f"{name}{'-tiny' if tiny else ''}"
+                t = time.perf_counter()
+                simulate_dataset(name, out, tiny=tiny, progress=False)
+                wall = time.perf_counter() - t
+                meta = json.loads((out / "meta.json").read_text())
+                secs = (meta["t_end_us"] - meta["t_start_us"]) * 1e-6
+                rows.append(
+                    (name, f"{scene.width}x{scene.height}", secs, meta["rendered_frames"],
+                     meta["num_events"], meta["num_events"] / secs, render_s * 1e3, wall)
+                )  # fmt: skip
+                if args.pictures and not tiny:
+                    Path(args.pictures).mkdir(parents=True, exist_ok=True)
+                    picture(out, Path(args.pictures) / f"{name}.png")
+    head = ("scene", "size", "scene s", "frames", "events", "events/s", "render ms", "wall s")
+    print(" | ".join(head))
+    for r in rows:
+        print(
+            f"{r[0]} | {r[1]} | {r[2]:.2f} | {r[3]} | {r[4]} | {r[5]:.3g} | {r[6]:.2f} | {r[7]:.1f}"
+        )
+    return 0
