@@ -4,10 +4,12 @@
 use pyo3::prelude::*;
 
 mod gpu;
+mod raster;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     gpu::register(m)?;
+    raster::register(m)?;
     Ok(())
 }

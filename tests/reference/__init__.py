@@ -1,0 +1,1 @@
+"""Dense, slow, obviously correct reference implementations used as test oracles."""
