@@ -6,6 +6,7 @@ native module ``evsplat._core``; models, losses and the CLI are in Python.
 """
 
 from evsplat.errors import EvsplatError
+from evsplat.raster import rasterize
 
 __version__ = "0.1.0"
-__all__ = ["EvsplatError", "__version__"]
+__all__ = ["EvsplatError", "__version__", "rasterize"]

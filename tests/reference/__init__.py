@@ -1,1 +1,1 @@
-"""Independent numpy/torch reference implementations used as test oracles."""
+"""Independent, dense, obviously correct reference implementations used as test oracles."""

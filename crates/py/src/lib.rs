@@ -7,6 +7,7 @@ mod camera;
 mod events;
 mod gpu;
 mod io;
+mod raster;
 mod sim;
 
 #[pymodule]
@@ -17,5 +18,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     camera::register(m)?;
     sim::register(m)?;
     io::register(m)?;
+    raster::register(m)?;
     Ok(())
 }

@@ -1,0 +1,181 @@
+//! The splatting rasterizer: flat float32 numpy arrays in, numpy arrays out; logic lives in
+//! evsplat_raster::splat.
+
+use numpy::{PyArray1, PyReadonlyArray1};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use evsplat_raster::{
+    rasterize_backward as gpu_backward, rasterize_forward as gpu_forward, AtomicMode, Camera,
+    Gaussians, GpuError, PassTimes,
+};
+
+use crate::gpu::context;
+
+fn raster_err(e: GpuError) -> PyErr {
+    match e {
+        GpuError::Invalid(m) => PyValueError::new_err(m),
+        other => crate::gpu::gpu_err(other),
+    }
+}
+
+type F32<'py> = PyReadonlyArray1<'py, f32>;
+
+fn camera(viewmat: &[f32], k: &[f32], size: (u32, u32), range: (f32, f32)) -> PyResult<Camera> {
+    let viewmat: [f32; 16] = viewmat
+        .try_into()
+        .map_err(|_| PyValueError::new_err("viewmat must have 16 values"))?;
+    let k: [f32; 9] = k
+        .try_into()
+        .map_err(|_| PyValueError::new_err("K must have 9 values"))?;
+    Ok(Camera {
+        viewmat,
+        k,
+        width: size.0,
+        height: size.1,
+        near: range.0,
+        far: range.1,
+    })
+}
+
+fn times_dict<'py>(py: Python<'py>, times: &PassTimes) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    for (name, t) in times {
+        d.set_item(*name, *t)?;
+    }
+    Ok(d)
+}
+
+/// Forward render. Arrays are flat float32; returns image (H*W*D), depth, alpha, radii, means2d,
+/// depths, intersections, id and (when `profile`) per-pass host times in seconds.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (means, quats, scales, opacities, features, d, background, viewmat, k, width, height, near, far, profile=false))]
+fn rasterize_forward<'py>(
+    py: Python<'py>,
+    means: F32<'py>,
+    quats: F32<'py>,
+    scales: F32<'py>,
+    opacities: F32<'py>,
+    features: F32<'py>,
+    d: usize,
+    background: F32<'py>,
+    viewmat: F32<'py>,
+    k: F32<'py>,
+    width: u32,
+    height: u32,
+    near: f32,
+    far: f32,
+    profile: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    let g = Gaussians {
+        means: means.as_slice()?,
+        quats: quats.as_slice()?,
+        scales: scales.as_slice()?,
+        opacities: opacities.as_slice()?,
+        features: features.as_slice()?,
+        d,
+        background: background.as_slice()?,
+    };
+    let cam = camera(viewmat.as_slice()?, k.as_slice()?, (width, height), (near, far))?;
+    let mut times = PassTimes::new();
+    let out = py.detach(|| {
+        let ctx = context()?;
+        gpu_forward(ctx, &g, &cam, profile.then_some(&mut times)).map_err(raster_err)
+    })?;
+    let r = PyDict::new(py);
+    r.set_item("image", PyArray1::from_vec(py, out.image))?;
+    r.set_item("depth", PyArray1::from_vec(py, out.depth))?;
+    r.set_item("alpha", PyArray1::from_vec(py, out.alpha))?;
+    r.set_item("radii", PyArray1::from_vec(py, out.radii))?;
+    r.set_item("means2d", PyArray1::from_vec(py, out.means2d))?;
+    r.set_item("depths", PyArray1::from_vec(py, out.depths))?;
+    r.set_item("intersections", out.intersections)?;
+    r.set_item("id", out.id)?;
+    r.set_item("times", times_dict(py, &times)?)?;
+    Ok(r)
+}
+
+/// Backward of render `id`: the loss gradients w.r.t. image, depth and alpha (flat float32) in;
+/// gradients of means, quats, scales, opacities, features and means2d out. `atomics` is
+/// "float", "cas" or None (the adapter's default, `EVSPLAT_ATOMICS=cas` forces CAS).
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (means, quats, scales, opacities, features, d, background, viewmat, k, width, height, near, far, id, grad_image, grad_depth, grad_alpha, atomics=None, profile=false))]
+fn rasterize_backward<'py>(
+    py: Python<'py>,
+    means: F32<'py>,
+    quats: F32<'py>,
+    scales: F32<'py>,
+    opacities: F32<'py>,
+    features: F32<'py>,
+    d: usize,
+    background: F32<'py>,
+    viewmat: F32<'py>,
+    k: F32<'py>,
+    width: u32,
+    height: u32,
+    near: f32,
+    far: f32,
+    id: u64,
+    grad_image: F32<'py>,
+    grad_depth: F32<'py>,
+    grad_alpha: F32<'py>,
+    atomics: Option<&str>,
+    profile: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    let g = Gaussians {
+        means: means.as_slice()?,
+        quats: quats.as_slice()?,
+        scales: scales.as_slice()?,
+        opacities: opacities.as_slice()?,
+        features: features.as_slice()?,
+        d,
+        background: background.as_slice()?,
+    };
+    let cam = camera(viewmat.as_slice()?, k.as_slice()?, (width, height), (near, far))?;
+    let mode = match atomics {
+        None => None,
+        Some(s) if s.eq_ignore_ascii_case("float") => Some(AtomicMode::Float),
+        Some(s) if s.eq_ignore_ascii_case("cas") => Some(AtomicMode::Cas),
+        Some(s) => {
+            return Err(PyValueError::new_err(format!(
+                "atomics={s:?} must be \"float\", \"cas\" or None"
+            )))
+        }
+    };
+    let (gi, gd, ga) = (grad_image.as_slice()?, grad_depth.as_slice()?, grad_alpha.as_slice()?);
+    let mut times = PassTimes::new();
+    let out = py.detach(|| {
+        let ctx = context()?;
+        let mode = mode.unwrap_or_else(|| ctx.default_atomic_mode());
+        gpu_backward(
+            ctx,
+            &g,
+            &cam,
+            id,
+            gi,
+            gd,
+            ga,
+            mode,
+            profile.then_some(&mut times),
+        )
+        .map_err(raster_err)
+    })?;
+    let r = PyDict::new(py);
+    r.set_item("means", PyArray1::from_vec(py, out.means))?;
+    r.set_item("quats", PyArray1::from_vec(py, out.quats))?;
+    r.set_item("scales", PyArray1::from_vec(py, out.scales))?;
+    r.set_item("opacities", PyArray1::from_vec(py, out.opacities))?;
+    r.set_item("features", PyArray1::from_vec(py, out.features))?;
+    r.set_item("means2d", PyArray1::from_vec(py, out.means2d))?;
+    r.set_item("times", times_dict(py, &times)?)?;
+    Ok(r)
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(rasterize_forward, m)?)?;
+    m.add_function(wrap_pyfunction!(rasterize_backward, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,166 @@
+//! Persistent GPU buffers of the splatting passes: grown geometrically, never shrunk, with the
+//! bind groups rebuilt only after a buffer grew.
+
+use crate::context::{GpuContext, GpuError};
+
+/// A storage buffer that only ever grows (to the next power of two of the request).
+pub struct Grow {
+    label: &'static str,
+    pub buf: wgpu::Buffer,
+    cap: u64,
+}
+
+impl Grow {
+    fn new(ctx: &GpuContext, label: &'static str) -> Self {
+        Self {
+            label,
+            buf: ctx.storage_buffer(label, 16),
+            cap: 16,
+        }
+    }
+
+    /// Make room for `bytes`; true when the buffer was replaced. Errors past the binding limit.
+    fn ensure(&mut self, ctx: &GpuContext, bytes: u64) -> Result<bool, GpuError> {
+        let max = ctx.limits.max_storage_buffer_binding_size;
+        if bytes > max {
+            return Err(GpuError::Invalid(format!(
+                "rasterize: the {} buffer needs {} MiB, over the adapter's {} MiB storage binding \
+                 limit; render fewer Gaussians, fewer feature channels or a smaller image per call",
+                self.label,
+                bytes.div_ceil(1 << 20),
+                max >> 20
+            )));
+        }
+        if bytes <= self.cap {
+            return Ok(false);
+        }
+        let cap = bytes.next_power_of_two().min(max.next_multiple_of(4)).max(16);
+        self.buf = ctx.storage_buffer(self.label, cap);
+        self.cap = cap;
+        Ok(true)
+    }
+}
+
+/// What one render needs room for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sizes {
+    pub n: u64,
+    pub d: u64,
+    pub pixels: u64,
+    pub tiles: u64,
+    /// Capacity of the tile-intersection lists.
+    pub isect: u64,
+}
+
+pub struct Buffers {
+    pub inputs: Grow,
+    pub counters: Grow,
+    pub proj: Grow,
+    pub depth_keys: [Grow; 2],
+    pub depth_vals: [Grow; 2],
+    pub offsets: Grow,
+    pub tile_keys: [Grow; 2],
+    pub tile_vals: [Grow; 2],
+    pub hist: Grow,
+    pub ranges: Grow,
+    pub image: Grow,
+    pub depth: Grow,
+    pub alpha: Grow,
+    pub aux: Grow,
+    pub grad_in: Grow,
+    pub grads: Grow,
+    pub param_grads: Grow,
+    pub params: wgpu::Buffer,
+    pub staging: wgpu::Buffer,
+    staging_cap: u64,
+}
+
+pub const SORT_BLOCK: u64 = 256;
+/// Floats per Gaussian in `inputs`: mean 3, quaternion 4, scale 3, opacity 1 (features follow).
+pub const INPUT_FLOATS: u64 = 11;
+/// Floats per Gaussian in the gradient accumulator before the features (see rasterize_bwd.wgsl).
+pub const GRAD_HEAD: u64 = 8;
+/// Floats per Gaussian written by project_bwd.wgsl: mean 3, quaternion 4, scale 3.
+pub const PARAM_GRADS: u64 = 10;
+
+impl Buffers {
+    pub fn new(ctx: &GpuContext, params_bytes: u64) -> Self {
+        let g = |label| Grow::new(ctx, label);
+        Self {
+            inputs: g("inputs"),
+            counters: g("counters"),
+            proj: g("projected"),
+            depth_keys: [g("depth keys"), g("depth keys")],
+            depth_vals: [g("depth ids"), g("depth ids")],
+            offsets: g("tile offsets"),
+            tile_keys: [g("tile keys"), g("tile keys")],
+            tile_vals: [g("tile ids"), g("tile ids")],
+            hist: g("sort histogram"),
+            ranges: g("tile ranges"),
+            image: g("image"),
+            depth: g("depth"),
+            alpha: g("alpha"),
+            aux: g("pixel state"),
+            grad_in: g("output gradients"),
+            grads: g("gradient accumulator"),
+            param_grads: g("parameter gradients"),
+            params: ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("splat params"),
+                size: params_bytes,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+            staging: Self::staging_buffer(ctx, 16),
+            staging_cap: 16,
+        }
+    }
+
+    fn staging_buffer(ctx: &GpuContext, bytes: u64) -> wgpu::Buffer {
+        ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("splat readback"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// Grow every buffer to fit `s`; true when any bind group must be rebuilt.
+    pub fn ensure(&mut self, ctx: &GpuContext, s: Sizes) -> Result<bool, GpuError> {
+        let f = 4u64;
+        let blocks = s.n.div_ceil(SORT_BLOCK).max(s.isect.div_ceil(SORT_BLOCK));
+        let mut grown = false;
+        grown |= self
+            .inputs
+            .ensure(ctx, f * (s.n * (INPUT_FLOATS + s.d) + s.d))?;
+        grown |= self.counters.ensure(ctx, f * 4)?;
+        grown |= self.proj.ensure(ctx, f * 8 * s.n)?;
+        for b in self
+            .depth_keys
+            .iter_mut()
+            .chain(self.depth_vals.iter_mut())
+        {
+            grown |= b.ensure(ctx, f * s.n)?;
+        }
+        grown |= self.offsets.ensure(ctx, f * s.n)?;
+        for b in self.tile_keys.iter_mut().chain(self.tile_vals.iter_mut()) {
+            grown |= b.ensure(ctx, f * s.isect)?;
+        }
+        grown |= self.hist.ensure(ctx, f * 16 * blocks)?;
+        grown |= self.ranges.ensure(ctx, f * 2 * s.tiles)?;
+        grown |= self.image.ensure(ctx, f * s.pixels * s.d)?;
+        grown |= self.depth.ensure(ctx, f * s.pixels)?;
+        grown |= self.alpha.ensure(ctx, f * s.pixels)?;
+        grown |= self.aux.ensure(ctx, f * 4 * s.pixels)?;
+        grown |= self.grad_in.ensure(ctx, f * s.pixels * (s.d + 2))?;
+        grown |= self.grads.ensure(ctx, f * s.n * (GRAD_HEAD + s.d))?;
+        grown |= self.param_grads.ensure(ctx, f * s.n * PARAM_GRADS)?;
+        let download = (f * (s.pixels * (s.d + 2) + 8 * s.n + 4))
+            .max(f * s.n * (GRAD_HEAD + s.d + PARAM_GRADS));
+        if download > self.staging_cap {
+            let cap = download.next_power_of_two();
+            self.staging = Self::staging_buffer(ctx, cap);
+            self.staging_cap = cap;
+        }
+        Ok(grown)
+    }
+}

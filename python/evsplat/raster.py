@@ -1,0 +1,206 @@
+"""The differentiable Gaussian splatting rasterizer (wgpu compute passes behind a torch autograd
+Function).
+
+``rasterize`` takes float32 CPU tensors and returns the image, expected depth and alpha plus a
+``meta`` dict; gradients flow to means, quats, scales, opacities and features. Conventions
+(gsplat's): quaternions (w, x, y, z), scales are standard deviations, the camera looks along +z,
+pixel (row i, column j) has its centre at (j + 0.5, i + 0.5) in K's pixel coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from evsplat import _core
+from evsplat.errors import EvsplatError
+
+MAX_FEATURES = 32
+
+
+@dataclass(frozen=True)
+class _Camera:
+    width: int
+    height: int
+    near: float
+    far: float
+    atomics: str | None
+    profile: dict | None
+
+
+def _flat(t: torch.Tensor) -> np.ndarray:
+    return t.detach().reshape(-1).contiguous().numpy()
+
+
+def _check(name: str, t: object, shape: tuple[int | None, ...]) -> torch.Tensor:
+    if not isinstance(t, torch.Tensor):
+        raise EvsplatError(f"rasterize: {name} must be a torch.Tensor, got {type(t).__name__}")
+    if t.dtype != torch.float32:
+        raise EvsplatError(f"rasterize: {name} must be float32, got {t.dtype}; use .float()")
+    if t.device.type != "cpu":
+        raise EvsplatError(f"rasterize: {name} must be on the CPU, got {t.device}; use .cpu()")
+    ok = t.dim() == len(shape) and all(w is None or w == s for w, s in zip(shape, t.shape))
+    if not ok:
+        want = "[" + ", ".join("*" if w is None else str(w) for w in shape) + "]"
+        raise EvsplatError(f"rasterize: {name} has shape {list(t.shape)}, expected {want}")
+    if not bool(torch.isfinite(t).all()):
+        raise EvsplatError(f"rasterize: {name} contains NaN or Inf; pass finite values")
+    return t
+
+
+def _args(means, quats, scales, opacities, features, viewmat, K, background, cam: _Camera):
+    return dict(
+        means=_flat(means),
+        quats=_flat(quats),
+        scales=_flat(scales),
+        opacities=_flat(opacities),
+        features=_flat(features),
+        d=features.shape[1],
+        background=_flat(background),
+        viewmat=_flat(viewmat),
+        k=_flat(K),
+        width=cam.width,
+        height=cam.height,
+        near=cam.near,
+        far=cam.far,
+    )
+
+
+def _core_call(fn, **kwargs) -> dict:
+    try:
+        return fn(**kwargs)
+    except ValueError as e:
+        raise EvsplatError(str(e)) from None
+    except RuntimeError as e:
+        raise EvsplatError(f"rasterize: {e}") from None
+
+
+class _Rasterize(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, quats, scales, opacities, features, viewmat, K, background, cam,
+                means2d_grad):  # fmt: skip
+        n, d = features.shape
+        out = _core_call(
+            _core.rasterize_forward,
+            **_args(means, quats, scales, opacities, features, viewmat, K, background, cam),
+            profile=cam.profile is not None,
+        )
+        if cam.profile is not None:
+            cam.profile["forward"] = dict(out["times"])
+        h, w = cam.height, cam.width
+        image = torch.from_numpy(out["image"]).reshape(h, w, d)
+        depth = torch.from_numpy(out["depth"]).reshape(h, w)
+        alpha = torch.from_numpy(out["alpha"]).reshape(h, w)
+        radii = torch.from_numpy(out["radii"])
+        means2d = torch.from_numpy(out["means2d"]).reshape(n, 2)
+        depths = torch.from_numpy(out["depths"])
+        ctx.save_for_backward(means, quats, scales, opacities, features, viewmat, K, background)
+        ctx.cam = cam
+        ctx.render_id = out["id"]
+        ctx.means2d_grad = means2d_grad
+        ctx.mark_non_differentiable(radii, means2d, depths)
+        return image, depth, alpha, radii, means2d, depths
+
+    @staticmethod
+    def backward(ctx, g_image, g_depth, g_alpha, _r, _m, _d):
+        means, quats, scales, opacities, features, viewmat, K, background = ctx.saved_tensors
+        cam: _Camera = ctx.cam
+        h, w, d = cam.height, cam.width, features.shape[1]
+
+        def grad(g, shape):
+            return np.zeros(int(np.prod(shape)), np.float32) if g is None else _flat(g.float())
+
+        out = _core_call(
+            _core.rasterize_backward,
+            **_args(means, quats, scales, opacities, features, viewmat, K, background, cam),
+            id=ctx.render_id,
+            grad_image=grad(g_image, (h, w, d)),
+            grad_depth=grad(g_depth, (h, w)),
+            grad_alpha=grad(g_alpha, (h, w)),
+            atomics=cam.atomics,
+            profile=cam.profile is not None,
+        )
+        if cam.profile is not None:
+            cam.profile["backward"] = dict(out["times"])
+        n = means.shape[0]
+        ctx.means2d_grad.copy_(torch.from_numpy(out["means2d"]).reshape(n, 2))
+        return (
+            torch.from_numpy(out["means"]).reshape(n, 3),
+            torch.from_numpy(out["quats"]).reshape(n, 4),
+            torch.from_numpy(out["scales"]).reshape(n, 3),
+            torch.from_numpy(out["opacities"]),
+            torch.from_numpy(out["features"]).reshape(n, d),
+            None,
+            None,
+            None,
+            None,
+            None,
+        )
+
+
+def rasterize(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    features: torch.Tensor,
+    viewmat: torch.Tensor,
+    K: torch.Tensor,
+    width: int,
+    height: int,
+    near: float = 0.01,
+    far: float = 1e4,
+    background: torch.Tensor | None = None,
+    *,
+    atomics: str | None = None,
+    profile: dict | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict]:
+    """Render N Gaussians with D feature channels into an H x W view.
+
+    Args: means [N,3], quats [N,4] (w,x,y,z, any norm), scales [N,3] (standard deviations),
+    opacities [N] (in [0,1]), features [N,D] (1 <= D <= 32), viewmat [4,4] world->camera,
+    K [3,3]; background [D] (default 0). ``atomics`` picks the gradient accumulation
+    ("float", "cas"; default: the adapter's, ``EVSPLAT_ATOMICS=cas`` forces CAS). ``profile``, a
+    dict, receives per-pass host times in seconds (passes then run one submission each).
+
+    Returns image [H,W,D] = sum f_i w_i + T_final * background, depth [H,W] = sum w_i z_i / alpha
+    (0 where alpha is 0), alpha [H,W] = 1 - T_final, and meta with "radii" int32 [N] (0 = culled),
+    "means2d" [N,2], "depths" [N] (camera z), "visible" bool [N] and "means2d_grad" [N,2], zeros
+    that the backward pass overwrites with dLoss/dmeans2d (for densification).
+    """
+    means = _check("means", means, (None, 3))
+    n = means.shape[0]
+    quats = _check("quats", quats, (n, 4))
+    scales = _check("scales", scales, (n, 3))
+    opacities = _check("opacities", opacities, (n,))
+    features = _check("features", features, (n, None))
+    d = features.shape[1]
+    if not 1 <= d <= MAX_FEATURES:
+        raise EvsplatError(f"rasterize: features have {d} channels; use 1 to {MAX_FEATURES}")
+    viewmat = _check("viewmat", viewmat, (4, 4))
+    K = _check("K", K, (3, 3))
+    if background is None:
+        background = torch.zeros(d)
+    background = _check("background", background, (d,))
+    for name, value in (("width", width), ("height", height)):
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 16384:
+            raise EvsplatError(f"rasterize: {name}={value!r} must be an int in 1..16384")
+    if not (np.isfinite(near) and np.isfinite(far) and 0 < near < far):
+        raise EvsplatError(f"rasterize: need finite 0 < near < far, got near={near}, far={far}")
+    if atomics not in (None, "float", "cas"):
+        raise EvsplatError(f"rasterize: atomics={atomics!r} must be 'float', 'cas' or None")
+    cam = _Camera(int(width), int(height), float(near), float(far), atomics, profile)
+    means2d_grad = torch.zeros(n, 2)
+    image, depth, alpha, radii, means2d, depths = _Rasterize.apply(
+        means, quats, scales, opacities, features, viewmat, K, background, cam, means2d_grad
+    )
+    meta = {
+        "radii": radii,
+        "means2d": means2d,
+        "depths": depths,
+        "visible": radii > 0,
+        "means2d_grad": means2d_grad,
+    }
+    return image, depth, alpha, meta

@@ -1,0 +1,108 @@
+// prelude: splat_common.wgsl
+// One 4-bit pass of a stable LSD radix sort of (key, value) u32 pairs.
+// histogram: per-workgroup digit counts, stored digit-major (hist[digit * blocks + block]) so
+// that one exclusive scan (scan.wgsl) turns them into global destinations.
+// scatter: each element goes to its digit's destination plus its stable rank in the block.
+
+struct SortPass {
+    shift: u32, // which 4 bits
+    which: u32, // 0: sort the params.n depth keys; 1: sort the tile keys (count in counters[0])
+    _pad0: u32,
+    _pad1: u32,
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<uniform> pass_info: SortPass;
+@group(0) @binding(2) var<storage, read> counters: array<u32>;
+@group(0) @binding(3) var<storage, read> keys_in: array<u32>;
+@group(0) @binding(4) var<storage, read_write> hist: array<u32>;
+@group(0) @binding(5) var<storage, read> vals_in: array<u32>;
+@group(0) @binding(6) var<storage, read_write> keys_out: array<u32>;
+@group(0) @binding(7) var<storage, read_write> vals_out: array<u32>;
+
+const WG: u32 = 256u;
+var<workgroup> local_hist: array<atomic<u32>, 16>;
+// 16 digit counters per thread, two 16-bit halves per word (a block holds at most 256 keys).
+var<workgroup> ranks: array<array<u32, 8>, 256>;
+
+fn live_count() -> u32 {
+    if (pass_info.which == 0u) {
+        return params.n;
+    }
+    return min(counters[0], params.cap);
+}
+
+// Blocks in the histogram layout: fixed by the buffer capacity, not by the live count.
+fn num_blocks() -> u32 {
+    if (pass_info.which == 0u) {
+        return (params.n + WG - 1u) / WG;
+    }
+    return (params.cap + WG - 1u) / WG;
+}
+
+fn digit(key: u32) -> u32 {
+    return (key >> pass_info.shift) & 15u;
+}
+
+@compute @workgroup_size(256)
+fn histogram(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+) {
+    let block = wid.x + wid.y * nwg.x;
+    if (lid < 16u) {
+        atomicStore(&local_hist[lid], 0u);
+    }
+    workgroupBarrier();
+    let i = block * WG + lid;
+    if (i < live_count()) {
+        atomicAdd(&local_hist[digit(keys_in[i])], 1u);
+    }
+    workgroupBarrier();
+    let nb = num_blocks();
+    if (lid < 16u && block < nb) {
+        hist[lid * nb + block] = atomicLoad(&local_hist[lid]);
+    }
+}
+
+@compute @workgroup_size(256)
+fn scatter(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+) {
+    let block = wid.x + wid.y * nwg.x;
+    let i = block * WG + lid;
+    let live = i < live_count();
+    var key = 0u;
+    var d = 0u;
+    var mine: array<u32, 8>;
+    if (live) {
+        key = keys_in[i];
+        d = digit(key);
+        mine[d >> 1u] = 1u << ((d & 1u) * 16u);
+    }
+    ranks[lid] = mine;
+    workgroupBarrier();
+    // Hillis-Steele inclusive scan of the packed counters over the block.
+    for (var off = 1u; off < WG; off = off * 2u) {
+        var add: array<u32, 8>;
+        if (lid >= off) {
+            add = ranks[lid - off];
+        }
+        workgroupBarrier();
+        if (lid >= off) {
+            for (var k = 0u; k < 8u; k = k + 1u) {
+                ranks[lid][k] = ranks[lid][k] + add[k];
+            }
+        }
+        workgroupBarrier();
+    }
+    if (live) {
+        let inclusive = (ranks[lid][d >> 1u] >> ((d & 1u) * 16u)) & 0xffffu;
+        let dst = hist[d * num_blocks() + block] + inclusive - 1u;
+        keys_out[dst] = key;
+        vals_out[dst] = vals_in[i];
+    }
+}
