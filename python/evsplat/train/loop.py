@@ -266,7 +266,8 @@ class Trainer:
                     frames.append(torch.from_numpy(ev.esi(a, b, data.c_pos, data.c_neg)))
                     t_mid = 0.5 * (int(ev.t[a]) + int(ev.t[max(b - 1, a)]))
                     means = self.model.means[idx]
-                    dx = self.mlp(means, self.renderer.time(t_mid))[0]
+                    # The MLP sees detached canonical means, as in `deformed` (Deformable-3DGS).
+                    dx = self.mlp(means.detach(), self.renderer.time(t_mid))[0]
                     centres.append(
                         project_points(means + dx, viewmat(self._pose(t_mid)), self.renderer.K)
                     )
