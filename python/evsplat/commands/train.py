@@ -14,6 +14,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", type=Path, help="dataset folder (see docs/dataset.md)")
     parser.add_argument("--out", type=Path, required=True, help="run folder to write")
     parser.add_argument("--preset", default="default", help=f"one of {', '.join(PRESETS)}")
+    parser.add_argument(
+        "--config", type=Path, default=None, help="a TrainConfig JSON (as in a run's config.json)"
+    )
     parser.add_argument("--iters", type=int, default=None, help="override the iteration count")
     parser.add_argument("--resume", action="store_true", help="continue the newest checkpoint")
     parser.add_argument(
@@ -30,9 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from evsplat.train import train
-    from evsplat.train.config import preset
+    from evsplat.train.config import load_config, preset
 
-    cfg = preset(args.preset)
+    cfg = load_config(args.config) if args.config is not None else preset(args.preset)
     if args.seed is not None:
         cfg.seed = args.seed
     if args.checkpoint_every is not None:

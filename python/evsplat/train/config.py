@@ -42,6 +42,7 @@ class TrainConfig:
     num_gaussians: int = 20_000  # initial random Gaussians (documented: no SfM/RGB available)
     background: float = 0.5  # grey background intensity where no Gaussian covers a pixel
     threads: int = 0  # torch intra-op threads (0 = torch's default)
+    deform: bool = True  # False: a static scene, no deformation MLP at all (also a baseline)
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
@@ -58,6 +59,7 @@ class TrainConfig:
             num_gaussians=d["num_gaussians"],
             background=d["background"],
             threads=d.get("threads", 0),
+            deform=d.get("deform", True),
             schedule=ScheduleConfig(**d["schedule"]),
             model=ModelConfig(**d["model"]),
             densify=DensifyConfig(**d["densify"]),
@@ -95,4 +97,21 @@ def preset(name: str) -> TrainConfig:
     except KeyError:
         raise EvsplatError(
             f"unknown preset {name!r}; choose one of {', '.join(sorted(PRESETS))}"
+        ) from None
+
+
+def load_config(path) -> TrainConfig:
+    """A TrainConfig from a JSON file such as a run's config.json."""
+    import json
+    from pathlib import Path
+
+    path = Path(path)
+    try:
+        return TrainConfig.from_dict(json.loads(path.read_text()))
+    except FileNotFoundError:
+        raise EvsplatError(f"{path}: config file not found") from None
+    except (ValueError, KeyError, TypeError) as e:
+        raise EvsplatError(
+            f"{path}: not a TrainConfig JSON ({type(e).__name__}: {e}); start from a run's "
+            "config.json"
         ) from None

@@ -169,8 +169,8 @@ class Trainer:
         # resumed run makes exactly the choices an uninterrupted one makes.
         torch.manual_seed(int(rng.integers(2**62)))
         duration = self.data.t_end_us - self.data.t_start_us
-        self.renderer.mlp = None if stage is Stage.WARMUP else self.mlp
-        moving = stage is not Stage.WARMUP
+        moving = cfg.deform and stage is not Stage.WARMUP
+        self.renderer.mlp = self.mlp if moving else None
 
         # Long window [t0, t1) of random length for L_e; the short flow window starts at t1.
         dt = int(rng.uniform(lc.window_min, lc.window_max) * duration)
@@ -184,7 +184,7 @@ class Trainer:
         pose0, pose1 = self._pose(t0), self._pose(t1)
         g1 = self.renderer.gaussians_at(t1)
         extra = None
-        if moving:
+        if moving and lc.w_flow > 0:
             # Gaussian flow: 2-D motion of each Gaussian over [t1, t1 + dtau] at the pose of t1.
             means_later = self.renderer.gaussians_at(t1 + dtau)[0]
             extra = gaussian_flow_features(g1[0], means_later, viewmat(pose1), self.renderer.K)
@@ -236,7 +236,7 @@ class Trainer:
         lc, data = self.cfg.loss, self.data
         out: dict[str, torch.Tensor] = {}
         # L_ef (eq. 13): linearised event model over [t1, t1 + dtau].
-        short, _, count = self._esi(t1, t1 + dtau)
+        short, _, count = self._esi(t1, t1 + dtau) if lc.w_flow > 0 else (None, None, 0)
         if count > 0:
             flow_cam = camera_flow(
                 out1.depth, self.renderer.K, viewmat(pose1), viewmat(self._pose(t1 + dtau))
@@ -248,7 +248,7 @@ class Trainer:
         ev = data.events
         span = int(lc.motion_window * (data.t_end_us - data.t_start_us))
         i0, i1 = ev.window(t1, min(t1 + span, data.t_end_us))
-        if i1 - i0 >= lc.patch_m:
+        if lc.w_motion > 0 and i1 - i0 >= lc.patch_m:
             gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
             idx = select_visible(
                 out1.meta["means2d"],
@@ -278,11 +278,12 @@ class Trainer:
 
     def _refine_losses(self, t1, out1, delta, mask) -> dict[str, torch.Tensor]:
         lc = self.cfg.loss
-        out = {
-            "ne": non_event_loss(delta, mask, min(self.data.c_pos, self.data.c_neg)),
-            "sp": spatial_gradient_loss(out1.image),
-        }
-        if self.depth_prior is not None:
+        out = {}
+        if lc.w_non_event > 0:
+            out["ne"] = non_event_loss(delta, mask, min(self.data.c_pos, self.data.c_neg))
+        if lc.w_spatial > 0:
+            out["sp"] = spatial_gradient_loss(out1.image)
+        if self.depth_prior is not None and lc.w_depth > 0:
             prior = self.depth_prior.depth(t1, out1.image.detach())
             if prior is not None:
                 valid = (prior > 0) & (out1.alpha.detach() > lc.depth_min_alpha)
@@ -319,7 +320,7 @@ class Trainer:
         return {
             "config": self.cfg.to_dict(),
             "gaussians": self.model.state_for_checkpoint(),
-            "mlp": self.mlp.state_dict() if iteration > self.cfg.schedule.warmup_end else None,
+            "mlp": self.mlp.state_dict() if self._mlp_active(iteration) else None,
             "mlp_full": self.mlp.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "mlp_optimizer": self.mlp_optimizer.state_dict(),
@@ -368,8 +369,11 @@ class Trainer:
         self.stats.history = list(state["history"])
         self.start_iteration = int(state["iteration"])
 
+    def _mlp_active(self, iteration: int) -> bool:
+        """Whether renders after ``iteration`` completed iterations use the MLP."""
+        return self.cfg.deform and iteration > self.cfg.schedule.warmup_end
+
     def save(self, iteration: int) -> Path:
-        self.renderer.mlp = None if iteration <= self.cfg.schedule.warmup_end else self.mlp
         path = save_checkpoint(
             self.run_dir, iteration, self.state(iteration), keep=self.cfg.schedule.keep_checkpoints
         )
@@ -419,7 +423,24 @@ class Trainer:
                 self.save(last)
         self.save(last)
         self.stats.iterations = last
+        write_text_atomic(self.run_dir / "stats.json", json.dumps(self.summary(), indent=2))
         return self.stats
+
+    def summary(self) -> dict:
+        """Run-level numbers for benchmarks: time, rate, skips, size, peak memory."""
+        import resource
+
+        s = self.stats
+        return {
+            "iterations": s.iterations,
+            "train_seconds": s.seconds,
+            "iterations_per_second": s.iterations / max(s.seconds, 1e-9),
+            "skipped_nonfinite": s.skipped_nonfinite,
+            "skipped_empty": s.skipped_empty,
+            "gaussians": int(self.model.num_gaussians),
+            # ru_maxrss is in KiB on Linux
+            "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        }
 
     def _account(self, iteration: int, result: StepResult) -> None:
         if result.skipped is None:
