@@ -150,3 +150,5 @@ def test_bad_pose_input_names_the_source_and_index():
         Trajectory.fit(t, m_nan)
     with pytest.raises(EvsplatError, match="at least 2"):
         Trajectory.fit(t[:1], m[:1])
+    with pytest.raises(EvsplatError, match="in microseconds"):
+        Trajectory.fit(t, m, knot_interval_us=1e-6)

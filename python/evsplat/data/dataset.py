@@ -191,10 +191,12 @@ def _test_frames(
         except (KeyError, TypeError, ValueError):
             c.fail(f"{path}: frame {i} needs 'time_us', 'c2w' (4x4), 'rgb' and 'depth'")
             continue
-        if (
-            c.attempt(validate_poses, np.array([t, t + 1]), np.stack([m, m]), f"{path} frame {i}")
-            is None
-        ):
+        if not isinstance(t, int) or isinstance(t, bool):
+            c.fail(f"{path}: frame {i} time_us must be an integer (µs), got {t!r}")
+            continue
+        # One pose: validated as a two-sample trajectory that stands still.
+        still = (np.array([t, t + 1]), np.stack([m, m]), f"{path} frame {i}")
+        if c.attempt(validate_poses, *still) is None:
             continue
         if t0 is not None and not (t0 <= t <= t1):
             c.fail(f"{path}: frame {i} time {t} µs is outside [{t0}, {t1}] µs")
