@@ -227,7 +227,8 @@ def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
             c.fail(f"{root / name}: missing (a dataset folder needs {', '.join(REQUIRED_FILES)})")
     intr = _intrinsics(c) if (root / "intrinsics.json").is_file() else None
     meta = _meta(c) if (root / "meta.json").is_file() else None
-    if intr and meta and (meta["width"], meta["height"]) != (intr[1], intr[2]):
+    sizes_disagree = bool(intr and meta and (meta["width"], meta["height"]) != (intr[1], intr[2]))
+    if sizes_disagree:
         c.fail(
             f"{root / 'meta.json'}: sensor size {meta['width']}x{meta['height']} differs from "
             f"intrinsics.json {intr[1]}x{intr[2]}; make them agree"
@@ -243,7 +244,8 @@ def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
         )
     traj = _trajectory(c, "poses.txt", t0, t1) if (root / "poses.txt").is_file() else None
     gt = _trajectory(c, "poses_gt.txt", t0, t1) if (root / "poses_gt.txt").is_file() else None
-    frames = _test_frames(c, size, t0, t1)
+    # With two different sensor sizes on record, image sizes cannot be judged (one line above).
+    frames = _test_frames(c, None if sizes_disagree else size, t0, t1)
     if c.problems:
         return c.problems, None
     prior = root / "depth_prior"
