@@ -304,3 +304,9 @@ def test_large_window_counted_in_parallel_matches_reference():
     x, y, p = window_arrays(ev, 5, n)
     np.testing.assert_allclose(ev.esi(5, n, 0.2, 0.3), ref.esi(x, y, p, w, h, 0.2, 0.3), atol=1e-5)
     np.testing.assert_array_equal(ev.event_count(5, n), ref.count(x, y, w, h))
+
+
+def test_stream_constructor_rejects_non_canonical_arrays():
+    x = np.zeros(4, np.uint16)
+    with pytest.raises(EvsplatError, match="contiguous 1-D uint16"):
+        EventStream(x[::2], x[:2], np.zeros(2, np.int64), np.ones(2, np.int8), 1, 1)
