@@ -123,6 +123,7 @@ fn static_name(name: &str) -> &'static str {
         "y" => "y",
         "t" => "t",
         "p" => "p",
+        "bounds" => "bounds",
         _ => "value",
     }
 }
