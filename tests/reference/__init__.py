@@ -1,0 +1,1 @@
+"""Independent numpy/torch reference implementations used as test oracles."""
