@@ -187,3 +187,28 @@ def test_check_cli_accepts_a_good_folder_and_rejects_a_missing_one(tiny_ball, tm
     assert main(["check", str(tiny_ball)]) == 0
     assert main(["check", str(tmp_path / "nothing")]) == 2
     assert "not a directory" in capsys.readouterr().err
+
+
+def test_events_integrate_to_the_ground_truth_log_change(tiny_ball):
+    # Σ C·p over the events between two ground-truth renders ≈ the change of each pixel's
+    # Bayer-channel log intensity (thresholds vary per pixel by σ_C, hence a statistical check).
+    from evsplat.data.simulator import LOG_EPS
+    from evsplat.scenes import get_scene
+
+    ds = load_dataset(tiny_ball)
+    scene = get_scene("ball", tiny=True)
+    ta, tb = 200_000, 230_000
+    ia, ib = np.searchsorted(ds.events.t, [ta, tb], side="right")
+    acc = np.zeros((ds.height, ds.width))
+    p = ds.events.p[ia:ib]
+    np.add.at(acc, (ds.events.y[ia:ib], ds.events.x[ia:ib]), np.where(p > 0, ds.c_pos, -ds.c_neg))
+    y, x = np.mgrid[0 : ds.height, 0 : ds.width]
+    channel = np.array([[0, 1], [1, 2]])[y % 2, x % 2]  # RGGB
+    la, lb = (np.log(scene.render(t)[0][y, x, channel] + LOG_EPS) for t in (ta, tb))
+    err = np.abs(acc - (lb - la))
+    changed = np.abs(lb - la) > 0.5
+    assert changed.mean() > 0.05
+    # the reference level carries up to one threshold from before ta: allow ±2C per pixel
+    c2 = 2 * max(ds.c_pos, ds.c_neg) + 0.1
+    assert np.mean(err < c2) > 0.95 and np.mean(err[changed] < c2) > 0.8
+    assert np.corrcoef(acc[changed], (lb - la)[changed])[0, 1] > 0.9

@@ -226,3 +226,10 @@ def test_bad_reader_and_writer_arguments_are_one_line_errors(tmp_path, stream):
         write_events_h5(tmp_path / "a.h5", stream, compression="brotli")
     with pytest.raises(EvsplatError, match="cannot write"):
         write_events_h5(tmp_path / "no" / "dir" / "a.h5", stream)
+
+
+def test_text_reader_streams_lines_in_chunks(tmp_path, stream, monkeypatch):
+    path = tmp_path / "ev.txt"
+    np.savetxt(path, np.column_stack([stream.t, stream.x, stream.y, stream.p]), fmt="%d")
+    monkeypatch.setattr(event_files, "TEXT_CHUNK", 7)
+    assert_same(read_events(path, width=346, height=260), stream)

@@ -292,3 +292,21 @@ def test_contrast_map_of_wrong_shape_is_rejected():
         ev.esi(0, 1, np.ones((3, 2), np.float32), 0.2)
     with pytest.raises(EvsplatError, match="c_neg is not finite"):
         ev.esi(0, 1, 0.2, np.inf)
+
+
+def test_large_window_counted_in_parallel_matches_reference():
+    """Above the parallel threshold the window is split across threads and reduced."""
+    rng = np.random.default_rng(11)
+    n, w, h = 400_000, 640, 480
+    ev = EventStream.from_arrays(
+        rng.integers(0, w, n), rng.integers(0, h, n), np.arange(n), rng.choice([-1, 1], n), w, h
+    )
+    x, y, p = window_arrays(ev, 5, n)
+    np.testing.assert_allclose(ev.esi(5, n, 0.2, 0.3), ref.esi(x, y, p, w, h, 0.2, 0.3), atol=1e-5)
+    np.testing.assert_array_equal(ev.event_count(5, n), ref.count(x, y, w, h))
+
+
+def test_stream_constructor_rejects_non_canonical_arrays():
+    x = np.zeros(4, np.uint16)
+    with pytest.raises(EvsplatError, match="contiguous 1-D uint16"):
+        EventStream(x[::2], x[:2], np.zeros(2, np.int64), np.ones(2, np.int8), 1, 1)

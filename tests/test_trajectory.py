@@ -150,3 +150,14 @@ def test_bad_pose_input_names_the_source_and_index():
         Trajectory.fit(t, m_nan)
     with pytest.raises(EvsplatError, match="at least 2"):
         Trajectory.fit(t[:1], m[:1])
+    with pytest.raises(EvsplatError, match="in microseconds"):
+        Trajectory.fit(t, m, knot_interval_us=1e-6)
+
+
+def test_huge_absolute_timestamps_lose_no_precision():
+    origin = 2**40 + 17  # µs; float64 alone would still be exact here, float32 not at all
+    t = origin + np.arange(0, 200_001, 10_000, dtype=np.int64)
+    traj = Trajectory.fit(t, np.stack([twist_motion(x - origin) for x in t]))
+    q = origin + np.array([1, 12_345, 199_999], dtype=np.int64)
+    want = np.stack([twist_motion(x - origin) for x in q])
+    assert np.abs(traj.pose(q) - want).max() <= 1e-9

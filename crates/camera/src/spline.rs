@@ -21,6 +21,10 @@ pub enum SplineError {
     NotIncreasing { index: usize, prev: f64, t: f64 },
     #[error("time {t} us is outside the trajectory's range [{min}, {max}] us; no extrapolation")]
     OutOfRange { t: f64, min: f64, max: f64 },
+    #[error(
+        "a knot interval that fine needs {segments} segments (max {max}); is it in microseconds?"
+    )]
+    TooManyKnots { segments: f64, max: usize },
     #[error("knot interval {0} us must be positive and finite")]
     BadKnotInterval(f64),
     #[error("the interpolating control poses did not converge (residual {0:.3e}); the poses change too fast between samples (rotation near 180 degrees per sample?)")]
@@ -30,6 +34,8 @@ pub enum SplineError {
 /// Iterations of the control-pose solve; the error shrinks by ~3x per sweep (Jacobi on the
 /// [1 4 1]/6 system), so 200 sweeps are far more than double precision needs.
 const MAX_SWEEPS: usize = 200;
+/// A knot interval this much finer than the data is a unit mistake, not a wish.
+const MAX_SEGMENTS: usize = 10_000_000;
 const CONVERGED: f64 = 1e-14;
 const ACCEPTABLE: f64 = 1e-9;
 
@@ -115,7 +121,14 @@ impl SplineSe3 {
             g.sort_by(f64::total_cmp);
             g[g.len() / 2]
         });
-        let n = ((span / wanted).round() as usize).max(1);
+        let segments = (span / wanted).round();
+        if segments > MAX_SEGMENTS as f64 {
+            return Err(SplineError::TooManyKnots {
+                segments,
+                max: MAX_SEGMENTS,
+            });
+        }
+        let n = (segments as usize).max(1);
         let dt = span / n as f64;
         let mut j = 0;
         let resampled: Vec<Se3> = (0..=n)

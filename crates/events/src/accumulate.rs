@@ -19,19 +19,53 @@ pub struct PolarityCounts {
     pub sensor: Sensor,
 }
 
-fn count_into(counts: &mut [u32], ev: &EventSlice) {
+/// Events per block of the counting loop: their count indices are computed first (a loop
+/// that vectorises), then scattered (the part that cannot).
+const BLOCK: usize = 1024;
+
+/// Adds the events' counts into `counts`. Each block's coordinates are checked while its
+/// indices are computed, before any of them is used; on failure returns the index of the first
+/// event outside the sensor (counts are then partial and must be dropped).
+fn count_into(counts: &mut [u32], ev: &EventSlice) -> Result<(), usize> {
     let (x, y, p) = ev.parts();
-    let w = ev.sensor().width as usize;
+    let Sensor {
+        width: w,
+        height: h,
+    } = ev.sensor();
     debug_assert_eq!(counts.len(), 2 * ev.sensor().pixels());
-    for ((&xi, &yi), &pi) in x.iter().zip(y).zip(p) {
-        let k = 2 * (yi as usize * w + xi as usize) + usize::from(pi < 0);
-        // SAFETY: EventSlice guarantees x < width and y < height, so k < 2 * width * height.
-        unsafe { *counts.get_unchecked_mut(k) += 1 };
+    let mut idx = [0u32; BLOCK];
+    for (b, ((xb, yb), pb)) in x
+        .chunks(BLOCK)
+        .zip(y.chunks(BLOCK))
+        .zip(p.chunks(BLOCK))
+        .enumerate()
+    {
+        let mut inside = true;
+        for (((k, &xi), &yi), &pi) in idx.iter_mut().zip(xb).zip(yb).zip(pb) {
+            let (xi, yi) = (u32::from(xi), u32::from(yi));
+            inside &= (xi < w) & (yi < h);
+            // Fits u32: Sensor::new caps the sensor below 2^31 pixels.
+            *k = 2 * (yi.wrapping_mul(w).wrapping_add(xi)) + u32::from(pi < 0);
+        }
+        if !inside {
+            let i = xb
+                .iter()
+                .zip(yb)
+                .position(|(&a, &b)| u32::from(a) >= w || u32::from(b) >= h);
+            return Err(b * BLOCK + i.unwrap_or(0));
+        }
+        for &k in &idx[..xb.len()] {
+            // SAFETY: every event of this block has x < width and y < height (checked just
+            // above), so k < 2 * width * height = counts.len().
+            unsafe { *counts.get_unchecked_mut(k as usize) += 1 };
+        }
     }
+    Ok(())
 }
 
-/// Counts events per pixel and polarity. Large windows are split into one chunk per thread,
-/// each counted into its own image, then summed (integers: the order does not matter).
+/// Counts events per pixel and polarity (coordinates outside the sensor are an error naming
+/// the first one). Large windows are split into one chunk per thread, each counted into its
+/// own image, then summed (integers: the order does not matter).
 pub fn polarity_counts(ev: &EventSlice) -> Result<PolarityCounts, EventError> {
     if ev.len() > u32::MAX as usize {
         return Err(EventError::TooManyEvents { len: ev.len() });
@@ -41,27 +75,32 @@ pub fn polarity_counts(ev: &EventSlice) -> Result<PolarityCounts, EventError> {
     let threads = rayon::current_num_threads();
     if threads == 1 || ev.len() < PAR_MIN_EVENTS {
         let mut counts = vec![0u32; len];
-        count_into(&mut counts, ev);
+        count_into(&mut counts, ev).map_err(|i| ev.outside_error(i))?;
         return Ok(PolarityCounts { counts, sensor });
     }
     let chunk = ev.len().div_ceil(threads);
-    let mut partials: Vec<Vec<u32>> = (0..threads)
+    let mut partials = (0..threads)
         .into_par_iter()
         .map(|c| {
             let mut counts = vec![0u32; len];
             let start = (c * chunk).min(ev.len());
-            count_into(&mut counts, &ev.range(start, (start + chunk).min(ev.len())));
-            counts
+            let part = ev.range(start, (start + chunk).min(ev.len()));
+            count_into(&mut counts, &part).map_err(|i| start + i)?;
+            Ok(counts)
         })
-        .collect();
+        .collect::<Vec<Result<Vec<u32>, usize>>>()
+        .into_iter()
+        // The first chunk's error is the first bad event of the window.
+        .collect::<Result<Vec<_>, usize>>()
+        .map_err(|i| ev.outside_error(i))?;
     let mut counts = partials.swap_remove(0);
     counts
         .par_chunks_mut(1 << 14)
         .enumerate()
         .for_each(|(ci, out)| {
-            let off = ci << 14;
+            let (off, n) = (ci << 14, out.len());
             for part in &partials {
-                for (o, &v) in out.iter_mut().zip(&part[off..off + len]) {
+                for (o, &v) in out.iter_mut().zip(&part[off..off + n]) {
                     *o += v;
                 }
             }
@@ -89,7 +128,7 @@ impl Threshold<'_> {
                 width: sensor.width,
                 height: sensor.height,
             }),
-            Threshold::Map(m) => match m.par_iter().position_first(|v| !v.is_finite()) {
+            Threshold::Map(m) => match crate::stream::first_index(m, |v| !v.is_finite()) {
                 Some(i) => Err(bad(i, m[i])),
                 None => Ok(()),
             },
@@ -119,27 +158,50 @@ impl Contrast<'_> {
     }
 }
 
+/// Pixels per parallel task when turning counts into images.
+const PIXEL_CHUNK: usize = 1 << 13;
+
 impl PolarityCounts {
+    /// `f(pixel, n_pos, n_neg)` for every pixel, in parallel chunks of plain loops (which the
+    /// compiler vectorises when `f` ignores the pixel index).
+    fn per_pixel<T: Copy + Default + Send>(
+        &self,
+        f: impl Fn(usize, u32, u32) -> T + Sync,
+    ) -> Vec<T> {
+        let mut out = vec![T::default(); self.sensor.pixels()];
+        out.par_chunks_mut(PIXEL_CHUNK)
+            .zip(self.counts.par_chunks(2 * PIXEL_CHUNK))
+            .enumerate()
+            .for_each(|(ci, (o, n))| {
+                for (i, (o, n)) in o.iter_mut().zip(n.chunks_exact(2)).enumerate() {
+                    *o = f(ci * PIXEL_CHUNK + i, n[0], n[1]);
+                }
+            });
+        out
+    }
+
     /// ESI per pixel: `C+ * n+ - C- * n-`, evaluated in f64 and rounded once to f32.
     /// The contrast must have passed [`Contrast::check`] for this sensor.
     pub fn esi(&self, c: &Contrast) -> Vec<f32> {
-        self.counts
-            .par_chunks(2)
-            .enumerate()
-            .map(|(pix, n)| {
-                (c.pos.at(pix) * f64::from(n[0]) - c.neg.at(pix) * f64::from(n[1])) as f32
-            })
-            .collect()
+        let esi =
+            |cp: f64, cn: f64, np: u32, nn: u32| (cp * f64::from(np) - cn * f64::from(nn)) as f32;
+        match (c.pos, c.neg) {
+            (Threshold::Scalar(a), Threshold::Scalar(b)) => {
+                let (a, b) = (f64::from(a), f64::from(b));
+                self.per_pixel(|_, np, nn| esi(a, b, np, nn))
+            }
+            _ => self.per_pixel(|pix, np, nn| esi(c.pos.at(pix), c.neg.at(pix), np, nn)),
+        }
     }
 
     /// Events per pixel, both polarities.
     pub fn total(&self) -> Vec<u32> {
-        self.counts.par_chunks(2).map(|n| n[0] + n[1]).collect()
+        self.per_pixel(|_, np, nn| np + nn)
     }
 
     /// True where at least one event fired.
     pub fn mask(&self) -> Vec<bool> {
-        self.counts.par_chunks(2).map(|n| n[0] + n[1] > 0).collect()
+        self.per_pixel(|_, np, nn| (np | nn) != 0)
     }
 }
 
@@ -229,15 +291,32 @@ mod tests {
 
     #[test]
     fn parallel_counts_equal_sequential_counts() {
-        let sensor = Sensor::new(7, 5).unwrap();
+        // Large enough for several reduction chunks of the interleaved counts.
+        let sensor = Sensor::new(211, 97).unwrap();
         let n = 3 * PAR_MIN_EVENTS + 11;
-        let x: Vec<u16> = (0..n).map(|i| (i * 7919 % 7) as u16).collect();
-        let y: Vec<u16> = (0..n).map(|i| (i * 104729 % 5) as u16).collect();
+        let x: Vec<u16> = (0..n).map(|i| (i * 7919 % 211) as u16).collect();
+        let y: Vec<u16> = (0..n).map(|i| (i * 104729 % 97) as u16).collect();
         let p: Vec<i8> = (0..n).map(|i| if i % 3 == 0 { -1 } else { 1 }).collect();
         let ev = EventSlice::new(&x, &y, &p, sensor).unwrap();
         let mut seq = vec![0u32; 2 * sensor.pixels()];
-        count_into(&mut seq, &ev);
+        count_into(&mut seq, &ev).unwrap();
         assert_eq!(polarity_counts(&ev).unwrap().counts, seq);
+    }
+
+    #[test]
+    fn counting_reports_the_first_event_outside_the_sensor() {
+        let sensor = Sensor::new(4, 3).unwrap();
+        let n = 3 * PAR_MIN_EVENTS;
+        let mut x = vec![1u16; n];
+        let mut y = vec![1u16; n];
+        x[n - 5] = 4;
+        y[PAR_MIN_EVENTS + 7] = 3;
+        let p = vec![1i8; n];
+        let err = polarity_counts(&EventSlice::new(&x, &y, &p, sensor).unwrap()).err();
+        assert!(matches!(
+            err,
+            Some(EventError::OutsideSensor { axis: "y", value: 3, index, .. }) if index == PAR_MIN_EVENTS + 7
+        ));
     }
 
     #[test]

@@ -54,7 +54,7 @@ pub enum EventError {
         index: usize,
         value: f64,
     },
-    #[error("sensor size {width}x{height} is invalid; width and height must be 1..=65536")]
+    #[error("sensor size {width}x{height} is invalid; width and height must be 1..=65536, area below 2^31 pixels")]
     BadSensor { width: u64, height: u64 },
     #[error("event range [{start}, {stop}) is outside the stream of {len} events; use 0 <= start <= stop <= {len}")]
     BadRange { start: i64, stop: i64, len: usize },

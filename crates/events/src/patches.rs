@@ -50,31 +50,78 @@ pub fn check_bounds(bounds: &[i64], len: usize) -> Result<(), EventError> {
     Ok(())
 }
 
-/// Samples `image` at pixel coordinates (sx, sy); None outside the sensor. Bilinear weights
-/// sit on pixel centres (j + 0.5, i + 0.5); neighbours past the border repeat the edge pixel.
-#[inline]
-fn sample(image: &[f32], sensor: Sensor, sx: f64, sy: f64, mode: Sampling) -> Option<f32> {
-    let (w, h) = (f64::from(sensor.width), f64::from(sensor.height));
-    // Written so that NaN centres fall outside.
-    if !(sx >= 0.0 && sx < w && sy >= 0.0 && sy < h) {
-        return None;
-    }
-    let wi = sensor.width as usize;
-    let at = |i: usize, j: usize| f64::from(image[i * wi + j]);
-    Some(match mode {
-        Sampling::Nearest => at(sy as usize, sx as usize) as f32,
-        Sampling::Bilinear => {
-            let (u, v) = (sx - 0.5, sy - 0.5);
-            let (fu, fv) = (u.floor(), v.floor());
-            let (ax, ay) = (u - fu, v - fv);
-            let clamp = |k: f64, n: u32| k.clamp(0.0, f64::from(n - 1)) as usize;
-            let (j0, j1) = (clamp(fu, sensor.width), clamp(fu + 1.0, sensor.width));
-            let (i0, i1) = (clamp(fv, sensor.height), clamp(fv + 1.0, sensor.height));
-            let top = (1.0 - ax) * at(i0, j0) + ax * at(i0, j1);
-            let bottom = (1.0 - ax) * at(i1, j0) + ax * at(i1, j1);
-            ((1.0 - ay) * top + ay * bottom) as f32
+/// Where one row (or column) of patch samples falls: whether the coordinate lies on the
+/// sensor, the nearest pixel, and the two bilinear neighbours with the weight of the second.
+#[derive(Clone, Copy, Default)]
+struct Tap {
+    inside: bool,
+    nearest: usize,
+    lo: usize,
+    hi: usize,
+    frac: f64,
+}
+
+impl Tap {
+    /// Sample coordinate `s` along an axis of `n` pixels. Bilinear weights sit on pixel centres
+    /// (k + 0.5); neighbours past the border repeat the edge pixel. NaN falls outside.
+    fn new(s: f64, n: u32) -> Self {
+        if !(s >= 0.0 && s < f64::from(n)) {
+            return Self::default();
         }
-    })
+        let u = s - 0.5;
+        let fu = u.floor();
+        let clamp = |k: f64| k.clamp(0.0, f64::from(n - 1)) as usize;
+        Self {
+            inside: true,
+            nearest: s as usize,
+            lo: clamp(fu),
+            hi: clamp(fu + 1.0),
+            frac: u - fu,
+        }
+    }
+}
+
+/// Fills one side×side patch of `image` centred at (cx, cy): sample (a, b) at
+/// (cx + b - half, cy + a - half). Samples off the sensor stay 0 and invalid.
+#[allow(clippy::too_many_arguments)]
+fn fill_patch(
+    image: &[f32],
+    sensor: Sensor,
+    (cx, cy): (f64, f64),
+    side: usize,
+    mode: Sampling,
+    cols: &mut [Tap],
+    vals: &mut [f32],
+    oks: &mut [bool],
+) {
+    let half = (side as f64 - 1.0) / 2.0;
+    for (b, col) in cols.iter_mut().enumerate() {
+        *col = Tap::new(cx + (b as f64 - half), sensor.width);
+    }
+    let w = sensor.width as usize;
+    let at = |i: usize, j: usize| f64::from(image[i * w + j]);
+    for a in 0..side {
+        let row = Tap::new(cy + (a as f64 - half), sensor.height);
+        if !row.inside {
+            continue;
+        }
+        let out = a * side..(a + 1) * side;
+        for ((col, v), ok) in cols.iter().zip(&mut vals[out.clone()]).zip(&mut oks[out]) {
+            if !col.inside {
+                continue;
+            }
+            *v = match mode {
+                Sampling::Nearest => image[row.nearest * w + col.nearest],
+                Sampling::Bilinear => {
+                    let (ax, ay) = (col.frac, row.frac);
+                    let top = (1.0 - ax) * at(row.lo, col.lo) + ax * at(row.lo, col.hi);
+                    let bottom = (1.0 - ax) * at(row.hi, col.lo) + ax * at(row.hi, col.hi);
+                    ((1.0 - ay) * top + ay * bottom) as f32
+                }
+            };
+            *ok = true;
+        }
+    }
 }
 
 /// Extracts patches. `bounds` (m+1 indices into `ev`, see `split_equal_count`) define the
@@ -113,7 +160,6 @@ pub fn extract_patches(
         .map(|b| Ok(polarity_counts(&ev.range(b[0] as usize, b[1] as usize))?.esi(contrast)))
         .collect::<Result<_, EventError>>()?;
     let ss = side * side;
-    let half = (side as f64 - 1.0) / 2.0;
     let mut values = vec![0f32; n * m * ss];
     let mut valid = vec![false; n * m * ss];
     values
@@ -121,19 +167,13 @@ pub fn extract_patches(
         .zip(valid.par_chunks_mut(m * ss))
         .enumerate()
         .for_each(|(c, (vals, oks))| {
+            let mut cols = vec![Tap::default(); side];
             for (k, image) in images.iter().enumerate() {
                 let ci = if per_window { 2 * (c * m + k) } else { 2 * c };
-                let (cx, cy) = (f64::from(centres[ci]), f64::from(centres[ci + 1]));
-                for a in 0..side {
-                    for b in 0..side {
-                        let o = k * ss + a * side + b;
-                        let (sx, sy) = (cx + (b as f64 - half), cy + (a as f64 - half));
-                        if let Some(v) = sample(image, ev.sensor(), sx, sy, mode) {
-                            vals[o] = v;
-                            oks[o] = true;
-                        }
-                    }
-                }
+                let centre = (f64::from(centres[ci]), f64::from(centres[ci + 1]));
+                let out = k * ss..(k + 1) * ss;
+                let (v, o) = (&mut vals[out.clone()], &mut oks[out]);
+                fill_patch(image, ev.sensor(), centre, side, mode, &mut cols, v, o);
             }
         });
     Ok(Patches { values, valid })
@@ -145,23 +185,40 @@ mod tests {
     use crate::accumulate::Threshold;
 
     #[test]
-    fn bilinear_sample_interpolates_between_pixel_centres() {
+    fn bilinear_patch_interpolates_between_pixel_centres() {
         let sensor = Sensor::new(2, 1).unwrap();
         let img = [0.0f32, 1.0];
-        assert_eq!(
-            sample(&img, sensor, 0.5, 0.5, Sampling::Bilinear),
-            Some(0.0)
+        let mut cols = [Tap::default(); 3];
+        let (mut v, mut ok) = ([0f32; 9], [false; 9]);
+        // Samples at x = 0.0, 1.0, 2.0 on row y = 0.5 (the middle row of the patch).
+        fill_patch(
+            &img,
+            sensor,
+            (1.0, 0.5),
+            3,
+            Sampling::Bilinear,
+            &mut cols,
+            &mut v,
+            &mut ok,
         );
+        assert_eq!(&v[3..6], &[0.0, 0.5, 0.0]);
         assert_eq!(
-            sample(&img, sensor, 1.0, 0.5, Sampling::Bilinear),
-            Some(0.5)
+            ok,
+            [false, false, false, true, true, false, false, false, false]
         );
-        assert_eq!(
-            sample(&img, sensor, 1.9, 0.2, Sampling::Bilinear),
-            Some(1.0)
+        let (mut v, mut ok) = ([0f32; 9], [false; 9]);
+        let nan = (f64::NAN, 0.5);
+        fill_patch(
+            &img,
+            sensor,
+            nan,
+            3,
+            Sampling::Nearest,
+            &mut cols,
+            &mut v,
+            &mut ok,
         );
-        assert_eq!(sample(&img, sensor, 2.0, 0.5, Sampling::Bilinear), None);
-        assert_eq!(sample(&img, sensor, f64::NAN, 0.5, Sampling::Nearest), None);
+        assert_eq!((v, ok), ([0.0; 9], [false; 9]));
     }
 
     #[test]

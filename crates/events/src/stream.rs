@@ -7,7 +7,8 @@ use rayon::prelude::*;
 
 use crate::error::EventError;
 
-/// Sensor size in pixels. Coordinates are u16, so each side is at most 65536.
+/// Sensor size in pixels. Coordinates are u16, so each side is at most 65536; the area stays
+/// below 2^31 pixels so that per-polarity count indices fit u32.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Sensor {
     pub width: u32,
@@ -17,7 +18,7 @@ pub struct Sensor {
 impl Sensor {
     pub fn new(width: u64, height: u64) -> Result<Self, EventError> {
         let ok = |v: u64| (1..=65536).contains(&v);
-        if !ok(width) || !ok(height) {
+        if !ok(width) || !ok(height) || width * height >= 1 << 31 {
             return Err(EventError::BadSensor { width, height });
         }
         Ok(Self {
@@ -31,8 +32,10 @@ impl Sensor {
     }
 }
 
-/// Events whose coordinates are known to lie inside `sensor`: the hot loops index without
-/// bounds checks. Built only through [`EventSlice::new`], which checks that promise.
+/// Events of one sensor (equal-length x, y, p). Coordinates are checked by every pass
+/// before it indexes with them: the counting loop checks each block as it computes the block's
+/// pixel indices (no extra pass over memory), other passes call [`EventSlice::check_inside`].
+/// Polarity is read as `p < 0` → negative, so any i8 is safe.
 #[derive(Clone, Copy, Debug)]
 pub struct EventSlice<'a> {
     x: &'a [u16],
@@ -42,8 +45,7 @@ pub struct EventSlice<'a> {
 }
 
 impl<'a> EventSlice<'a> {
-    /// Checks equal lengths and in-sensor coordinates (a vectorised max, cheap next to the
-    /// accumulation that follows). Polarity is read as `p < 0` → negative, so any i8 is safe.
+    /// Checks equal lengths.
     pub fn new(
         x: &'a [u16],
         y: &'a [u16],
@@ -58,9 +60,30 @@ impl<'a> EventSlice<'a> {
                 p: p.len(),
             });
         }
-        check_below(x, "x", "width", sensor.width)?;
-        check_below(y, "y", "height", sensor.height)?;
         Ok(Self { x, y, p, sensor })
+    }
+
+    /// Checks that every coordinate lies inside the sensor (first bad x, then first bad y).
+    pub fn check_inside(&self) -> Result<(), EventError> {
+        check_below(self.x, "x", "width", self.sensor.width)?;
+        check_below(self.y, "y", "height", self.sensor.height)
+    }
+
+    /// The error for event `index`, known to lie outside the sensor.
+    pub(crate) fn outside_error(&self, index: usize) -> EventError {
+        let (x, y) = (self.x[index], self.y[index]);
+        let (axis, dim, value, limit) = if u32::from(x) >= self.sensor.width {
+            ("x", "width", x, self.sensor.width)
+        } else {
+            ("y", "height", y, self.sensor.height)
+        };
+        EventError::OutsideSensor {
+            axis,
+            dim,
+            index,
+            value: i64::from(value),
+            limit,
+        }
     }
 
     pub fn len(&self) -> usize {
@@ -75,7 +98,7 @@ impl<'a> EventSlice<'a> {
         self.sensor
     }
 
-    /// Sub-range `[start, stop)`, still validated.
+    /// Sub-range `[start, stop)`.
     pub fn range(&self, start: usize, stop: usize) -> Self {
         Self {
             x: &self.x[start..stop],
@@ -90,25 +113,28 @@ impl<'a> EventSlice<'a> {
     }
 }
 
+/// Elements per parallel task in the validation scans.
+const SCAN_CHUNK: usize = 1 << 16;
+
+/// First index where `bad` holds. Each chunk is first tested with a branch-free OR (which
+/// vectorises); only a failing chunk is searched element by element.
+pub(crate) fn first_index<T: Sync>(v: &[T], bad: impl Fn(&T) -> bool + Sync) -> Option<usize> {
+    v.par_chunks(SCAN_CHUNK)
+        .enumerate()
+        .filter(|(_, c)| c.iter().fold(false, |acc, a| acc | bad(a)))
+        .filter_map(|(ci, c)| c.iter().position(&bad).map(|i| ci * SCAN_CHUNK + i))
+        .min()
+}
+
 fn check_below(
     v: &[u16],
     axis: &'static str,
     dim: &'static str,
     limit: u32,
 ) -> Result<(), EventError> {
-    // Max over fixed chunks vectorises; only a failing stream pays for finding the index.
-    let max = v
-        .par_chunks(1 << 16)
-        .map(|c| c.iter().copied().max().unwrap_or(0))
-        .max()
-        .unwrap_or(0);
-    if u32::from(max) < limit {
+    let Some(index) = first_index(v, |&a| u32::from(a) >= limit) else {
         return Ok(());
-    }
-    let index = v
-        .par_iter()
-        .position_first(|&a| u32::from(a) >= limit)
-        .unwrap_or(0);
+    };
     Err(EventError::OutsideSensor {
         axis,
         dim,
@@ -143,7 +169,23 @@ pub fn validate<'a>(
 
 /// First index where time decreases, as an error.
 pub fn check_sorted(t: &[i64]) -> Result<(), EventError> {
-    match t.par_windows(2).position_first(|w| w[1] < w[0]) {
+    let Some((next, prev)) = t.get(1..).zip(t.get(..t.len().saturating_sub(1))) else {
+        return Ok(());
+    };
+    // Pairs (t[i+1], t[i]) compared chunk by chunk.
+    let bad = next
+        .par_chunks(SCAN_CHUNK)
+        .zip(prev.par_chunks(SCAN_CHUNK))
+        .enumerate()
+        .filter(|(_, (a, b))| a.iter().zip(*b).fold(false, |acc, (x, y)| acc | (x < y)))
+        .filter_map(|(ci, (a, b))| {
+            a.iter()
+                .zip(b)
+                .position(|(x, y)| x < y)
+                .map(|i| ci * SCAN_CHUNK + i)
+        })
+        .min();
+    match bad {
         None => Ok(()),
         Some(i) => Err(EventError::NotSorted {
             index: i + 1,
@@ -158,17 +200,15 @@ pub fn check_sorted(t: &[i64]) -> Result<(), EventError> {
 pub fn polarity_to_pm1<T: Copy + Into<i64> + Sync + 'static>(
     p: &[T],
 ) -> Result<Cow<'_, [i8]>, EventError> {
-    let bad = p
-        .par_iter()
-        .position_first(|&v| !matches!(v.into(), -1..=1));
+    let bad = first_index(p, |&v| !matches!(v.into(), -1..=1));
     if let Some(index) = bad {
         return Err(EventError::Polarity {
             index,
             value: p[index].into(),
         });
     }
-    let first_zero = p.par_iter().position_first(|&v| v.into() == 0);
-    let first_neg = p.par_iter().position_first(|&v| v.into() == -1);
+    let first_zero = first_index(p, |&v| v.into() == 0);
+    let first_neg = first_index(p, |&v| v.into() == -1);
     match (first_zero, first_neg) {
         (Some(z), Some(n)) => Err(EventError::MixedPolarity { index: z.max(n) }),
         (Some(_), None) => Ok(Cow::Owned(
@@ -192,7 +232,7 @@ fn as_i8<T: 'static>(p: &[T]) -> Option<&[i8]> {
 
 /// Casts float values to i64, refusing NaN/inf, fractions and values beyond i64.
 pub fn float_to_i64(v: &[f64], name: &'static str) -> Result<Vec<i64>, EventError> {
-    let bad = v.par_iter().position_first(|&a| {
+    let bad = first_index(v, |&a| {
         !a.is_finite() || a.fract() != 0.0 || !(-9.2e18..=9.2e18).contains(&a)
     });
     if let Some(index) = bad {
@@ -215,10 +255,7 @@ pub fn coords_to_u16(
     dim: &'static str,
     limit: u32,
 ) -> Result<Vec<u16>, EventError> {
-    if let Some(index) = v
-        .par_iter()
-        .position_first(|&a| a < 0 || a >= i64::from(limit))
-    {
+    if let Some(index) = first_index(v, |&a| a < 0 || a >= i64::from(limit)) {
         let value = v[index];
         return Err(if value < 0 {
             EventError::Negative { axis, index, value }

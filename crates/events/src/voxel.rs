@@ -15,6 +15,7 @@ pub fn voxel_grid(ev: &EventSlice, t: &[i64], bins: usize) -> Result<Vec<f32>, E
             value: 0,
         });
     }
+    ev.check_inside()?;
     let pixels = ev.sensor().pixels();
     let mut grid = vec![0f64; bins * pixels];
     if let (Some(&first), Some(&last)) = (t.first(), t.last()) {

@@ -40,7 +40,6 @@ fn events<'a>(
     i1: i64,
 ) -> Result<EventSlice<'a>, EventError> {
     let (a, b) = ev::check_range(i0, i1, x.len())?;
-    EventSlice::new(x, y, p, sensor)?;
     EventSlice::new(&x[a..b], &y[a..b], &p[a..b], sensor)
 }
 
@@ -124,6 +123,7 @@ fn static_name(name: &str) -> &'static str {
         "y" => "y",
         "t" => "t",
         "p" => "p",
+        "bounds" => "bounds",
         _ => "value",
     }
 }

@@ -79,15 +79,6 @@ impl EventSimulator {
             PyArray1::from_vec(py, ev.p),
         ))
     }
-
-    /// Per-pixel thresholds (C+, C−) as flat row-major float64 arrays.
-    fn thresholds<'py>(
-        &self,
-        py: Python<'py>,
-    ) -> (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>) {
-        let (p, n) = self.inner.thresholds();
-        (PyArray1::from_vec(py, p), PyArray1::from_vec(py, n))
-    }
 }
 
 fn render_err(e: RenderError) -> PyErr {

@@ -369,6 +369,32 @@ mod tests {
     }
 
     #[test]
+    fn per_pixel_thresholds_follow_the_requested_normal() {
+        let mut c = cfg(0.2);
+        c.c_neg = 0.3;
+        c.sigma_c = 0.03;
+        let s = EventSimulator::new(200, 200, c).unwrap();
+        let (p, n) = s.thresholds();
+        let stats = |v: &[f64]| {
+            let m = v.iter().sum::<f64>() / v.len() as f64;
+            (
+                m,
+                (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt(),
+            )
+        };
+        let ((mp, sp), (mn, sn)) = (stats(&p), stats(&n));
+        assert!(
+            (mp - 0.2).abs() < 1e-3 && (sp - 0.03).abs() < 1e-3,
+            "{mp} {sp}"
+        );
+        assert!(
+            (mn - 0.3).abs() < 1e-3 && (sn - 0.03).abs() < 1e-3,
+            "{mn} {sn}"
+        );
+        assert!(p.iter().zip(&n).all(|(a, b)| *a >= 0.02 && *b >= 0.03));
+    }
+
+    #[test]
     fn refractory_period_drops_close_events() {
         let mut c = cfg(0.1);
         c.refractory_us = 300;

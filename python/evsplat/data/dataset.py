@@ -191,10 +191,12 @@ def _test_frames(
         except (KeyError, TypeError, ValueError):
             c.fail(f"{path}: frame {i} needs 'time_us', 'c2w' (4x4), 'rgb' and 'depth'")
             continue
-        if (
-            c.attempt(validate_poses, np.array([t, t + 1]), np.stack([m, m]), f"{path} frame {i}")
-            is None
-        ):
+        if not isinstance(t, int) or isinstance(t, bool):
+            c.fail(f"{path}: frame {i} time_us must be an integer (µs), got {t!r}")
+            continue
+        # One pose: validated as a two-sample trajectory that stands still.
+        still = (np.array([t, t + 1]), np.stack([m, m]), f"{path} frame {i}")
+        if c.attempt(validate_poses, *still) is None:
             continue
         if t0 is not None and not (t0 <= t <= t1):
             c.fail(f"{path}: frame {i} time {t} µs is outside [{t0}, {t1}] µs")
@@ -225,7 +227,8 @@ def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
             c.fail(f"{root / name}: missing (a dataset folder needs {', '.join(REQUIRED_FILES)})")
     intr = _intrinsics(c) if (root / "intrinsics.json").is_file() else None
     meta = _meta(c) if (root / "meta.json").is_file() else None
-    if intr and meta and (meta["width"], meta["height"]) != (intr[1], intr[2]):
+    sizes_disagree = bool(intr and meta and (meta["width"], meta["height"]) != (intr[1], intr[2]))
+    if sizes_disagree:
         c.fail(
             f"{root / 'meta.json'}: sensor size {meta['width']}x{meta['height']} differs from "
             f"intrinsics.json {intr[1]}x{intr[2]}; make them agree"
@@ -241,7 +244,8 @@ def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
         )
     traj = _trajectory(c, "poses.txt", t0, t1) if (root / "poses.txt").is_file() else None
     gt = _trajectory(c, "poses_gt.txt", t0, t1) if (root / "poses_gt.txt").is_file() else None
-    frames = _test_frames(c, size, t0, t1)
+    # With two different sensor sizes on record, image sizes cannot be judged (one line above).
+    frames = _test_frames(c, None if sizes_disagree else size, t0, t1)
     if c.problems:
         return c.problems, None
     prior = root / "depth_prior"

@@ -23,8 +23,10 @@ import numpy as np
 from evsplat.data.events import MAX_SIDE, EventStream, coords_uint16
 from evsplat.errors import EvsplatError
 
-#: Events per read when streaming a file (bounds the temporary memory of a read).
+#: Events per read when streaming an HDF5 dataset.
 READ_CHUNK = 1 << 22
+#: Lines per parse when streaming a text file (their strings are the temporary memory).
+TEXT_CHUNK = 1 << 20
 
 _H5 = (".h5", ".hdf5")
 _TEXT = (".txt", ".csv")
@@ -171,7 +173,7 @@ def _read_text(
     path: Path,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, str]:
     """Parses ``t x y p`` lines (whitespace, or commas for .csv; '#' comments and a csv
-    header line skipped) in chunks of READ_CHUNK lines with numpy's C parser. Also returns
+    header line skipped) in chunks of TEXT_CHUNK lines with numpy's C parser. Also returns
     the detected time unit."""
     src = str(path)
     delimiter = "," if path.suffix.lower() == ".csv" else None
@@ -189,7 +191,7 @@ def _read_text(
             t_token = first.replace(",", " ").split()[0]
         float_time = any(c in t_token for c in ".eE")
         lines = itertools.chain([first], lines)
-        while chunk := list(itertools.islice(lines, READ_CHUNK)):
+        while chunk := list(itertools.islice(lines, TEXT_CHUNK)):
             try:
                 block = np.loadtxt(chunk, dtype=np.float64, delimiter=delimiter, ndmin=2)
             except ValueError as e:

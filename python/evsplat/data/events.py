@@ -107,9 +107,11 @@ class EventStream:
         want = {"x": np.uint16, "y": np.uint16, "t": np.int64, "p": np.int8}
         for name, dtype in want.items():
             a = getattr(self, name)
-            if not isinstance(a, np.ndarray) or a.dtype != dtype or a.ndim != 1:
+            ok = isinstance(a, np.ndarray) and a.dtype == dtype and a.ndim == 1
+            if not ok or not a.flags.c_contiguous:
                 raise EvsplatError(
-                    f"{self.source}: EventStream.{name} must be a 1-D {np.dtype(dtype)} array; "
+                    f"{self.source}: EventStream.{name} must be a contiguous 1-D "
+                    f"{np.dtype(dtype)} array; "
                     "build streams with EventStream.from_arrays, which converts and validates"
                 )
 
