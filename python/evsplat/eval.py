@@ -11,18 +11,19 @@ import torch
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset, load_dataset
 from evsplat.data.images import read_png
+from evsplat.intensity import LUMA
 from evsplat.metrics import Lpips, fit_log_linear, psnr, ssim
 from evsplat.render import Renderer
 
 
 def to_sensor_channels(rgb: np.ndarray, channels: int) -> np.ndarray:
-    """Ground truth in the model's channels: RGB as is, or luminance (Rec. 601) for mono."""
+    """Ground truth in the model's channels: RGB as is, or the sensor's luma for mono."""
     if rgb.ndim == 2:
         rgb = rgb[..., None]
     if channels == rgb.shape[-1]:
         return rgb
     if channels == 1:
-        return (rgb[..., :3] @ np.array([0.299, 0.587, 0.114], dtype=np.float32))[..., None]
+        return (rgb[..., :3] @ LUMA)[..., None]
     return np.repeat(rgb[..., :1], channels, axis=-1)
 
 

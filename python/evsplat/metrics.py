@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsplat.losses.event import LOG_EPS
+from evsplat.intensity import LOG_EPS
 from evsplat.losses.ssim import ssim as ssim_torch
 
 MSE_FLOOR = 1e-10  # PSNR of identical images is reported as 100 dB rather than infinity

@@ -25,11 +25,9 @@ from evsplat import _core
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.events import EventStream
 from evsplat.errors import EvsplatError
+from evsplat.intensity import LOG_EPS, LUMA
 
-LOG_EPS = 1e-3
 BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG", "mono")
-# Luma weights (Rec. 709) for a monochrome sensor looking at an RGB scene.
-LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 
 
 def log_intensity(img: np.ndarray, bayer: str = "RGGB") -> np.ndarray:
@@ -222,8 +220,12 @@ def simulate_dataset(
         mids = (pose_t[:-1] + pose_t[1:]) // 2
         test_t = mids[np.round(np.linspace(0, len(mids) - 1, n_test)).astype(int)]
         test = []
+        near, far = np.inf, 0.0
         for k, t in enumerate(test_t):
             rgb, depth, mask = scene.render(int(t))
+            hit = depth[depth > 0]
+            if hit.size:
+                near, far = min(near, float(hit.min())), max(far, float(hit.max()))
             names = (f"rgb_{k:05d}.png", f"depth_{k:05d}.exr", f"mask_{k:05d}.png")
             write_png(tmp / "test" / names[0], rgb if color else rgb @ LUMA, bits=16)
             write_exr(tmp / "test" / names[1], depth)
@@ -262,6 +264,8 @@ def simulate_dataset(
             "num_events": len(events),
             "seed": int(seed),
             "tiny": bool(tiny),
+            # Where the scene lies in front of the camera: the trainer's initialisation range.
+            "depth_range": [round(0.8 * near, 4), round(1.25 * far, 4)] if far > 0 else None,
             "pose_rate_hz": MEASURED_POSE_HZ,
             "gt_pose_rate_hz": GT_POSE_HZ,
             "rgb_encoding": "linear 16-bit PNG (not sRGB); grey for mono sensors",

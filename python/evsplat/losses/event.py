@@ -5,12 +5,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from evsplat.intensity import LOG_EPS
 from evsplat.losses.ssim import ssim
-
-# The one log epsilon of the project: L = log(I + LOG_EPS) for linear I in [0, 1]. It matches
-# the simulator's, keeps black pixels finite (log 1e-3 = -6.9) and bounds d L / d I by 1000,
-# so a few dark pixels cannot dominate the gradient.
-LOG_EPS = 1e-3
 
 
 def log_intensity(img: Tensor, eps: float = LOG_EPS) -> Tensor:

@@ -102,7 +102,7 @@ class Trainer:
         self.depth_prior = depth_prior
         torch.manual_seed(cfg.seed)
         self.channels = 1 if data.bayer == "mono" else 3
-        self.depth_range = tuple(data.meta.get("depth_range", cfg.model.init_depth_range))
+        self.depth_range = tuple(data.meta.get("depth_range") or cfg.model.init_depth_range)
         self.extent = scene_extent(data, self.depth_range)
 
         rng = np.random.default_rng(cfg.seed)
