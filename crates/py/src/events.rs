@@ -77,9 +77,7 @@ fn polarity_from_int64<'py>(
     p: PyReadonlyArray1<'py, i64>,
 ) -> PyResult<Bound<'py, PyArray1<i8>>> {
     let p = p.as_slice()?;
-    let out = py
-        .detach(|| ev::polarity_to_pm1(p).map(|c| c.into_owned()))
-        .map_err(err)?;
+    let out = py.detach(|| ev::polarity_from_i64(p)).map_err(err)?;
     Ok(PyArray1::from_vec(py, out))
 }
 
