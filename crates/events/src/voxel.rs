@@ -7,7 +7,8 @@ use crate::stream::EventSlice;
 /// (B, H, W) grid. An event at time t adds `p * max(0, 1 - |tn - b|)` to bin b, where
 /// `tn = (B-1) (t - t_first) / (t_last - t_first)` over the window (0 when they are equal).
 /// Time is made relative to the window's first event in i64 before any float arithmetic, so
-/// absolute offsets do not change the result. Accumulates in f64 in event order.
+/// absolute offsets do not change the result. Accumulates in f64 in event order on one thread:
+/// deterministic, and voxel grids serve visualisation, not the training loop.
 pub fn voxel_grid(ev: &EventSlice, t: &[i64], bins: usize) -> Result<Vec<f32>, EventError> {
     if bins == 0 {
         return Err(EventError::NotPositive {
@@ -19,7 +20,9 @@ pub fn voxel_grid(ev: &EventSlice, t: &[i64], bins: usize) -> Result<Vec<f32>, E
     let pixels = ev.sensor().pixels();
     let mut grid = vec![0f64; bins * pixels];
     if let (Some(&first), Some(&last)) = (t.first(), t.last()) {
-        let span = (last - first) as f64;
+        // i128: the span of two arbitrary i64 timestamps can exceed i64.
+        let rel = |t: i64| (i128::from(t) - i128::from(first)) as f64;
+        let span = rel(last);
         let scale = if span > 0.0 {
             (bins - 1) as f64 / span
         } else {
@@ -28,7 +31,7 @@ pub fn voxel_grid(ev: &EventSlice, t: &[i64], bins: usize) -> Result<Vec<f32>, E
         let (x, y, p) = ev.parts();
         let w = ev.sensor().width as usize;
         for (((&xi, &yi), &pi), &ti) in x.iter().zip(y).zip(p).zip(t) {
-            let tn = (ti - first) as f64 * scale;
+            let tn = rel(ti) * scale;
             let b0 = (tn.floor() as usize).min(bins - 1);
             let frac = tn - b0 as f64;
             let pol = if pi < 0 { -1.0 } else { 1.0 };
