@@ -9,7 +9,7 @@ mod patches;
 mod stream;
 mod voxel;
 
-pub use accumulate::{polarity_counts, Bayer, Contrast, PolarityCounts, Threshold};
+pub use accumulate::{event_mask, polarity_counts, Bayer, Contrast, PolarityCounts, Threshold};
 pub use error::EventError;
 pub use patches::{check_bounds, extract_patches, Patches, Sampling};
 pub use stream::{
