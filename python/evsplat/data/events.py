@@ -175,7 +175,10 @@ class EventStream:
         differ by at most one."""
         return self._call(_core.split_equal_count, len(self), int(i0), int(i1), int(m))
 
-    def _accumulate(self, i0: int, i1: int, c_pos: Contrast, c_neg: Contrast, want: list[str]):
+    def _accumulate(
+        self, i0: int, i1: int, c_pos: Contrast, c_neg: Contrast, want: list[str]
+    ) -> list[np.ndarray]:
+        """The images named in ``want`` ("esi", "count", "mask") from one counting pass."""
         return self._call(
             _core.accumulate,
             self.x,
