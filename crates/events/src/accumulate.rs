@@ -23,16 +23,16 @@ pub struct PolarityCounts {
 /// that vectorises), then scattered (the part that cannot).
 const BLOCK: usize = 1024;
 
-/// Adds the events' counts into `counts`. Each block's coordinates are checked while its
-/// indices are computed, before any of them is used; on failure returns the index of the first
-/// event outside the sensor (counts are then partial and must be dropped).
-fn count_into(counts: &mut [u32], ev: &EventSlice) -> Result<(), usize> {
+/// Calls `visit` with the count indices `2 * pixel + (p < 0)` of each block of events. Each
+/// block's coordinates are checked while its indices are computed, so every index passed to
+/// `visit` is below `2 * width * height`. On failure returns the index of the first event
+/// outside the sensor (what `visit` accumulated is then partial and must be dropped).
+fn for_each_block(ev: &EventSlice, mut visit: impl FnMut(&[u32])) -> Result<(), usize> {
     let (x, y, p) = ev.parts();
     let Sensor {
         width: w,
         height: h,
     } = ev.sensor();
-    debug_assert_eq!(counts.len(), 2 * ev.sensor().pixels());
     let mut idx = [0u32; BLOCK];
     for (b, ((xb, yb), pb)) in x
         .chunks(BLOCK)
@@ -54,58 +54,90 @@ fn count_into(counts: &mut [u32], ev: &EventSlice) -> Result<(), usize> {
                 .position(|(&a, &b)| u32::from(a) >= w || u32::from(b) >= h);
             return Err(b * BLOCK + i.unwrap_or(0));
         }
-        for &k in &idx[..xb.len()] {
-            // SAFETY: every event of this block has x < width and y < height (checked just
-            // above), so k < 2 * width * height = counts.len().
-            unsafe { *counts.get_unchecked_mut(k as usize) += 1 };
-        }
+        visit(&idx[..xb.len()]);
     }
     Ok(())
 }
 
-/// Counts events per pixel and polarity (coordinates outside the sensor are an error naming
-/// the first one). Large windows are split into one chunk per thread, each counted into its
-/// own image, then summed (integers: the order does not matter).
-pub fn polarity_counts(ev: &EventSlice) -> Result<PolarityCounts, EventError> {
+/// Adds the events' counts into `counts` (length `2 * pixels`, interleaved polarities).
+fn count_into(counts: &mut [u32], ev: &EventSlice) -> Result<(), usize> {
+    assert_eq!(counts.len(), 2 * ev.sensor().pixels());
+    for_each_block(ev, |idx| {
+        for &k in idx {
+            // SAFETY: for_each_block passes only k < 2 * pixels = counts.len().
+            unsafe { *counts.get_unchecked_mut(k as usize) += 1 };
+        }
+    })
+}
+
+/// Marks the pixels of the events in `mask` (length `pixels`): a quarter of the memory of
+/// the counts, so a mask alone is cheaper than counting.
+fn mask_into(mask: &mut [bool], ev: &EventSlice) -> Result<(), usize> {
+    assert_eq!(mask.len(), ev.sensor().pixels());
+    for_each_block(ev, |idx| {
+        for &k in idx {
+            // SAFETY: for_each_block passes only k < 2 * pixels, so k / 2 < mask.len().
+            unsafe { *mask.get_unchecked_mut((k >> 1) as usize) = true };
+        }
+    })
+}
+
+/// Accumulates per-pixel values of `len` elements: on one thread for short windows, else one
+/// chunk of events per thread into its own image, merged element-wise with `merge` (integer or
+/// boolean, so the result does not depend on the split).
+fn accumulate_parallel<T: Copy + Default + Send + Sync>(
+    ev: &EventSlice,
+    len: usize,
+    fill: impl Fn(&mut [T], &EventSlice) -> Result<(), usize> + Sync,
+    merge: impl Fn(&mut T, T) + Sync,
+) -> Result<Vec<T>, EventError> {
     if ev.len() > u32::MAX as usize {
         return Err(EventError::TooManyEvents { len: ev.len() });
     }
-    let sensor = ev.sensor();
-    let len = 2 * sensor.pixels();
     let threads = rayon::current_num_threads();
     if threads == 1 || ev.len() < PAR_MIN_EVENTS {
-        let mut counts = vec![0u32; len];
-        count_into(&mut counts, ev).map_err(|i| ev.outside_error(i))?;
-        return Ok(PolarityCounts { counts, sensor });
+        let mut out = vec![T::default(); len];
+        fill(&mut out, ev).map_err(|i| ev.outside_error(i))?;
+        return Ok(out);
     }
     let chunk = ev.len().div_ceil(threads);
     let mut partials = (0..threads)
         .into_par_iter()
         .map(|c| {
-            let mut counts = vec![0u32; len];
+            let mut out = vec![T::default(); len];
             let start = (c * chunk).min(ev.len());
             let part = ev.range(start, (start + chunk).min(ev.len()));
-            count_into(&mut counts, &part).map_err(|i| start + i)?;
-            Ok(counts)
+            fill(&mut out, &part).map_err(|i| start + i)?;
+            Ok(out)
         })
-        .collect::<Vec<Result<Vec<u32>, usize>>>()
+        .collect::<Vec<Result<Vec<T>, usize>>>()
         .into_iter()
         // The first chunk's error is the first bad event of the window.
         .collect::<Result<Vec<_>, usize>>()
         .map_err(|i| ev.outside_error(i))?;
-    let mut counts = partials.swap_remove(0);
-    counts
-        .par_chunks_mut(1 << 14)
-        .enumerate()
-        .for_each(|(ci, out)| {
-            let (off, n) = (ci << 14, out.len());
-            for part in &partials {
-                for (o, &v) in out.iter_mut().zip(&part[off..off + n]) {
-                    *o += v;
-                }
+    let mut out = partials.swap_remove(0);
+    out.par_chunks_mut(1 << 14).enumerate().for_each(|(ci, o)| {
+        let (off, n) = (ci << 14, o.len());
+        for part in &partials {
+            for (a, &b) in o.iter_mut().zip(&part[off..off + n]) {
+                merge(a, b);
             }
-        });
+        }
+    });
+    Ok(out)
+}
+
+/// Counts events per pixel and polarity (coordinates outside the sensor are an error naming
+/// the first one).
+pub fn polarity_counts(ev: &EventSlice) -> Result<PolarityCounts, EventError> {
+    let sensor = ev.sensor();
+    let counts = accumulate_parallel(ev, 2 * sensor.pixels(), count_into, |a, b| *a += b)?;
     Ok(PolarityCounts { counts, sensor })
+}
+
+/// True where at least one event fired (row-major H×W), without counting.
+pub fn event_mask(ev: &EventSlice) -> Result<Vec<bool>, EventError> {
+    accumulate_parallel(ev, ev.sensor().pixels(), mask_into, |a, b| *a |= b)
 }
 
 /// A contrast threshold: one value for the sensor or one per pixel (row-major H×W).
@@ -300,7 +332,9 @@ mod tests {
         let ev = EventSlice::new(&x, &y, &p, sensor).unwrap();
         let mut seq = vec![0u32; 2 * sensor.pixels()];
         count_into(&mut seq, &ev).unwrap();
-        assert_eq!(polarity_counts(&ev).unwrap().counts, seq);
+        let counts = polarity_counts(&ev).unwrap();
+        assert_eq!(counts.counts, seq);
+        assert_eq!(event_mask(&ev).unwrap(), counts.mask());
     }
 
     #[test]

@@ -9,11 +9,11 @@ mod patches;
 mod stream;
 mod voxel;
 
-pub use accumulate::{polarity_counts, Bayer, Contrast, PolarityCounts, Threshold};
+pub use accumulate::{event_mask, polarity_counts, Bayer, Contrast, PolarityCounts, Threshold};
 pub use error::EventError;
 pub use patches::{check_bounds, extract_patches, Patches, Sampling};
 pub use stream::{
-    check_range, check_sorted, coords_to_u16, float_to_i64, polarity_to_pm1, split_equal_count,
-    validate, window_by_count, window_by_time, EventSlice, Sensor,
+    check_range, check_sorted, coords_to_u16, float_to_i64, polarity_from_i64, polarity_to_pm1,
+    split_equal_count, validate, window_by_count, window_by_time, EventSlice, Sensor,
 };
 pub use voxel::voxel_grid;

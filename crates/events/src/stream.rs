@@ -195,13 +195,17 @@ pub fn check_sorted(t: &[i64]) -> Result<(), EventError> {
     }
 }
 
-/// Maps polarities to ±1: {-1,+1} stays (borrowed), {0,1} becomes {-1,+1}; anything else,
-/// or a mix of 0 and -1, is an error at its first index.
-pub fn polarity_to_pm1<T: Copy + Into<i64> + Sync + 'static>(
-    p: &[T],
-) -> Result<Cow<'_, [i8]>, EventError> {
-    let bad = first_index(p, |&v| !matches!(v.into(), -1..=1));
-    if let Some(index) = bad {
+/// How a stream encodes polarity.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Encoding {
+    PlusMinus,
+    ZeroOne,
+}
+
+/// Checks that polarities are all in {-1, +1} or all in {0, 1}; anything else, or a mix of 0
+/// and -1, is an error at its first index.
+fn polarity_encoding<T: Copy + Into<i64> + Sync>(p: &[T]) -> Result<Encoding, EventError> {
+    if let Some(index) = first_index(p, |&v| !matches!(v.into(), -1..=1)) {
         return Err(EventError::Polarity {
             index,
             value: p[index].into(),
@@ -211,23 +215,31 @@ pub fn polarity_to_pm1<T: Copy + Into<i64> + Sync + 'static>(
     let first_neg = first_index(p, |&v| v.into() == -1);
     match (first_zero, first_neg) {
         (Some(z), Some(n)) => Err(EventError::MixedPolarity { index: z.max(n) }),
-        (Some(_), None) => Ok(Cow::Owned(
-            p.par_iter()
-                .map(|&v| if v.into() == 0 { -1 } else { 1 })
-                .collect(),
-        )),
-        (None, _) => Ok(match as_i8(p) {
-            Some(s) => Cow::Borrowed(s),
-            None => Cow::Owned(p.par_iter().map(|&v| v.into() as i8).collect()),
-        }),
+        (Some(_), None) => Ok(Encoding::ZeroOne),
+        (None, _) => Ok(Encoding::PlusMinus),
     }
 }
 
-/// The same slice as `&[i8]` when `T` is i8 (no copy), else None.
-fn as_i8<T: 'static>(p: &[T]) -> Option<&[i8]> {
-    (std::any::TypeId::of::<T>() == std::any::TypeId::of::<i8>())
-        // SAFETY: T is i8, so the layout is identical.
-        .then(|| unsafe { std::slice::from_raw_parts(p.as_ptr().cast::<i8>(), p.len()) })
+fn to_pm1(v: i64, enc: Encoding) -> i8 {
+    match (enc, v) {
+        (Encoding::ZeroOne, 0) => -1,
+        (Encoding::ZeroOne, _) => 1,
+        (Encoding::PlusMinus, v) => v as i8,
+    }
+}
+
+/// Polarities as ±1: a {-1,+1} stream is returned as is (borrowed), a {0,1} one mapped.
+pub fn polarity_to_pm1(p: &[i8]) -> Result<Cow<'_, [i8]>, EventError> {
+    Ok(match polarity_encoding(p)? {
+        Encoding::PlusMinus => Cow::Borrowed(p),
+        enc => Cow::Owned(p.par_iter().map(|&v| to_pm1(v.into(), enc)).collect()),
+    })
+}
+
+/// Polarities given as i64 (any integer input), checked and mapped to ±1 as i8.
+pub fn polarity_from_i64(p: &[i64]) -> Result<Vec<i8>, EventError> {
+    let enc = polarity_encoding(p)?;
+    Ok(p.par_iter().map(|&v| to_pm1(v, enc)).collect())
 }
 
 /// Casts float values to i64, refusing NaN/inf, fractions and values beyond i64.
@@ -372,7 +384,7 @@ mod tests {
             Cow::Borrowed(_)
         ));
         assert_eq!(
-            polarity_to_pm1(&[1i64, 3]).unwrap_err(),
+            polarity_from_i64(&[1, 3]).unwrap_err(),
             EventError::Polarity { index: 1, value: 3 }
         );
         assert_eq!(

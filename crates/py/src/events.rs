@@ -77,9 +77,7 @@ fn polarity_from_int64<'py>(
     p: PyReadonlyArray1<'py, i64>,
 ) -> PyResult<Bound<'py, PyArray1<i8>>> {
     let p = p.as_slice()?;
-    let out = py
-        .detach(|| ev::polarity_to_pm1(p).map(|c| c.into_owned()))
-        .map_err(err)?;
+    let out = py.detach(|| ev::polarity_from_i64(p)).map_err(err)?;
     Ok(PyArray1::from_vec(py, out))
 }
 
@@ -213,6 +211,29 @@ fn accumulate<'py>(
             })
         })
         .collect()
+}
+
+/// Event mask of `[i0, i1)` alone (no counts: a smaller image to scatter into).
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn event_mask<'py>(
+    py: Python<'py>,
+    x: PyReadonlyArray1<'py, u16>,
+    y: PyReadonlyArray1<'py, u16>,
+    p: PyReadonlyArray1<'py, i8>,
+    width: u64,
+    height: u64,
+    i0: i64,
+    i1: i64,
+) -> PyResult<Bound<'py, PyAny>> {
+    let s = sensor(width, height)?;
+    let (x, y, p) = (x.as_slice()?, y.as_slice()?, p.as_slice()?);
+    let mask = py
+        .detach(|| ev::event_mask(&events(x, y, p, s, i0, i1)?))
+        .map_err(err)?;
+    Ok(PyArray1::from_vec(py, mask)
+        .reshape([s.height as usize, s.width as usize])?
+        .into_any())
 }
 
 /// ESI of `[i0, i1)` split by colour-filter channel: (C, H, W), C = 3 for Bayer, 1 for mono.
@@ -350,6 +371,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(window_by_count, m)?)?;
     m.add_function(wrap_pyfunction!(split_equal_count, m)?)?;
     m.add_function(wrap_pyfunction!(accumulate, m)?)?;
+    m.add_function(wrap_pyfunction!(event_mask, m)?)?;
     m.add_function(wrap_pyfunction!(esi_by_channel, m)?)?;
     m.add_function(wrap_pyfunction!(bayer_channel_map, m)?)?;
     m.add_function(wrap_pyfunction!(patches, m)?)?;

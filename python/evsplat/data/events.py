@@ -175,7 +175,10 @@ class EventStream:
         differ by at most one."""
         return self._call(_core.split_equal_count, len(self), int(i0), int(i1), int(m))
 
-    def _accumulate(self, i0: int, i1: int, c_pos: Contrast, c_neg: Contrast, want: list[str]):
+    def _accumulate(
+        self, i0: int, i1: int, c_pos: Contrast, c_neg: Contrast, want: list[str]
+    ) -> list[np.ndarray]:
+        """The images named in ``want`` ("esi", "count", "mask") from one counting pass."""
         return self._call(
             _core.accumulate,
             self.x,
@@ -208,7 +211,9 @@ class EventStream:
 
     def event_mask(self, i0: int, i1: int) -> np.ndarray:
         """bool[H, W]: True where at least one event fired in [i0, i1)."""
-        return self._accumulate(i0, i1, 0.0, 0.0, ["mask"])[0]
+        return self._call(
+            _core.event_mask, self.x, self.y, self.p, self.width, self.height, int(i0), int(i1)
+        )
 
     def esi_by_channel(
         self, i0: int, i1: int, c_pos: Contrast, c_neg: Contrast, pattern: str
