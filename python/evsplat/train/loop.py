@@ -154,8 +154,7 @@ class Trainer:
     def _esi(self, t0: int, t1: int) -> tuple[torch.Tensor, torch.Tensor, int]:
         ev = self.data.events
         i0, i1 = ev.window(t0, t1)
-        esi = ev.esi(i0, i1, self.data.c_pos, self.data.c_neg)
-        mask = ev.event_mask(i0, i1)
+        esi, mask = ev.esi_and_mask(i0, i1, self.data.c_pos, self.data.c_neg)
         return torch.from_numpy(esi), torch.from_numpy(mask), i1 - i0
 
     def _pose(self, t_us: float) -> np.ndarray:
