@@ -22,8 +22,8 @@ struct SortPass {
 
 const WG: u32 = 256u;
 var<workgroup> local_hist: array<atomic<u32>, 16>;
-// 16 digit counters per thread, two 16-bit halves per word (a block holds at most 256 keys).
-var<workgroup> ranks: array<array<u32, 8>, 256>;
+var<workgroup> block_digits: array<u32, 256>;
+var<workgroup> block_ranks: array<u32, 256>;
 
 fn live_count() -> u32 {
     if (pass_info.which == 0u) {
@@ -76,32 +76,28 @@ fn scatter(
     let i = block * WG + lid;
     let live = i < live_count();
     var key = 0u;
-    var d = 0u;
-    var mine: array<u32, 8>;
+    var d = 16u; // no digit: not a live element
     if (live) {
         key = keys_in[i];
         d = digit(key);
-        mine[d >> 1u] = 1u << ((d & 1u) * 16u);
     }
-    ranks[lid] = mine;
+    block_digits[lid] = d;
     workgroupBarrier();
-    // Hillis-Steele inclusive scan of the packed counters over the block.
-    for (var off = 1u; off < WG; off = off * 2u) {
-        var add: array<u32, 8>;
-        if (lid >= off) {
-            add = ranks[lid - off];
-        }
-        workgroupBarrier();
-        if (lid >= off) {
-            for (var k = 0u; k < 8u; k = k + 1u) {
-                ranks[lid][k] = ranks[lid][k] + add[k];
+    // Stable ranks within the block: one serial walk of 256 digits (cheap next to a parallel
+    // scan of 16 counters, which spills registers on CPU and GPU alike).
+    if (lid == 0u) {
+        var counts: array<u32, 16>;
+        for (var j = 0u; j < WG; j = j + 1u) {
+            let dj = block_digits[j];
+            if (dj < 16u) {
+                block_ranks[j] = counts[dj];
+                counts[dj] = counts[dj] + 1u;
             }
         }
-        workgroupBarrier();
     }
+    workgroupBarrier();
     if (live) {
-        let inclusive = (ranks[lid][d >> 1u] >> ((d & 1u) * 16u)) & 0xffffu;
-        let dst = hist[d * num_blocks() + block] + inclusive - 1u;
+        let dst = hist[d * num_blocks() + block] + block_ranks[lid];
         keys_out[dst] = key;
         vals_out[dst] = vals_in[i];
     }
