@@ -393,7 +393,8 @@ ROWS: list[Row] = [
         lambda w, d, r: _train_argv(d, w),
         ("ckpt_", "free space"),
         patch=_fail_checkpoint_save(OSError(errno.ENOSPC, "No space left")),
-    ),  # fmt: skip
+        may_create=("new_run", "new_run/config.json", "new_run/checkpoints"),
+    ),
     # Python API
     Row("read_events: unsorted text events", _api(_api_unsorted_text), ("ev.txt", "sort"), None),
     Row("read_events: empty CSV file", _api(_api_empty_text), ("ev.csv", "empty"), None),
