@@ -279,7 +279,9 @@ ROWS: list[Row] = [
     Row("unsorted event timestamps", _events(_unsorted), ("events.h5", "sort")),
     Row("events outside the sensor", _events(_outside), ("events.h5", "x")),
     Row("empty event file (0 bytes)", _events(_empty_file), ("events.h5", "empty")),
-    Row("a directory where events.h5 is expected", _events(_directory), ("events.h5",)),
+    Row(
+        "a directory where events.h5 is expected", _events(_directory), ("events.h5", "is a folder")
+    ),
     Row(
         "duplicated pose timestamp",
         _text("poses.txt", _pose_lines(_dup_pose)),
@@ -293,7 +295,7 @@ ROWS: list[Row] = [
     Row(
         "NaN in a pose",
         _text("poses.txt", _pose_lines(_nan_pose)),
-        ("poses.txt", "NaN"),
+        ("poses.txt", "NaN", "remove that line"),
         subprocess=True,
     ),  # fmt: skip
     Row(
@@ -311,7 +313,11 @@ ROWS: list[Row] = [
         _text("meta.json", _json_edit("width", 97)),
         ("meta.json", "intrinsics.json"),
     ),
-    Row("meta.json is not JSON", _text("meta.json", lambda s: s[: len(s) // 2]), ("meta.json",)),
+    Row(
+        "meta.json is not JSON",
+        _text("meta.json", lambda s: s[: len(s) // 2]),
+        ("meta.json", "regenerate"),
+    ),
     Row(
         "dataset folder is a file",
         lambda w, d, r: _train_argv(d / "meta.json", w),
