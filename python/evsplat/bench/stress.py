@@ -320,7 +320,9 @@ def _loss_case(r: np.random.Generator, kind: str) -> Arrays:
         a, b = _leaf(_image(r, (h, w), img_kind)), _leaf(_image(r, (h, w), img_kind))
         out = ssim(a, b, data_range=float(r.choice([1e-3, 1.0, 1e3])))
         out.backward()
-        assert -1.0 - 1e-4 <= out.item() <= 1.0 + 1e-4, f"SSIM {out.item()} outside [-1, 1]"
+        # float32 local variances (E[x^2] - E[x]^2) of values ~1e3 with data_range 1e-3 (C1, C2
+        # ~1e-12) round off by ~1e-3 relative; exact SSIM lies in [-1, 1].
+        assert -1.0 - 1e-3 <= out.item() <= 1.0 + 1e-3, f"SSIM {out.item()} outside [-1, 1]"
         return [out, *_grads(a, b)]
     if kind == "event_loss":
         a, b = _leaf(_image(r, (h, w), img_kind)), _leaf(_image(r, (h, w), "random"))
