@@ -30,11 +30,15 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from evsplat.errors import EvsplatError
+
+if TYPE_CHECKING:
+    from evsplat.train.config import TrainConfig
 
 HELP = "property-based stress of every numeric component (NaN/Inf, crashes) and SIGKILL trials"
 
@@ -614,6 +618,18 @@ def format_tallies(tallies: dict[str, Tally], seconds: dict[str, float] | None =
 
 KILL_ITERS = 12  # iterations of each killed tiny training run
 KILL_CKPT_EVERY = 3
+KILL_GAUSSIANS = 300  # the tiny preset with fewer Gaussians: crash safety, not quality
+
+
+def kill_config() -> TrainConfig:
+    """The tiny preset shrunk so that a killed run and its resume take seconds."""
+    from evsplat.train.config import preset
+
+    cfg = preset("tiny")
+    cfg.num_gaussians = KILL_GAUSSIANS
+    cfg.schedule.iterations = KILL_ITERS
+    cfg.schedule.checkpoint_every = KILL_CKPT_EVERY
+    return cfg
 
 
 def _cli(*args: str | Path) -> list[str]:
@@ -707,7 +723,7 @@ def resume_and_check(data: Path, run: Path, iters: int) -> list[str]:
 
     loop.Trainer.run = spy  # observe where the resumed loop starts; restored below
     try:
-        train(data, run, preset_name="tiny", iterations=iters, resume=True, progress=False)
+        train(data, run, config=kill_config(), iterations=iters, resume=True, progress=False)
     finally:
         loop.Trainer.run = original
     problems = []
@@ -743,8 +759,10 @@ def kill_trials(n: int, work: Path, seed: int = 0, kinds: Sequence[str] = KINDS)
     simulate_dataset("ball", data, tiny=True, seed=0, progress=False)
     source_run = work / "source_run"
     if "export" in kinds:
-        train(data, source_run, preset_name="tiny", iterations=2, progress=False)
-    train_args = ("--preset", "tiny", "--iters", KILL_ITERS, "--checkpoint-every", KILL_CKPT_EVERY)
+        train(data, source_run, config=kill_config(), iterations=2, progress=False)
+    config = work / "kill_config.json"
+    config.write_text(json.dumps(kill_config().to_dict()))
+    train_args = ("--config", config, "--iters", KILL_ITERS, "--checkpoint-every", KILL_CKPT_EVERY)
     cmds = {
         "train": lambda out: _cli("train", data, "--out", out, *train_args, "--no-progress"),
         "simulate": lambda out: _cli(
@@ -780,7 +798,9 @@ def kill_trials(n: int, work: Path, seed: int = 0, kinds: Sequence[str] = KINDS)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--cases", type=int, default=10_000, help="total cases (default 10000)")
+    parser.add_argument(
+        "--cases", type=int, default=10_000, help="total cases (default 10000; 0: none)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument(
         "--components", default=None, help=f"comma-separated subset of {', '.join(COMPONENTS)}"
@@ -798,7 +818,7 @@ def run(args: argparse.Namespace) -> int:
             f"--components: unknown {', '.join(unknown)}; choose from {', '.join(COMPONENTS)}"
         )
     tallies, seconds = {}, {}
-    for name in names:
+    for name in names if args.cases > 0 else []:
         t = time.perf_counter()
         share = COMPONENTS[name][1] / sum(COMPONENTS[c][1] for c in names)
         tallies.update(run_stress(max(1, round(args.cases * share)), args.seed, [name]))
