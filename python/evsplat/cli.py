@@ -23,14 +23,15 @@ def build_parser() -> argparse.ArgumentParser:
         name = info.name.replace("_", "-")
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
-        p.set_defaults(run=module.run)
+        # Not `run`: a subcommand's own positional argument may be called that (`export RUN`).
+        p.set_defaults(command_run=module.run)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return int(args.run(args) or 0)
+        return int(args.command_run(args) or 0)
     except EvsplatError as e:
         print(f"evsplat {args.command}: error: {e}", file=sys.stderr)
         return 2

@@ -49,8 +49,11 @@ def run(args: argparse.Namespace) -> int:
     from evsplat.data.images import write_exr, write_png
     from evsplat.data.poses import read_tum
     from evsplat.data.trajectory import Trajectory
+    from evsplat.errors import EvsplatError
     from evsplat.render import Renderer
 
+    if args.out.exists() and not args.out.is_dir():
+        raise EvsplatError(f"--out {args.out}: exists and is not a folder; choose a folder path")
     renderer, state = Renderer.from_run(args.run)
     fractions = parse_times(args.times)
     span = renderer.t_end_us - renderer.t_start_us

@@ -79,7 +79,7 @@ class _Checker:
             self.fail(f"{path}: cannot read ({e.strerror})")
             return None
         except json.JSONDecodeError as e:
-            self.fail(f"{path}: not valid JSON ({e.msg} at line {e.lineno})")
+            self.fail(f"{path}: not valid JSON ({e.msg} at line {e.lineno}); fix or regenerate it")
             return None
         if not isinstance(doc, (dict, list)):
             self.fail(f"{path}: expected a JSON object")
@@ -224,7 +224,8 @@ def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
         return [f"{root}: not a directory (expected a dataset folder, see docs/dataset.md)"], None
     for name in REQUIRED_FILES:
         if not (root / name).is_file():
-            c.fail(f"{root / name}: missing (a dataset folder needs {', '.join(REQUIRED_FILES)})")
+            what = "is a folder, not a file" if (root / name).exists() else "missing"
+            c.fail(f"{root / name}: {what} (a dataset folder needs {', '.join(REQUIRED_FILES)})")
     intr = _intrinsics(c) if (root / "intrinsics.json").is_file() else None
     meta = _meta(c) if (root / "meta.json").is_file() else None
     sizes_disagree = bool(intr and meta and (meta["width"], meta["height"]) != (intr[1], intr[2]))

@@ -103,7 +103,7 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         q = np.array([qw, qx, qy, qz])
         norm = np.linalg.norm(q)
         if not np.all(np.isfinite(q)) or not np.isfinite([tx, ty, tz]).all():
-            raise EvsplatError(f"{path}:{n}: NaN/inf in pose '{line}'")
+            raise EvsplatError(f"{path}:{n}: NaN/inf in pose '{line}'; fix or remove that line")
         if abs(norm - 1) > QUAT_NORM_TOL:
             raise EvsplatError(
                 f"{path}:{n}: quaternion norm {norm:.6f} is not 1; "

@@ -30,6 +30,10 @@ def scale_activation(log_scales: Tensor) -> Tensor:
 
 def normalize_quats(q: Tensor) -> Tensor:
     """Unit quaternions (w, x, y, z); a (near) zero quaternion becomes the identity, never NaN."""
+    # Divide by the largest |component| (a constant) when it exceeds 1: |q|^2 of a quaternion
+    # above ~1e19 overflows float32 and would turn it into zeros.
+    peak = q.detach().abs().amax(-1, keepdim=True)
+    q = torch.where(peak > 1.0, q / peak.clamp_min(1.0), q)
     sq = (q * q).sum(-1, keepdim=True)
     norm = torch.sqrt(sq.clamp_min(QUAT_EPS * QUAT_EPS))
     identity = torch.zeros_like(q)
