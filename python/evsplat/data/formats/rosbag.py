@@ -1,0 +1,146 @@
+"""ROS 1 and ROS 2 bags through ``rosbags`` (pure Python): event arrays
+(``dvs_msgs/EventArray`` from rpg_dvs_ros, ``prophesee_event_msgs/EventArray`` from
+prophesee_ros_driver) and ``geometry_msgs/PoseStamped`` poses.
+
+Message definitions stored in the bag are used; the two event types are also registered here,
+so ROS 2 bags recorded without definitions read too."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from evsplat.data.formats import Chunk, EventSource
+from evsplat.errors import EvsplatError
+
+#: Field layout shared by both drivers' Event messages (ROS 1 ``time`` = builtin Time).
+EVENT_MSG = "uint16 x\nuint16 y\nbuiltin_interfaces/Time ts\nbool polarity\n"
+EVENT_ARRAY_MSG = "std_msgs/Header header\nuint32 height\nuint32 width\n{pkg}/Event[] events\n"
+EVENT_PACKAGES = ("dvs_msgs", "prophesee_event_msgs")
+EVENT_TYPES = tuple(f"{pkg}/msg/EventArray" for pkg in EVENT_PACKAGES)
+POSE_TYPE = "geometry_msgs/msg/PoseStamped"
+BAG_SUFFIXES = (".bag", ".mcap", ".db3")
+
+
+def typestore():
+    """The ROS 2 Humble types plus both event-message packages."""
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    types = {}
+    for pkg in EVENT_PACKAGES:
+        types.update(get_types_from_msg(EVENT_MSG, f"{pkg}/msg/Event"))
+        types.update(get_types_from_msg(EVENT_ARRAY_MSG.format(pkg=pkg), f"{pkg}/msg/EventArray"))
+    store.register(types)
+    return store
+
+
+def is_bag(path: Path) -> bool:
+    """A ROS 1 .bag, a ROS 2 storage file, or a ROS 2 bag folder."""
+    return path.suffix.lower() in BAG_SUFFIXES or (path / "metadata.yaml").is_file()
+
+
+def _bag_root(path: Path) -> Path:
+    # rosbags opens a ROS 2 bag by its folder (the one with metadata.yaml).
+    return path.parent if path.suffix.lower() in (".mcap", ".db3") else path
+
+
+def _open(path: Path) -> AnyReader:
+    reader = AnyReader([_bag_root(path)], default_typestore=typestore())
+    try:
+        reader.open()
+    except Exception as e:  # rosbags raises its own error classes per storage back end
+        what = " ".join(str(e).split())
+        raise EvsplatError(
+            f"{path}: cannot open the bag ({what}); the file is not a ROS bag, is truncated, or "
+            "a ROS 2 bag lacks its metadata.yaml"
+        ) from None
+    return reader
+
+
+def _topics(reader: AnyReader) -> str:
+    return ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
+
+
+def _pick(path: Path, reader: AnyReader, topic: str | None, types: tuple[str, ...], what: str):
+    """The connections of ``topic`` (checked to carry ``types``) or of the only such topic."""
+    if topic is not None:
+        conns = [c for c in reader.connections if c.topic == topic]
+        if not conns:
+            raise EvsplatError(f"{path}: no topic {topic!r}; topics: {_topics(reader)}")
+        bad = [c.msgtype for c in conns if c.msgtype not in types]
+        if bad:
+            raise EvsplatError(
+                f"{path}: topic {topic} has message type {bad[0]}, not {what} "
+                f"({' or '.join(types)}); pick another topic"
+            )
+        return conns
+    found = sorted({c.topic for c in reader.connections if c.msgtype in types})
+    if not found:
+        raise EvsplatError(
+            f"{path}: no {what} topic ({' or '.join(types)}); topics: {_topics(reader)}"
+        )
+    if len(found) > 1:
+        raise EvsplatError(f"{path}: several {what} topics ({', '.join(found)}); pass --topic")
+    return [c for c in reader.connections if c.topic == found[0]]
+
+
+def open_bag(path: Path, *, topic: str | None = None) -> EventSource:
+    """Opens the event topic of a bag; the sensor size comes from its first message."""
+    reader = _open(path)
+    conns = _pick(path, reader, topic, EVENT_TYPES, "event-array")
+    first = next(reader.messages(connections=conns), None)
+    if first is None:
+        reader.close()
+        raise EvsplatError(f"{path}: topic {conns[0].topic} has no messages")
+    msg = reader.deserialize(first[2], first[0].msgtype)
+    if not (msg.width > 0 and msg.height > 0):
+        reader.close()
+        raise EvsplatError(
+            f"{path}: topic {conns[0].topic} gives sensor size {msg.width}x{msg.height}; "
+            "the driver did not fill width/height: re-record or fix the messages"
+        )
+    return EventSource(
+        path, int(msg.width), int(msg.height), _event_chunks(reader, conns), "rosbag"
+    )
+
+
+def _event_chunks(reader: AnyReader, conns) -> Iterator[Chunk]:
+    try:
+        for conn, _, raw in reader.messages(connections=conns):
+            events = reader.deserialize(raw, conn.msgtype).events
+            n = len(events)
+            x = np.fromiter((e.x for e in events), np.uint16, n)
+            y = np.fromiter((e.y for e in events), np.uint16, n)
+            sec = np.fromiter((e.ts.sec for e in events), np.int64, n)
+            nsec = np.fromiter((e.ts.nanosec for e in events), np.int64, n)
+            p = np.fromiter((e.polarity for e in events), np.int8, n)
+            yield x, y, sec * 1_000_000 + nsec // 1000, p
+    finally:
+        reader.close()
+
+
+def read_bag_poses(path: Path, *, topic: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Poses of a ``geometry_msgs/PoseStamped`` topic: header times (µs) [N] and camera-to-world
+    matrices [N,4,4] (the message's pose taken as camera in world)."""
+    from evsplat.data.poses import quat_to_matrix
+
+    reader = _open(path)
+    try:
+        conns = _pick(path, reader, topic, (POSE_TYPE,), "pose")
+        times, mats = [], []
+        for conn, _, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            pos, q = msg.pose.position, msg.pose.orientation
+            m = np.eye(4)
+            m[:3, :3] = quat_to_matrix(np.array([q.w, q.x, q.y, q.z], np.float64))
+            m[:3, 3] = (pos.x, pos.y, pos.z)
+            times.append(msg.header.stamp.sec * 1_000_000 + msg.header.stamp.nanosec // 1000)
+            mats.append(m)
+    finally:
+        reader.close()
+    if not times:
+        raise EvsplatError(f"{path}: pose topic {conns[0].topic} has no messages")
+    return np.array(times, np.int64), np.stack(mats)
