@@ -101,11 +101,18 @@ def write_aedat4(path: Path, x, y, t, p) -> None:
     del writer  # closes the file
 
 
+def _header(store, t: int, frame: str):
+    """std_msgs/Header at ``t`` µs (ROS 1's carries a sequence number, ROS 2's does not)."""
+    Header = store.types["std_msgs/msg/Header"]
+    stamp = store.types["builtin_interfaces/msg/Time"](sec=t // 10**6, nanosec=t % 10**6 * 1000)
+    seq = {"seq": 7} if "seq" in Header.__dataclass_fields__ else {}
+    return Header(**seq, stamp=stamp, frame_id=frame)
+
+
 def _event_array(store, pkg: str, x, y, t, p, stamp: int):
     Time = store.types["builtin_interfaces/msg/Time"]
     Event = store.types[f"{pkg}/msg/Event"]
     Array = store.types[f"{pkg}/msg/EventArray"]
-    Header = store.types["std_msgs/msg/Header"]
     events = [
         Event(
             x=int(a),
@@ -115,23 +122,18 @@ def _event_array(store, pkg: str, x, y, t, p, stamp: int):
         )
         for a, b, c, d in zip(x, y, t, p)
     ]
-    header = Header(stamp=Time(sec=stamp // 10**6, nanosec=stamp % 10**6 * 1000), frame_id="cam")
-    return Array(header=header, height=H, width=W, events=events)
+    return Array(header=_header(store, stamp, "cam"), height=H, width=W, events=events)
 
 
 def _pose(store, t: int, pos, q_wxyz):
     T = store.types
-    Time = T["builtin_interfaces/msg/Time"]
-    header = T["std_msgs/msg/Header"](
-        stamp=Time(sec=t // 10**6, nanosec=t % 10**6 * 1000), frame_id="world"
-    )
     pose = T["geometry_msgs/msg/Pose"](
         position=T["geometry_msgs/msg/Point"](x=pos[0], y=pos[1], z=pos[2]),
         orientation=T["geometry_msgs/msg/Quaternion"](
             w=q_wxyz[0], x=q_wxyz[1], y=q_wxyz[2], z=q_wxyz[3]
         ),
     )
-    return T["geometry_msgs/msg/PoseStamped"](header=header, pose=pose)
+    return T["geometry_msgs/msg/PoseStamped"](header=_header(store, t, "world"), pose=pose)
 
 
 def write_bag(
@@ -147,7 +149,7 @@ def write_bag(
     poses: list | None = None,
 ) -> Path:
     """A bag with an event topic (messages of ~500 events) and optionally a pose topic."""
-    store = rosbag.typestore()
+    store = rosbag.typestore(ros1=not ros2)
     if ros2:
         from rosbags.rosbag2 import Writer
 
@@ -208,6 +210,22 @@ def test_bag_reader_recovers_event_arrays_and_poses(tmp_path, ros2, pkg):
     c, s = np.cos(0.4), np.sin(0.4)
     np.testing.assert_allclose(c2w[3, :3, :3], [[c, 0, s], [0, 1, 0], [-s, 0, c]], atol=1e-12)
     np.testing.assert_allclose(c2w[3, :3, 3], [0.3, -0.2, 1.5])
+
+
+def test_ros1_byte_view_agrees_with_the_rosbags_deserializer(tmp_path):
+    x, y, t, p = _events(6, n=1200, t0=3_000_000)
+    reader = rosbag._open(write_bag(tmp_path / "a.bag", x, y, t, p))
+    try:
+        for conn, _, raw in reader.messages():
+            rec = rosbag.ros1_event_records(raw)
+            msg = reader.deserialize(raw, conn.msgtype)
+            assert rec is not None and len(rec) == len(msg.events)
+            want = [(e.x, e.y, e.ts.sec, e.ts.nanosec, int(e.polarity)) for e in msg.events]
+            assert [tuple(int(v) for v in r) for r in rec] == want
+            # A message of another layout (one byte more) is refused, not misread.
+            assert rosbag.ros1_event_records(raw + b"\0") is None
+    finally:
+        reader.close()
 
 
 def test_convert_streams_every_format_into_the_same_h5(tmp_path, capsys):

@@ -15,8 +15,9 @@ import numpy as np
 
 HELP = "convert an event recording (AEDAT4, Prophesee RAW/DAT, ROS bag, h5, npz, txt) to HDF5"
 
-#: HDF5 chunk length (events) of the output datasets.
+#: HDF5 chunk length (events) of the output datasets, and events validated and written at once.
 H5_CHUNK = 1 << 18
+BATCH = 1 << 20
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,6 +33,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--compression", default="gzip", choices=("gzip", "lzf", "none"), help="HDF5 codec"
     )
+
+
+def _batched(chunks, size: int):
+    """Joins small chunks (a bag message holds a few thousand events) into ~``size`` events,
+    so per-chunk validation and HDF5 resizes are paid rarely."""
+    parts, n = [], 0
+    for c in chunks:
+        parts.append(c)
+        n += len(c[0])
+        if n >= size:
+            yield tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
+            parts, n = [], 0
+    if parts:
+        yield tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
 
 
 def convert(
@@ -90,7 +105,7 @@ def convert(
                 )
                 for k, dt in dtypes.items()
             }
-            for x, y, t, p in chunks:
+            for x, y, t, p in _batched(chunks, BATCH):
                 if len(t) == 0:
                     continue
                 # Validation and canonical dtypes per chunk; order across chunks checked here.

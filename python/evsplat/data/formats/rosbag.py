@@ -7,6 +7,7 @@ so ROS 2 bags recorded without definitions read too."""
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -24,11 +25,14 @@ EVENT_PACKAGES = ("dvs_msgs", "prophesee_event_msgs")
 EVENT_TYPES = tuple(f"{pkg}/msg/EventArray" for pkg in EVENT_PACKAGES)
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
+#: One event as ROS 1 serialises it (packed): x, y, ts.sec, ts.nsec, polarity.
+ROS1_EVENT = np.dtype([("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"), ("p", "u1")])
 
 
-def typestore():
-    """The ROS 2 Humble types plus both event-message packages."""
-    store = get_typestore(Stores.ROS2_HUMBLE)
+def typestore(ros1: bool = False):
+    """The ROS 2 Humble (or, with ``ros1``, ROS 1 Noetic: Header with seq) types plus both
+    event-message packages."""
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     types = {}
     for pkg in EVENT_PACKAGES:
         types.update(get_types_from_msg(EVENT_MSG, f"{pkg}/msg/Event"))
@@ -48,8 +52,8 @@ def _bag_root(path: Path) -> Path:
 
 
 def _open(path: Path) -> AnyReader:
-    reader = AnyReader([_bag_root(path)], default_typestore=typestore())
     try:
+        reader = AnyReader([_bag_root(path)], default_typestore=typestore())
         reader.open()
     except Exception as e:  # rosbags raises its own error classes per storage back end
         what = " ".join(str(e).split())
@@ -107,9 +111,32 @@ def open_bag(path: Path, *, topic: str | None = None) -> EventSource:
     )
 
 
+def ros1_event_records(raw: bytes) -> np.ndarray | None:
+    """The events of a ROS 1-serialised EventArray as a zero-copy record view, or None when
+    the bytes do not have exactly that layout. ROS 1 serialisation is packed little-endian:
+    Header (seq, stamp sec, nsec, frame_id length + bytes), height, width, event count, then
+    13 bytes per event. The exact-length check guards against any other layout."""
+    if len(raw) < 16:
+        return None
+    (id_len,) = struct.unpack_from("<I", raw, 12)
+    start = 16 + id_len + 12
+    if start > len(raw):
+        return None
+    (n,) = struct.unpack_from("<I", raw, start - 4)
+    if start + ROS1_EVENT.itemsize * n != len(raw):
+        return None
+    return np.frombuffer(raw, ROS1_EVENT, n, start)
+
+
 def _event_chunks(reader: AnyReader, conns) -> Iterator[Chunk]:
     try:
         for conn, _, raw in reader.messages(connections=conns):
+            rec = None if reader.is2 else ros1_event_records(raw)
+            if rec is not None:
+                # rosbags builds one Python object per event; a view of the bytes is ~100x faster.
+                t = rec["sec"].astype(np.int64) * 1_000_000 + rec["nsec"] // 1000
+                yield rec["x"].copy(), rec["y"].copy(), t, rec["p"].astype(np.int8)
+                continue
             events = reader.deserialize(raw, conn.msgtype).events
             n = len(events)
             x = np.fromiter((e.x for e in events), np.uint16, n)
