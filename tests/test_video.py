@@ -4,6 +4,7 @@ video, PLY sequences, and the plots command."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,14 +17,22 @@ from evsplat.errors import EvsplatError
 from evsplat.video import event_frame, read_mp4_frame, write_mp4
 
 
-@pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
+def tiny_run_dir(tmp_path_factory) -> Path:
+    """A 2-iteration run on the tiny ball, trained once per session and shared by the output
+    and viewer tests (training costs seconds per iteration)."""
     from evsplat.train import train
 
-    root = tmp_path_factory.mktemp("run")
-    data = simulate_dataset("ball", root / "data", tiny=True, seed=0, progress=False)
-    train(data, root / "run", preset_name="tiny", iterations=3, progress=False)
+    root = tmp_path_factory.getbasetemp() / "shared_tiny_run"
+    if not (root / "run" / "log.jsonl").is_file():
+        root.mkdir(exist_ok=True)
+        data = simulate_dataset("ball", root / "data", tiny=True, seed=0, progress=False)
+        train(data, root / "run", preset_name="tiny", iterations=2, progress=False)
     return root / "run"
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    return tiny_run_dir(tmp_path_factory)
 
 
 def test_mp4_decodes_back_to_the_frames_written(tmp_path):
