@@ -143,7 +143,7 @@ fn undistort_points<'py>(
         .detach(|| undistort_pixels(&d, k, &pts))
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
     let flat: Vec<f64> = out.into_iter().flatten().collect();
-    Ok(PyArray1::from_vec(py, flat).reshape([n, 2])?)
+    PyArray1::from_vec(py, flat).reshape([n, 2])
 }
 
 /// The rectification map [height, width, 2]: the undistorted pixel position of every pixel
@@ -162,7 +162,7 @@ fn rectification_map<'py>(
         .detach(|| distortion::rectification_map(&d, k, width, height))
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
     let flat: Vec<f64> = map.into_iter().flatten().collect();
-    Ok(PyArray1::from_vec(py, flat).reshape([height, width, 2])?)
+    PyArray1::from_vec(py, flat).reshape([height, width, 2])
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
