@@ -45,6 +45,17 @@ def test_follow_view_is_the_run_rendered_at_the_measured_pose(tiny_run):
     np.testing.assert_array_equal(img, to_rgb8(ref))
     times, _ = read_tum(tiny_run.parent / "data" / "poses.txt")
     assert times.min() <= view.t_us(0.5) <= times.max()
+    # With the run's events: the overlay marks exactly the pixels that saw events.
+    from evsplat.data.dataset import load_dataset
+
+    view.events = load_dataset(tiny_run.parent / "data").events
+    over = view.render(
+        ViewState(time=0.5, c2w=np.eye(4), fov_y=1.0, aspect=1.0, follow=True, events=True)
+    )
+    ev = view.event_image(0.5)
+    marked = (ev < 0.999).any(-1)
+    assert marked.any()
+    np.testing.assert_array_equal((over != img).any(-1) & ~marked, False)
     free = view.render(ViewState(time=0.5, c2w=view.pose(0.5), fov_y=0.8, aspect=1.5, depth=True))
     assert free.shape[1] > free.shape[0] and free.std() > 0
 

@@ -76,11 +76,13 @@ def convert(
     if formats.is_sensor_format(src):
         source = formats.open_source(src, topic=topic)
         width, height, chunks = source.width, source.height, source.chunks
+        kind = source.format
     else:
         if topic is not None:
             raise EvsplatError(f"{src}: --topic applies to ROS bags only")
         ev = read_events(src)
         width, height, chunks = ev.width, ev.height, iter([(ev.x, ev.y, ev.t, ev.p)])
+        kind = src.suffix.lstrip(".").lower()
     codec = {"gzip": {"compression": "gzip"}, "lzf": {"compression": "lzf"}, "none": {}}
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     n, last_t = 0, None
@@ -88,7 +90,10 @@ def convert(
         with (
             h5py.File(tmp, "w") as f,
             tqdm(
-                unit="ev", unit_scale=True, desc=f"convert {src.name}", disable=not progress
+                unit="ev",
+                unit_scale=True,
+                desc=f"convert {src.name} ({kind})",
+                disable=not progress,
             ) as bar,
         ):
             f.attrs["width"], f.attrs["height"] = width, height
