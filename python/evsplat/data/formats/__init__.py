@@ -3,7 +3,7 @@
 ==============  ==========================  ===========================================
 suffix          format                      decoder (PyPI)
 ==============  ==========================  ===========================================
-``.aedat4``     iniVation AEDAT 4 (DV)      ``aedat`` (Rust, by the Neuromorphic-Systems lab)
+``.aedat4``     iniVation AEDAT 4 (DV)      ``aedat`` (Rust)
 ``.raw``        Prophesee RAW, EVT 2.0      ``expelliarmus`` (C)
 ``.raw``        Prophesee RAW, EVT 3.0      ``evt3`` (Rust)
 ``.dat``        Prophesee DAT (CD events)   ``expelliarmus`` (C)
