@@ -52,9 +52,16 @@ def side_by_side(*images: np.ndarray) -> np.ndarray:
     return np.concatenate([to_rgb8(im) for im in images], axis=1)
 
 
-def write_mp4(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: float = 20.0) -> int:
+def write_mp4(
+    path: str | os.PathLike,
+    frames: Iterable[np.ndarray],
+    fps: float = 20.0,
+    min_side: int = 240,
+) -> int:
     """Writes ``frames`` ([H,W,3] uint8 or floats in [0,1], all one size) as an H.264 MP4,
-    atomically; returns the number of frames. Odd sides are padded by one black pixel."""
+    atomically; returns the number of frames. Frames whose shorter side is below ``min_side``
+    are enlarged by a whole factor, nearest neighbour (small sensors stay watchable and each
+    pixel survives the codec's 2x2 colour subsampling); odd sides are padded with black."""
     import imageio_ffmpeg
 
     path = Path(path)
@@ -71,7 +78,8 @@ def write_mp4(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: float 
                 rgb = frame if frame.dtype == np.uint8 and frame.ndim == 3 else to_rgb8(frame)
                 if size is None:
                     size = rgb.shape[:2]
-                    padded = [-(-s // _BLOCK) * _BLOCK for s in size]
+                    scale = max(1, -(-min_side // max(min(size), 1)))
+                    padded = [-(-s * scale // _BLOCK) * _BLOCK for s in size]
                     writer = imageio_ffmpeg.write_frames(
                         str(tmp),
                         (padded[1], padded[0]),
@@ -89,7 +97,9 @@ def write_mp4(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: float 
                         f"{size[1]}x{size[0]}; frames of a video must share one size"
                     )
                 out = np.zeros((padded[0], padded[1], 3), np.uint8)
-                out[: size[0], : size[1]] = rgb
+                out[: size[0] * scale, : size[1] * scale] = (
+                    rgb.repeat(scale, 0).repeat(scale, 1) if scale > 1 else rgb
+                )
                 writer.send(np.ascontiguousarray(out))
                 count += 1
         finally:
