@@ -212,18 +212,24 @@ def test_bag_reader_recovers_event_arrays_and_poses(tmp_path, ros2, pkg):
     np.testing.assert_allclose(c2w[3, :3, 3], [0.3, -0.2, 1.5])
 
 
-def test_ros1_byte_view_agrees_with_the_rosbags_deserializer(tmp_path):
+@pytest.mark.parametrize("ros2", [False, True])
+def test_byte_views_agree_with_the_rosbags_deserializer(tmp_path, ros2):
     x, y, t, p = _events(6, n=1200, t0=3_000_000)
-    reader = rosbag._open(write_bag(tmp_path / "a.bag", x, y, t, p))
+    bag = write_bag(tmp_path / ("b2" if ros2 else "a.bag"), x, y, t, p, ros2=ros2)
+    view = rosbag.cdr_event_records if ros2 else rosbag.ros1_event_records
+    reader = rosbag._open(bag)
     try:
         for conn, _, raw in reader.messages():
-            rec = rosbag.ros1_event_records(raw)
+            parts = view(raw)
+            assert parts is not None
+            recs = np.concatenate(parts) if ros2 else parts
             msg = reader.deserialize(raw, conn.msgtype)
-            assert rec is not None and len(rec) == len(msg.events)
+            assert len(recs) == len(msg.events)
             want = [(e.x, e.y, e.ts.sec, e.ts.nanosec, int(e.polarity)) for e in msg.events]
-            assert [tuple(int(v) for v in r) for r in rec] == want
-            # A message of another layout (one byte more) is refused, not misread.
-            assert rosbag.ros1_event_records(raw + b"\0") is None
+            got = [tuple(int(r[k]) for k in ("x", "y", "sec", "nsec", "p")) for r in recs]
+            assert got == want
+            # A message of another layout (four bytes more) is refused, not misread.
+            assert view(bytes(raw) + b"\0" * 4) is None
     finally:
         reader.close()
 

@@ -27,6 +27,25 @@ POSE_TYPE = "geometry_msgs/msg/PoseStamped"
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 #: One event as ROS 1 serialises it (packed): x, y, ts.sec, ts.nsec, polarity.
 ROS1_EVENT = np.dtype([("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"), ("p", "u1")])
+#: The same in CDR (ROS 2): the first event is packed (13 bytes); each further one is
+#: aligned (x, y, 2 padding bytes so that ts aligns to 4, ts, polarity) and read as a 16-byte
+#: record that starts at the padding byte before it, so the last record ends with the message.
+CDR_FIRST_EVENT = np.dtype(
+    {
+        "names": ["x", "y", "sec", "nsec", "p"],
+        "formats": ["<u2", "<u2", "<i4", "<u4", "u1"],
+        "offsets": [0, 2, 4, 8, 12],
+        "itemsize": 13,
+    }
+)
+CDR_EVENT = np.dtype(
+    {
+        "names": ["x", "y", "sec", "nsec", "p"],
+        "formats": ["<u2", "<u2", "<i4", "<u4", "u1"],
+        "offsets": [1, 3, 7, 11, 15],
+        "itemsize": 16,
+    }
+)
 
 
 def typestore(ros1: bool = False):
@@ -128,14 +147,46 @@ def ros1_event_records(raw: bytes) -> np.ndarray | None:
     return np.frombuffer(raw, ROS1_EVENT, n, start)
 
 
+def cdr_event_records(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
+    """The events of a little-endian CDR (ROS 2) EventArray as (first event, the others)
+    record views, or None for any other layout. After the 4-byte encapsulation header (origin
+    of the alignment): Header (stamp sec, nanosec, frame_id length incl. NUL + bytes), padding
+    to 4, height, width, event count; then the first event packed in 13 bytes and every further
+    one in 16 (x, y, 2 padding bytes so that ts aligns to 4, ts, polarity, 1 padding byte)."""
+    if len(raw) < 16 or raw[:2] != b"\x00\x01":
+        return None
+    body = memoryview(raw)[4:]
+    (id_len,) = struct.unpack_from("<I", body, 8)
+    start = (12 + id_len + 3) // 4 * 4 + 12
+    if start > len(body):
+        return None
+    (n,) = struct.unpack_from("<I", body, start - 4)
+    expected = start + (CDR_EVENT.itemsize * n - 3 if n else 0)
+    # Serialisers may pad the message to a multiple of 4 bytes.
+    if not expected <= len(body) <= expected + 3:
+        return None
+    if n == 0:
+        return np.empty(0, CDR_FIRST_EVENT), np.empty(0, CDR_EVENT)
+    first = np.frombuffer(body, CDR_FIRST_EVENT, 1, start)
+    rest = np.frombuffer(body, CDR_EVENT, n - 1, start + CDR_FIRST_EVENT.itemsize)
+    return first, rest
+
+
 def _event_chunks(reader: AnyReader, conns) -> Iterator[Chunk]:
     try:
         for conn, _, raw in reader.messages(connections=conns):
-            rec = None if reader.is2 else ros1_event_records(raw)
-            if rec is not None:
-                # rosbags builds one Python object per event; a view of the bytes is ~100x faster.
-                t = rec["sec"].astype(np.int64) * 1_000_000 + rec["nsec"] // 1000
-                yield rec["x"].copy(), rec["y"].copy(), t, rec["p"].astype(np.int8)
+            # rosbags builds one Python object per event; a view of the bytes is ~100x faster.
+            if reader.is2:
+                parts = cdr_event_records(raw)
+            else:
+                rec = ros1_event_records(raw)
+                parts = (rec,) if rec is not None else None
+            if parts is not None:
+                x, y, sec, nsec, p = (
+                    np.concatenate([r[k] for r in parts]) for k in ("x", "y", "sec", "nsec", "p")
+                )
+                t = sec.astype(np.int64) * 1_000_000 + nsec.astype(np.int64) // 1000
+                yield x, y, t, p.astype(np.int8)
                 continue
             events = reader.deserialize(raw, conn.msgtype).events
             n = len(events)
