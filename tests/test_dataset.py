@@ -155,7 +155,7 @@ def _edit_poses(d, fn):
         ),
         (lambda d: _edit_poses(d, lambda ls: ls[:-10]), "poses cover"),
         (_set_json("meta.json", bayer="XYZ"), "'bayer' must be one of"),
-        (_set_json("intrinsics.json", distortion=[0.1, 0, 0, 0]), "distortion is not supported"),
+        (_set_json("intrinsics.json", distortion=[0.1, 0, 0, 0]), "'distortion' must be null or"),
         (lambda d: (d / "test" / "depth_00002.exr").unlink(), "depth_00002.exr: missing"),
         (lambda d: (d / "meta.json").write_text("{oops"), "meta.json: not valid JSON"),
     ],

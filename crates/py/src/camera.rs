@@ -1,11 +1,15 @@
 //! The SE(3) B-spline trajectory: numpy poses in, numpy poses and velocities out.
 
 use glam::{DMat4, DVec4};
-use numpy::{PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray3};
+use numpy::{
+    PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyReadonlyArray3,
+};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use evsplat_camera::{Se3, SplineError, SplineSe3};
+use evsplat_camera::distortion::{self, undistort_pixels};
+use evsplat_camera::{Distortion, Se3, SplineError, SplineSe3};
 
 fn spline_err(e: SplineError) -> PyErr {
     PyValueError::new_err(e.to_string())
@@ -110,7 +114,60 @@ impl SplineTrajectory {
     }
 }
 
+fn lens(model: &str, coeffs: Vec<f64>) -> PyResult<Distortion> {
+    Distortion::new(model, &coeffs).map_err(|e| PyValueError::new_err(e.to_string()))
+}
+
+/// Undistorts pixel `points` [N,2] (x, y) of a camera with intrinsics `k` = [fx, fy, cx, cy] and
+/// lens `model` ("radtan" or "equidistant", OpenCV coefficient order) to ideal pinhole pixels
+/// [N,2] with the same intrinsics; NaN where the lens model cannot be inverted.
+#[pyfunction]
+fn undistort_points<'py>(
+    py: Python<'py>,
+    model: &str,
+    coeffs: Vec<f64>,
+    k: [f64; 4],
+    points: PyReadonlyArray2<'py, f64>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let d = lens(model, coeffs)?;
+    let a = points.as_array();
+    if a.shape()[1] != 2 {
+        return Err(PyValueError::new_err(format!(
+            "points must be [N,2], got {:?}",
+            a.shape()
+        )));
+    }
+    let pts: Vec<[f64; 2]> = a.outer_iter().map(|r| [r[0], r[1]]).collect();
+    let n = pts.len();
+    let out = py
+        .detach(|| undistort_pixels(&d, k, &pts))
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let flat: Vec<f64> = out.into_iter().flatten().collect();
+    PyArray1::from_vec(py, flat).reshape([n, 2])
+}
+
+/// The rectification map [height, width, 2]: the undistorted pixel position of every pixel
+/// centre (j + 0.5, i + 0.5) of a `width` x `height` sensor; NaN where the inverse fails.
+#[pyfunction]
+fn rectification_map<'py>(
+    py: Python<'py>,
+    model: &str,
+    coeffs: Vec<f64>,
+    k: [f64; 4],
+    width: usize,
+    height: usize,
+) -> PyResult<Bound<'py, PyArray3<f64>>> {
+    let d = lens(model, coeffs)?;
+    let map = py
+        .detach(|| distortion::rectification_map(&d, k, width, height))
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let flat: Vec<f64> = map.into_iter().flatten().collect();
+    PyArray1::from_vec(py, flat).reshape([height, width, 2])
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<SplineTrajectory>()?;
+    m.add_function(wrap_pyfunction!(undistort_points, m)?)?;
+    m.add_function(wrap_pyfunction!(rectification_map, m)?)?;
     Ok(())
 }

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-HELP = "render a trained run at many times (PNG, depth EXR + colour-mapped PNG)"
+HELP = "render a trained run at many times (PNG, depth EXR + colour-mapped PNG, MP4)"
 
 
 def parse_times(spec: str) -> np.ndarray:
@@ -32,7 +32,9 @@ def parse_times(spec: str) -> np.ndarray:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("run", type=Path, help="run folder written by `evsplat train`")
+    parser.add_argument(
+        "run_dir", metavar="RUN", type=Path, help="run folder written by `evsplat train`"
+    )
     parser.add_argument("--times", default="0:1:0.05", help="a:b:step fractions of the sequence")
     parser.add_argument(
         "--pose",
@@ -41,6 +43,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="TUM file with one c2w pose to render from (default: the training trajectory)",
     )
     parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument(
+        "--video",
+        action="store_true",
+        help="also write render.mp4 and, when the run's dataset is found, render_events.mp4 "
+        "(render | events around each time | depth)",
+    )
+    parser.add_argument("--fps", type=float, default=20.0, help="frame rate of the videos")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,13 +63,16 @@ def run(args: argparse.Namespace) -> int:
 
     if args.out.exists() and not args.out.is_dir():
         raise EvsplatError(f"--out {args.out}: exists and is not a folder; choose a folder path")
-    renderer, state = Renderer.from_run(args.run)
+    if args.video and not (args.fps > 0 and np.isfinite(args.fps)):
+        raise EvsplatError(f"--fps {args.fps:g}: must be a positive frame rate")
+    renderer, state = Renderer.from_run(args.run_dir)
     fractions = parse_times(args.times)
     span = renderer.t_end_us - renderer.t_start_us
     traj = state["trajectory"]
     trajectory = Trajectory.fit(np.asarray(traj["times_us"]), np.asarray(traj["c2w"]))
     fixed = read_tum(args.pose)[1][0] if args.pose is not None else None
     args.out.mkdir(parents=True, exist_ok=True)
+    frames = []
     for i, frac in enumerate(fractions):
         t_us = renderer.t_start_us + float(frac) * span
         c2w = fixed if fixed is not None else trajectory.pose(t_us)
@@ -71,8 +83,45 @@ def run(args: argparse.Namespace) -> int:
         depth = out.depth.numpy()
         write_exr(args.out / f"depth_{i:05d}.exr", depth)
         write_png(args.out / f"depth_{i:05d}.png", _colour_depth(depth))
+        if args.video:
+            frames.append((t_us, img, _colour_depth(depth)))
     print(f"rendered {len(fractions)} frames to {args.out}")
+    if args.video:
+        _write_videos(args, state, frames, span * _step(fractions))
     return 0
+
+
+def _step(fractions: np.ndarray) -> float:
+    """The spacing of the rendered times (a sequence fraction); 1/20 for a single time."""
+    return float(np.median(np.diff(fractions))) if len(fractions) > 1 else 0.05
+
+
+def _write_videos(args: argparse.Namespace, state: dict, frames: list, window_us: float) -> None:
+    """render.mp4, and render_events.mp4 (render | events of each frame's interval | depth)
+    when the run's dataset folder is still where training read it."""
+    from evsplat.data.dataset import load_dataset
+    from evsplat.errors import EvsplatError
+    from evsplat.video import event_frame, side_by_side, write_mp4
+
+    n = write_mp4(args.out / "render.mp4", (img for _, img, _ in frames), args.fps)
+    print(f"wrote {args.out / 'render.mp4'} ({n} frames, {args.fps:g} fps)")
+    data_dir = Path(state.get("dataset", ""))
+    if not (data_dir / "events.h5").is_file():
+        print(f"no dataset at {data_dir}: skipped render_events.mp4")
+        return
+    try:
+        events = load_dataset(data_dir).events
+    except EvsplatError as e:
+        print(f"dataset {data_dir} does not load ({e}): skipped render_events.mp4")
+        return
+
+    def panels():
+        for t_us, img, depth in frames:
+            i0, i1 = events.window(int(t_us - window_us / 2), int(t_us + window_us / 2))
+            yield side_by_side(img, event_frame(events, i0, i1), depth)
+
+    n = write_mp4(args.out / "render_events.mp4", panels(), args.fps)
+    print(f"wrote {args.out / 'render_events.mp4'} ({n} frames: render | events | depth)")
 
 
 def _colour_depth(depth: np.ndarray) -> np.ndarray:

@@ -4,7 +4,8 @@ Layout (docs/dataset.md describes every field):
     events.h5            events (x, y, t µs, p), written by evsplat.data.event_files
     poses.txt            measured camera-to-world poses, TUM format (sparse, e.g. 100 Hz)
     poses_gt.txt         optional dense ground-truth poses, TUM format
-    intrinsics.json      {"K": 3x3, "width", "height", "distortion": null}
+    intrinsics.json      {"K": 3x3, "width", "height", "distortion": null or a lens model
+                         (evsplat.data.distortion: radtan / equidistant, OpenCV order)}
     meta.json            sensor and scene metadata (c_pos, c_neg, bayer, t_start_us, t_end_us, ...)
     test/frames.json     optional [{"time_us", "c2w", "rgb", "depth", "mask"}], files in test/
     depth_prior/         optional precomputed depth priors
@@ -19,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evsplat.data.distortion import LensDistortion, rectify_events
 from evsplat.data.event_files import read_events
 from evsplat.data.events import EventStream
 from evsplat.data.poses import read_tum
@@ -59,6 +61,7 @@ class Dataset:
     test_frames: list[TestFrame]
     meta: dict
     depth_prior_dir: Path | None = None
+    distortion: LensDistortion | None = None  # of the raw events; ``events`` are undistorted
 
 
 @dataclass
@@ -98,7 +101,7 @@ def _positive_int(v) -> bool:
     return isinstance(v, int) and not isinstance(v, bool) and v > 0
 
 
-def _intrinsics(c: _Checker) -> tuple[np.ndarray, int, int] | None:
+def _intrinsics(c: _Checker) -> tuple[np.ndarray, int, int, LensDistortion | None] | None:
     doc = c.json("intrinsics.json")
     path = c.root / "intrinsics.json"
     if not isinstance(doc, dict):
@@ -116,13 +119,11 @@ def _intrinsics(c: _Checker) -> tuple[np.ndarray, int, int] | None:
     if not (_positive_int(w) and _positive_int(h)):
         c.fail(f"{path}: width and height must be positive integers, got {w!r} and {h!r}")
         ok = False
+    dist = None
     if doc.get("distortion") is not None:
-        c.fail(
-            f"{path}: lens distortion is not supported; "
-            'undistort the events and set "distortion": null'
-        )
-        ok = False
-    return (K, w, h) if ok else None
+        dist = c.attempt(LensDistortion.from_json, doc["distortion"], str(path))
+        ok = ok and dist is not None
+    return (K, w, h, dist) if ok else None
 
 
 def _meta(c: _Checker) -> dict | None:
@@ -243,6 +244,9 @@ def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
             f"meta.json {size[0]}x{size[1]}; "
             "the events belong to another sensor or the metadata is wrong"
         )
+    if events is not None and intr and intr[3] is not None and not c.problems:
+        # Undistorted once here; everything downstream sees the ideal pinhole grid.
+        events = c.attempt(rectify_events, events, intr[3], intr[0], str(root / "events.h5"))
     traj = _trajectory(c, "poses.txt", t0, t1) if (root / "poses.txt").is_file() else None
     gt = _trajectory(c, "poses_gt.txt", t0, t1) if (root / "poses_gt.txt").is_file() else None
     # With two different sensor sizes on record, image sizes cannot be judged (one line above).
@@ -266,6 +270,7 @@ def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
         test_frames=frames,
         meta=meta,
         depth_prior_dir=prior if prior.is_dir() else None,
+        distortion=intr[3],
     )
 
 

@@ -20,6 +20,7 @@ import h5py
 import hdf5plugin  # noqa: F401  (registers the Blosc/zstd/LZ4 codecs used by DSEC-style files)
 import numpy as np
 
+from evsplat.data import formats
 from evsplat.data.events import MAX_SIDE, EventStream, coords_uint16
 from evsplat.errors import EvsplatError
 
@@ -44,13 +45,17 @@ def read_events(
     width: int | None = None,
     height: int | None = None,
 ) -> EventStream:
-    """Reads an event file chosen by extension (.h5/.hdf5, .npz, .txt/.csv) into a validated
+    """Reads an event file chosen by extension (.h5/.hdf5, .npz, .txt/.csv, and the sensor
+    recordings of :mod:`evsplat.data.formats`: .aedat4, .raw, .dat, ROS bags) into a validated
     stream. ``width``/``height`` override the file's sensor size; ``time_unit`` ("s"/"us")
     overrides the timestamp unit. Errors are EvsplatErrors naming the file and the fix."""
     path = Path(path)
     src = str(path)
     if time_unit not in (None, "s", "us"):
         raise EvsplatError(f"{src}: time_unit {time_unit!r} is unknown; use 's' or 'us'")
+    if formats.is_sensor_format(path):
+        # Sensor recordings carry their own time unit (µs) and sensor size.
+        return formats.read_source(formats.open_source(path))
     if not path.is_file():
         raise EvsplatError(f"{src}: no such file; check the path")
     if path.stat().st_size == 0:
@@ -66,7 +71,8 @@ def read_events(
         time_unit = time_unit or detected
     else:
         raise EvsplatError(
-            f"{src}: unknown event file type '{suffix}'; use .h5/.hdf5, .npz, .txt or .csv"
+            f"{src}: unknown event file type '{suffix}'; use .h5/.hdf5, .npz, .txt, .csv or "
+            f"a recording ({', '.join(formats.SUFFIXES)})"
         )
     t = _to_microseconds(t, time_unit)
     w = width if width is not None else size.get("width")

@@ -1,0 +1,88 @@
+"""Readers for recordings from real sensors, each on the field's maintained decoder:
+
+==============  ==========================  ===========================================
+suffix          format                      decoder (PyPI)
+==============  ==========================  ===========================================
+``.aedat4``     iniVation AEDAT 4 (DV)      ``aedat`` (Rust)
+``.raw``        Prophesee RAW, EVT 2.0      ``expelliarmus`` (C)
+``.raw``        Prophesee RAW, EVT 3.0      ``evt3`` (Rust)
+``.dat``        Prophesee DAT (CD events)   ``expelliarmus`` (C)
+``.bag``        ROS 1 bag                   ``rosbags`` (pure Python)
+``.mcap/.db3``  ROS 2 bag (or its folder)   ``rosbags``
+==============  ==========================  ===========================================
+
+Every reader opens a file into an :class:`EventSource`: the sensor size plus an iterator of
+chunks ``(x, y, t, p)`` (t in integer µs, p in {0, 1} or {-1, +1}), so conversion streams
+without holding the recording in memory. :func:`read_source` gathers the chunks into one
+validated :class:`EventStream` for ``evsplat.data.event_files.read_events``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from evsplat.data.events import EventStream
+from evsplat.errors import EvsplatError
+
+#: One chunk of events: x, y, t (µs), p.
+Chunk = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+#: Suffixes of the sensor formats handled here (a ROS 2 bag may also be its folder).
+SUFFIXES = (".aedat4", ".raw", ".dat", ".bag", ".mcap", ".db3")
+
+
+@dataclass
+class EventSource:
+    """An opened recording: where it came from, its sensor size and its event chunks."""
+
+    path: Path
+    width: int
+    height: int
+    chunks: Iterator[Chunk]
+    format: str
+
+
+def is_sensor_format(path: str | os.PathLike) -> bool:
+    """True for a file with one of :data:`SUFFIXES` or a ROS 2 bag folder (metadata.yaml)."""
+    path = Path(path)
+    return path.suffix.lower() in SUFFIXES or (path / "metadata.yaml").is_file()
+
+
+def open_source(path: str | os.PathLike, *, topic: str | None = None) -> EventSource:
+    """Opens a sensor recording chosen by suffix; ``topic`` picks the event topic of a bag
+    (default: the only event-array topic). Errors are one-line EvsplatErrors."""
+    from evsplat.data.formats import aedat4, prophesee, rosbag
+
+    path = Path(path)
+    if not path.exists():
+        raise EvsplatError(f"{path}: no such file; check the path")
+    suffix = path.suffix.lower()
+    if topic is not None and not rosbag.is_bag(path):
+        raise EvsplatError(f"{path}: --topic applies to ROS bags only; drop it for {suffix} files")
+    if rosbag.is_bag(path):
+        return rosbag.open_bag(path, topic=topic)
+    if path.stat().st_size == 0:
+        raise EvsplatError(f"{path}: file is empty; expected a recording")
+    if suffix == ".aedat4":
+        return aedat4.open_aedat4(path)
+    if suffix == ".raw":
+        return prophesee.open_raw(path)
+    if suffix == ".dat":
+        return prophesee.open_dat(path)
+    raise EvsplatError(f"{path}: unknown recording type '{suffix}'; use {', '.join(SUFFIXES)}")
+
+
+def read_source(source: EventSource) -> EventStream:
+    """Gathers every chunk of ``source`` into one validated stream."""
+    parts = [c for c in source.chunks if len(c[0])]
+    if not parts:
+        raise EvsplatError(f"{source.path}: the recording holds no events")
+    x, y, t, p = (np.concatenate([c[i] for c in parts]) for i in range(4))
+    return EventStream.from_arrays(
+        x, y, t.astype(np.int64, copy=False), p, source.width, source.height, str(source.path)
+    )

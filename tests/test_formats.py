@@ -1,0 +1,323 @@
+"""Sensor recordings: each reader on a file made here, by the format's own writer (AEDAT 4:
+iniVation's dv-processing; ROS bags: rosbags' writers) or by an independent encoder written
+from the public spec (Prophesee EVT 2.0, EVT 3.0, DAT), then `evsplat convert` on each."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from evsplat.cli import main
+from evsplat.data.event_files import read_events
+from evsplat.data.formats import rosbag
+from evsplat.errors import EvsplatError
+
+W, H = 320, 240
+N = 3000
+
+
+def _events(seed: int = 0, n: int = N, t0: int = 0):
+    rng = np.random.default_rng(seed)
+    x = rng.integers(0, W, n)
+    y = rng.integers(0, H, n)
+    # Starts mid-period so TIME_HIGH/TIME_LOW wraps happen at arbitrary places.
+    t = t0 + np.sort(rng.integers(0, 2_500_000, n))
+    p = rng.integers(0, 2, n)
+    return x, y, t, p
+
+
+def _assert_same(ev, x, y, t, p):
+    assert len(ev) == len(x)
+    np.testing.assert_array_equal(ev.x, x)
+    np.testing.assert_array_equal(ev.y, y)
+    np.testing.assert_array_equal(ev.t, t)
+    np.testing.assert_array_equal(ev.p, np.where(np.asarray(p) > 0, 1, -1))
+    assert (ev.width, ev.height) == (W, H)
+
+
+# --- independent encoders (Prophesee "EVT 2.0/3.0 format" and "DAT file format" docs) -------
+
+
+def encode_evt2(x, y, t, p, header: str | None = None) -> bytes:
+    """EVT 2.0: 32-bit words; type in bits 31..28 (0 CD_OFF, 1 CD_ON, 8 EVT_TIME_HIGH).
+    CD: t[5:0] in 27..22, x in 21..11, y in 10..0; TIME_HIGH: t[33:6] in 27..0."""
+    words, high = [], None
+    for xi, yi, ti, pi in zip(x, y, t, p):
+        if high != ti >> 6:
+            high = ti >> 6
+            words.append((0x8 << 28) | (high & 0x0FFFFFFF))
+        words.append(((1 if pi else 0) << 28) | ((ti & 0x3F) << 22) | (xi << 11) | yi)
+    hdr = header or f"% evt 2.0\n% format EVT2;height={H};width={W}\n% geometry {W}x{H}\n% end\n"
+    return hdr.encode() + np.array(words, "<u4").tobytes()
+
+
+def encode_evt3(x, y, t, p) -> bytes:
+    """EVT 3.0: 16-bit words; type in bits 15..12: 0x8 TIME_HIGH (t[23:12]), 0x6 TIME_LOW
+    (t[11:0]), 0x0 ADDR_Y (y), 0x2 ADDR_X (polarity in bit 11, x) = one event."""
+    words, high, low, row = [], None, None, None
+    for xi, yi, ti, pi in zip(x, y, t, p):
+        if high != (ti >> 12) & 0xFFF:
+            high = (ti >> 12) & 0xFFF
+            words.append((0x8 << 12) | high)
+        if low != ti & 0xFFF:
+            low = ti & 0xFFF
+            words.append((0x6 << 12) | low)
+        if row != yi:
+            row = yi
+            words.append(yi)
+        words.append((0x2 << 12) | ((1 if pi else 0) << 11) | xi)
+    hdr = f"% evt 3.0\n% format EVT3;height={H};width={W}\n% geometry {W}x{H}\n% end\n"
+    return hdr.encode() + np.array(words, "<u2").tobytes()
+
+
+def encode_dat(x, y, t, p, kind: bytes = bytes([0x0C, 8])) -> bytes:
+    """DAT (CD): '%' header lines, then event type and size bytes, then per event uint32 t
+    and uint32 with x in bits 0..13, y in 14..27, polarity in 28..31."""
+    hdr = f"% Data file containing CD events.\n% Version 2\n% Width {W}\n% Height {H}\n"
+    rec = np.zeros(len(x), [("t", "<u4"), ("d", "<u4")])
+    rec["t"] = t
+    rec["d"] = (
+        np.asarray(x, np.uint32)
+        | (np.asarray(y, np.uint32) << 14)
+        | (np.asarray(p, np.uint32) << 28)
+    )
+    return hdr.encode() + kind + rec.tobytes()
+
+
+def write_aedat4(path: Path, x, y, t, p) -> None:
+    dv = pytest.importorskip("dv_processing")
+    cfg = dv.io.MonoCameraWriter.EventOnlyConfig("DVXplorer_test", (W, H))
+    writer = dv.io.MonoCameraWriter(str(path), cfg)
+    # Several packets, so the reader's chunking is exercised.
+    for part in np.array_split(np.arange(len(x)), 4):
+        store = dv.EventStore()
+        for i in part:
+            store.push_back(int(t[i]), int(x[i]), int(y[i]), bool(p[i]))
+        writer.writeEvents(store)
+    del writer  # closes the file
+
+
+def _header(store, t: int, frame: str):
+    """std_msgs/Header at ``t`` µs (ROS 1's carries a sequence number, ROS 2's does not)."""
+    Header = store.types["std_msgs/msg/Header"]
+    stamp = store.types["builtin_interfaces/msg/Time"](sec=t // 10**6, nanosec=t % 10**6 * 1000)
+    seq = {"seq": 7} if "seq" in Header.__dataclass_fields__ else {}
+    return Header(**seq, stamp=stamp, frame_id=frame)
+
+
+def _event_array(store, pkg: str, x, y, t, p, stamp: int):
+    Time = store.types["builtin_interfaces/msg/Time"]
+    Event = store.types[f"{pkg}/msg/Event"]
+    Array = store.types[f"{pkg}/msg/EventArray"]
+    events = [
+        Event(
+            x=int(a),
+            y=int(b),
+            ts=Time(sec=int(c) // 10**6, nanosec=int(c) % 10**6 * 1000),
+            polarity=bool(d),
+        )
+        for a, b, c, d in zip(x, y, t, p)
+    ]
+    return Array(header=_header(store, stamp, "cam"), height=H, width=W, events=events)
+
+
+def _pose(store, t: int, pos, q_wxyz):
+    T = store.types
+    pose = T["geometry_msgs/msg/Pose"](
+        position=T["geometry_msgs/msg/Point"](x=pos[0], y=pos[1], z=pos[2]),
+        orientation=T["geometry_msgs/msg/Quaternion"](
+            w=q_wxyz[0], x=q_wxyz[1], y=q_wxyz[2], z=q_wxyz[3]
+        ),
+    )
+    return T["geometry_msgs/msg/PoseStamped"](header=_header(store, t, "world"), pose=pose)
+
+
+def write_bag(
+    path: Path,
+    x,
+    y,
+    t,
+    p,
+    *,
+    ros2: bool = False,
+    pkg: str = "dvs_msgs",
+    events: bool = True,
+    poses: list | None = None,
+) -> Path:
+    """A bag with an event topic (messages of ~500 events) and optionally a pose topic."""
+    store = rosbag.typestore(ros1=not ros2)
+    if ros2:
+        from rosbags.rosbag2 import Writer
+
+        writer, ser = Writer(path, version=9), store.serialize_cdr
+    else:
+        from rosbags.rosbag1 import Writer
+
+        writer, ser = Writer(path), store.serialize_ros1
+    with writer:
+        if events:
+            conn = writer.add_connection("/dvs/events", f"{pkg}/msg/EventArray", typestore=store)
+            for part in np.array_split(np.arange(len(x)), max(1, len(x) // 500)):
+                stamp = int(t[part[-1]]) + 1
+                msg = _event_array(store, pkg, x[part], y[part], t[part], p[part], stamp)
+                writer.write(conn, stamp * 1000, ser(msg, f"{pkg}/msg/EventArray"))
+        if poses:
+            pconn = writer.add_connection(
+                "/mocap/pose", "geometry_msgs/msg/PoseStamped", typestore=store
+            )
+            for tp, pos, q in poses:
+                msg = _pose(store, tp, pos, q)
+                writer.write(pconn, tp * 1000, ser(msg, "geometry_msgs/msg/PoseStamped"))
+    return path
+
+
+# --- round trips ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("encoding", ["evt2", "evt3", "dat"])
+def test_prophesee_reader_recovers_spec_encoded_events(tmp_path, encoding):
+    x, y, t, p = _events(1, t0=1_234_567)
+    suffix = ".dat" if encoding == "dat" else ".raw"
+    path = tmp_path / f"rec{suffix}"
+    path.write_bytes(
+        {"evt2": encode_evt2, "evt3": encode_evt3, "dat": encode_dat}[encoding](x, y, t, p)
+    )
+    _assert_same(read_events(path), x, y, t, p)
+
+
+def test_aedat4_reader_recovers_dv_processing_recording(tmp_path):
+    x, y, t, p = _events(2, t0=1_700_000_000_000_000)  # AEDAT 4 stores Unix-epoch µs
+    path = tmp_path / "rec.aedat4"
+    write_aedat4(path, x, y, t, p)
+    _assert_same(read_events(path), x, y, t, p)
+
+
+@pytest.mark.parametrize(("ros2", "pkg"), [(False, "dvs_msgs"), (True, "prophesee_event_msgs")])
+def test_bag_reader_recovers_event_arrays_and_poses(tmp_path, ros2, pkg):
+    x, y, t, p = _events(3, t0=1_000_000)
+    q = np.array([np.cos(0.2), 0.0, np.sin(0.2), 0.0])  # 0.4 rad about y
+    poses = [(1_000_000 + 100_000 * k, (0.1 * k, -0.2, 1.5), q) for k in range(30)]
+    path = write_bag(
+        tmp_path / ("rec2" if ros2 else "rec.bag"), x, y, t, p, ros2=ros2, pkg=pkg, poses=poses
+    )
+    _assert_same(read_events(path), x, y, t, p)
+    times, c2w = rosbag.read_bag_poses(path)
+    np.testing.assert_array_equal(times, [tp for tp, _, _ in poses])
+    c, s = np.cos(0.4), np.sin(0.4)
+    np.testing.assert_allclose(c2w[3, :3, :3], [[c, 0, s], [0, 1, 0], [-s, 0, c]], atol=1e-12)
+    np.testing.assert_allclose(c2w[3, :3, 3], [0.3, -0.2, 1.5])
+
+
+@pytest.mark.parametrize("ros2", [False, True])
+def test_byte_views_agree_with_the_rosbags_deserializer(tmp_path, ros2):
+    x, y, t, p = _events(6, n=1200, t0=3_000_000)
+    bag = write_bag(tmp_path / ("b2" if ros2 else "a.bag"), x, y, t, p, ros2=ros2)
+    view = rosbag.cdr_event_records if ros2 else rosbag.ros1_event_records
+    reader = rosbag._open(bag)
+    try:
+        for conn, _, raw in reader.messages():
+            parts = view(raw)
+            assert parts is not None
+            recs = np.concatenate(parts) if ros2 else parts
+            msg = reader.deserialize(raw, conn.msgtype)
+            assert len(recs) == len(msg.events)
+            want = [(e.x, e.y, e.ts.sec, e.ts.nanosec, int(e.polarity)) for e in msg.events]
+            got = [tuple(int(r[k]) for k in ("x", "y", "sec", "nsec", "p")) for r in recs]
+            assert got == want
+            # A message of another layout (four bytes more) is refused, not misread.
+            assert view(bytes(raw) + b"\0" * 4) is None
+    finally:
+        reader.close()
+
+
+def test_convert_streams_every_format_into_the_same_h5(tmp_path, capsys):
+    x, y, t, p = _events(4, t0=5_000)
+    inputs = {
+        "a.raw": encode_evt3(x, y, t, p),
+        "b.raw": encode_evt2(x, y, t, p),
+        "c.dat": encode_dat(x, y, t, p),
+    }
+    for name, data in inputs.items():
+        (tmp_path / name).write_bytes(data)
+    write_aedat4(tmp_path / "d.aedat4", x, y, t, p)
+    poses = [(k * 200_000, (0.0, 0.0, float(k)), (1.0, 0.0, 0.0, 0.0)) for k in range(14)]
+    write_bag(tmp_path / "e.bag", x, y, t, p, poses=poses)
+    for name in [*inputs, "d.aedat4", "e.bag"]:
+        out = tmp_path / f"{name}.h5"
+        extra = ["--poses", str(tmp_path / "poses.txt")] if name.endswith(".bag") else []
+        assert main(["convert", str(tmp_path / name), str(out), *extra]) == 0
+        line = capsys.readouterr().out
+        rate = re.search(r"wrote (\d+) events .* \(([\d,]+) ev/s\)", line)
+        assert rate and int(rate.group(1)) == N, line
+        with h5py.File(out) as f:
+            assert (f.attrs["width"], f.attrs["height"]) == (W, H)
+            np.testing.assert_array_equal(f["events/t"][:], t)
+            np.testing.assert_array_equal(f["events/x"][:], x)
+            np.testing.assert_array_equal(f["events/p"][:], np.where(p > 0, 1, -1))
+    from evsplat.data.poses import read_tum
+
+    times, c2w = read_tum(tmp_path / "poses.txt")
+    np.testing.assert_array_equal(times, [tp for tp, _, _ in poses])
+    np.testing.assert_allclose(c2w[:, 2, 3], np.arange(14.0))
+
+
+# --- bad inputs: one line naming the file and the fix ---------------------------------------
+
+
+def _bad_cases(tmp_path: Path):
+    x, y, t, p = _events(5, n=600)
+    cases = {}
+    pose_only = write_bag(
+        tmp_path / "poses_only.bag",
+        x,
+        y,
+        t,
+        p,
+        events=False,
+        poses=[(0, (0, 0, 0), (1, 0, 0, 0))],
+    )
+    cases["bag without event topic"] = (pose_only, [], "no event-array topic")
+    cases["unknown message type on the chosen topic"] = (
+        pose_only,
+        ["--topic", "/mocap/pose"],
+        "has message type geometry_msgs/msg/PoseStamped",
+    )
+    cases["missing topic"] = (pose_only, ["--topic", "/nope"], "no topic '/nope'")
+    corrupt = tmp_path / "corrupt.raw"
+    corrupt.write_bytes(encode_evt2(x, y, t, p, header="% evt 9.9\n% geometry 320x240\n% end\n"))
+    cases["RAW with corrupt header (unknown encoding)"] = (corrupt, [], "corrupt header")
+    nogeom = tmp_path / "nogeom.raw"
+    nogeom.write_bytes(encode_evt2(x, y, t, p, header="% evt 2.0\n% end\n"))
+    cases["RAW without sensor size"] = (nogeom, [], "no sensor size")
+    truncated = tmp_path / "truncated.raw"
+    truncated.write_bytes(encode_evt2(x, y, t, p)[:-3])
+    cases["truncated EVT 2.0 words"] = (truncated, [], "not whole 32-bit words")
+    dat = tmp_path / "wrongtype.dat"
+    dat.write_bytes(encode_dat(x, y, t, p, kind=bytes([0x00, 4])))
+    cases["DAT of another event type"] = (dat, [], "type/size bytes 0004")
+    garbage = tmp_path / "garbage.aedat4"
+    garbage.write_bytes(b"#!AER-DAT4.0\r\n" + bytes(range(256)) * 4)
+    cases["corrupt AEDAT 4"] = (garbage, [], "cannot decode AEDAT 4")
+    notbag = tmp_path / "not.bag"
+    notbag.write_bytes(b"this is not a bag\n" * 10)
+    cases["file that is not a bag"] = (notbag, [], "cannot open the bag")
+    empty = tmp_path / "empty.dat"
+    empty.write_bytes(b"")
+    cases["empty recording"] = (empty, [], "file is empty")
+    return cases
+
+
+def test_bad_recordings_fail_with_one_line_naming_the_file(tmp_path, capsys):
+    for what, (path, extra, expected) in _bad_cases(tmp_path).items():
+        out = tmp_path / "out.h5"
+        assert main(["convert", str(path), str(out), *extra]) == 2, what
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and str(path) in err and expected in err, (what, err)
+        assert not out.exists() and not list(tmp_path.glob(".out.h5*")), what
+        if not extra:  # the same error from the library entry point
+            with pytest.raises(EvsplatError, match=re.escape(expected)):
+                read_events(path)
