@@ -40,13 +40,12 @@ fn main(
     let py = wid.y * TILE + lid.y;
     let inside = px < params.width && py < params.height;
     let pix = vec2<f32>(f32(px) + 0.5, f32(py) + 0.5);
-    let d = params.d;
     let hw = params.width * params.height;
     let pi = py * params.width + px;
 
     var last = 0u;
     var t = 1.0;
-    var g_img: array<f32, MAX_D>;
+    var g_img: array<f32, D>;
     var g_z = 0.0;
     var g_tfinal = 0.0;
     var t_final = 1.0;
@@ -56,8 +55,8 @@ fn main(
         t = t_final;
         last = bitcast<u32>(a4.y);
         let a = 1.0 - t_final;
-        let gd = grad_in[hw * d + pi];
-        let ga = grad_in[hw * (d + 1u) + pi];
+        let gd = grad_in[hw * D + pi];
+        let ga = grad_in[hw * (D + 1u) + pi];
         // L depends on T_final through the background, alpha = 1 - T_final and
         // depth = sum(w z) / alpha.
         g_tfinal = -ga;
@@ -66,8 +65,8 @@ fn main(
             g_z = gd / a;
             g_tfinal = g_tfinal + gd * depth / a;
         }
-        for (var c = 0u; c < d; c = c + 1u) {
-            g_img[c] = grad_in[pi * d + c];
+        for (var c = 0u; c < D; c = c + 1u) {
+            g_img[c] = grad_in[pi * D + c];
             g_tfinal = g_tfinal + g_img[c] * inputs[params.off_bg + c];
         }
     }
@@ -85,7 +84,7 @@ fn main(
     let range = workgroupUniformLoad(&w_range);
 
     // Sums over the fragments behind the current one: sum_j f_j w_j and sum_j z_j w_j.
-    var after: array<f32, MAX_D>;
+    var after: array<f32, D>;
     var after_z = 0.0;
     let batches = (n_walk + BATCH - 1u) / BATCH;
     for (var bb = 0u; bb < batches; bb = bb + 1u) {
@@ -124,9 +123,9 @@ fn main(
             let w = alpha * t;
             let g = b_id[k];
             let gb = g * params.grad_stride;
-            let fb = params.off_feat + g * d;
+            let fb = params.off_feat + g * D;
             var g_alpha = 0.0;
-            for (var c = 0u; c < d; c = c + 1u) {
+            for (var c = 0u; c < D; c = c + 1u) {
                 let f = inputs[fb + c];
                 g_alpha = g_alpha + g_img[c] * (f * t - after[c] / one_minus);
                 grad_add(gb + 8u + c, g_img[c] * w);

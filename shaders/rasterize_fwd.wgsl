@@ -38,8 +38,7 @@ fn main(
         w_range = ranges[tile];
     }
     let range = workgroupUniformLoad(&w_range);
-    let d = params.d;
-    var acc: array<f32, MAX_D>;
+    var acc: array<f32, D>;
     var t = 1.0;
     var wz = 0.0;
     var walked = 0u;
@@ -91,8 +90,8 @@ fn main(
                 break;
             }
             let w = alpha * t;
-            let fb = params.off_feat + b_id[k] * d;
-            for (var c = 0u; c < d; c = c + 1u) {
+            let fb = params.off_feat + b_id[k] * D;
+            for (var c = 0u; c < D; c = c + 1u) {
                 acc[c] = acc[c] + inputs[fb + c] * w;
             }
             wz = wz + mo.w * w;
@@ -105,8 +104,8 @@ fn main(
         return;
     }
     let pi = py * params.width + px;
-    for (var c = 0u; c < d; c = c + 1u) {
-        out_image[pi * d + c] = acc[c] + t * inputs[params.off_bg + c];
+    for (var c = 0u; c < D; c = c + 1u) {
+        out_image[pi * D + c] = acc[c] + t * inputs[params.off_bg + c];
     }
     let a = 1.0 - t;
     var depth = 0.0;

@@ -31,7 +31,10 @@ struct Params {
 }
 
 const TILE: u32 = 16u;
-const MAX_D: u32 = 32u;
+// Feature channels. The pipelines are built once per channel count with this constant set to it
+// (crates/raster/src/splat/mod.rs), so per-pixel channel loops unroll into registers; 32 (the
+// maximum) is what the file says for validation.
+const D: u32 = 32u;
 // 3DGS guards.
 const LOW_PASS: f32 = 0.3; // px^2 added to the 2-D covariance diagonal (anti-aliasing, det > 0)
 const ALPHA_MIN: f32 = 0.00392156862745098; // 1/255: fainter fragments are skipped

@@ -78,7 +78,12 @@ fn rasterize_forward<'py>(
         d,
         background: background.as_slice()?,
     };
-    let cam = camera(viewmat.as_slice()?, k.as_slice()?, (width, height), (near, far))?;
+    let cam = camera(
+        viewmat.as_slice()?,
+        k.as_slice()?,
+        (width, height),
+        (near, far),
+    )?;
     let mut times = PassTimes::new();
     let out = py.detach(|| {
         let ctx = context()?;
@@ -134,7 +139,12 @@ fn rasterize_backward<'py>(
         d,
         background: background.as_slice()?,
     };
-    let cam = camera(viewmat.as_slice()?, k.as_slice()?, (width, height), (near, far))?;
+    let cam = camera(
+        viewmat.as_slice()?,
+        k.as_slice()?,
+        (width, height),
+        (near, far),
+    )?;
     let mode = match atomics {
         None => None,
         Some(s) if s.eq_ignore_ascii_case("float") => Some(AtomicMode::Float),
@@ -145,7 +155,11 @@ fn rasterize_backward<'py>(
             )))
         }
     };
-    let (gi, gd, ga) = (grad_image.as_slice()?, grad_depth.as_slice()?, grad_alpha.as_slice()?);
+    let (gi, gd, ga) = (
+        grad_image.as_slice()?,
+        grad_depth.as_slice()?,
+        grad_alpha.as_slice()?,
+    );
     let mut times = PassTimes::new();
     let out = py.detach(|| {
         let ctx = context()?;

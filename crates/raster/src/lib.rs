@@ -22,13 +22,17 @@ mod shader_validation {
             if path.extension().and_then(|e| e.to_str()) != Some("wgsl") {
                 continue;
             }
-            let name = path.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+            let name = path
+                .file_name()
+                .and_then(|n| n.to_str())
+                .unwrap_or_default();
             if name.starts_with("splat_") {
                 continue; // preludes: validated inside the passes that name them
             }
             let raw = std::fs::read_to_string(&path).expect("readable shader");
-            let src = crate::splat::with_preludes(&raw, |n| std::fs::read_to_string(dir.join(n)).ok())
-                .expect("preludes resolve");
+            let src =
+                crate::splat::with_preludes(&raw, |n| std::fs::read_to_string(dir.join(n)).ok())
+                    .expect("preludes resolve");
             let module = naga::front::wgsl::parse_str(&src)
                 .unwrap_or_else(|e| panic!("{}: {}", path.display(), e.emit_to_string(&src)));
             naga::valid::Validator::new(

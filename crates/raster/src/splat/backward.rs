@@ -2,7 +2,7 @@
 
 use super::buffers::{Buffers, GRAD_HEAD, PARAM_GRADS};
 use super::forward::{bind, dispatch, Recorder};
-use super::{forward, pipeline, Camera, Gaussians, Gradients, PassTimes, State};
+use super::{forward, pipeline, pipeline_d, Camera, Gaussians, Gradients, PassTimes, State};
 use crate::context::{dispatch_dims, AtomicMode, GpuContext, GpuError};
 
 pub struct Binds {
@@ -18,8 +18,8 @@ fn raster_shader(mode: AtomicMode) -> &'static str {
 }
 
 impl Binds {
-    fn new(ctx: &GpuContext, b: &Buffers, mode: AtomicMode) -> Self {
-        let raster_p = pipeline(ctx, raster_shader(mode), "main");
+    fn new(ctx: &GpuContext, b: &Buffers, mode: AtomicMode, d: u32) -> Self {
+        let raster_p = pipeline_d(ctx, raster_shader(mode), "main", d);
         let raster = [0, 1].map(|k| {
             bind(
                 ctx,
@@ -59,10 +59,10 @@ pub fn run(
     id: u64,
     grad_out: [&[f32]; 3],
     mode: AtomicMode,
-    mut profile: Option<&mut PassTimes>,
+    profile: Option<&mut PassTimes>,
 ) -> Result<Gradients, GpuError> {
     let p = st.prepare(ctx, g, cam)?;
-    let mut rec = Recorder::new(ctx, profile.as_deref_mut());
+    let mut rec = Recorder::new(ctx, profile);
     if st.current != Some(id) {
         // Another render replaced this one's per-pixel state: render it again (no readback).
         ctx.queue
@@ -78,7 +78,8 @@ pub fn run(
         .write_buffer(&st.bufs.grad_in.buf, 0, bytemuck::cast_slice(&packed));
     let fp = matches!(mode, AtomicMode::Float);
     if !st.bwd_binds.contains_key(&fp) {
-        st.bwd_binds.insert(fp, Binds::new(ctx, &st.bufs, mode));
+        st.bwd_binds
+            .insert(fp, Binds::new(ctx, &st.bufs, mode, p.d));
     }
     let b = &st.bufs;
     let binds = st
@@ -94,7 +95,7 @@ pub fn run(
         }
         dispatch(
             enc,
-            &pipeline(ctx, raster_shader(mode), "main"),
+            &pipeline_d(ctx, raster_shader(mode), "main", p.d),
             &binds.raster[sorted],
             (p.tiles_x, p.tiles_y),
         );
@@ -129,7 +130,10 @@ pub fn run(
         features: Vec::with_capacity(d * n),
         means2d: Vec::with_capacity(2 * n),
     };
-    for (a, q) in acc.chunks_exact(stride).zip(params.chunks_exact(PARAM_GRADS as usize)) {
+    for (a, q) in acc
+        .chunks_exact(stride)
+        .zip(params.chunks_exact(PARAM_GRADS as usize))
+    {
         out.means2d.extend_from_slice(&a[..2]);
         out.opacities.push(a[5]);
         out.features.extend_from_slice(&a[GRAD_HEAD as usize..]);

@@ -34,7 +34,10 @@ impl Grow {
         if bytes <= self.cap {
             return Ok(false);
         }
-        let cap = bytes.next_power_of_two().min(max.next_multiple_of(4)).max(16);
+        let cap = bytes
+            .next_power_of_two()
+            .min(max.next_multiple_of(4))
+            .max(16);
         self.buf = ctx.storage_buffer(self.label, cap);
         self.cap = cap;
         Ok(true)
@@ -134,11 +137,7 @@ impl Buffers {
             .ensure(ctx, f * (s.n * (INPUT_FLOATS + s.d) + s.d))?;
         grown |= self.counters.ensure(ctx, f * 4)?;
         grown |= self.proj.ensure(ctx, f * 8 * s.n)?;
-        for b in self
-            .depth_keys
-            .iter_mut()
-            .chain(self.depth_vals.iter_mut())
-        {
+        for b in self.depth_keys.iter_mut().chain(self.depth_vals.iter_mut()) {
             grown |= b.ensure(ctx, f * s.n)?;
         }
         grown |= self.offsets.ensure(ctx, f * s.n)?;

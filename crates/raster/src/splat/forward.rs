@@ -3,7 +3,7 @@
 use std::time::Instant;
 
 use super::buffers::{Buffers, SORT_BLOCK};
-use super::{pipeline, Camera, ForwardOutput, Gaussians, Params, PassTimes, State};
+use super::{pipeline, pipeline_d, Camera, ForwardOutput, Gaussians, Params, PassTimes, State};
 use crate::context::{dispatch_dims, GpuContext, GpuError};
 use crate::ScanScratch;
 
@@ -147,7 +147,7 @@ fn sort_binds(
 }
 
 impl Binds {
-    fn new(ctx: &GpuContext, b: &Buffers, sort_passes: &[wgpu::Buffer]) -> Self {
+    fn new(ctx: &GpuContext, b: &Buffers, sort_passes: &[wgpu::Buffer], d: u32) -> Self {
         let project = bind(
             ctx,
             &pipeline(ctx, "project.wgsl", "main"),
@@ -188,7 +188,7 @@ impl Binds {
             ],
         );
         let ranges_p = pipeline(ctx, "tile_ranges.wgsl", "main");
-        let raster_p = pipeline(ctx, "rasterize_fwd.wgsl", "main");
+        let raster_p = pipeline_d(ctx, "rasterize_fwd.wgsl", "main", d);
         let ranges = [0, 1].map(|k| {
             bind(
                 ctx,
@@ -275,7 +275,7 @@ pub fn encode(
     rec: &mut Recorder,
 ) -> Result<(), GpuError> {
     if st.binds.is_none() {
-        st.binds = Some(Binds::new(ctx, &st.bufs, &st.sort_passes));
+        st.binds = Some(Binds::new(ctx, &st.bufs, &st.sort_passes, p.d));
     }
     let State {
         bufs: b,
@@ -297,7 +297,12 @@ pub fn encode(
     })?;
     if n > 0 {
         rec.step("project", |enc| {
-            dispatch(enc, &pipeline(ctx, "project.wgsl", "main"), &binds.project, per_gaussian)
+            dispatch(
+                enc,
+                &pipeline(ctx, "project.wgsl", "main"),
+                &binds.project,
+                per_gaussian,
+            )
         })?;
         let (depth_scans, rest) = scans.split_at_mut(DEPTH_PASSES);
         encode_sort(
@@ -312,9 +317,19 @@ pub fn encode(
         )?;
         let (count_scan, tile_scans) = rest.split_at_mut(1);
         rec.step("tiles: count, scan, emit", |enc| {
-            dispatch(enc, &pipeline(ctx, "count_tiles.wgsl", "main"), &binds.count, per_gaussian);
+            dispatch(
+                enc,
+                &pipeline(ctx, "count_tiles.wgsl", "main"),
+                &binds.count,
+                per_gaussian,
+            );
             count_scan[0].encode(ctx, enc, &b.offsets.buf, n);
-            dispatch(enc, &pipeline(ctx, "emit_keys.wgsl", "main"), &binds.emit, per_gaussian);
+            dispatch(
+                enc,
+                &pipeline(ctx, "emit_keys.wgsl", "main"),
+                &binds.emit,
+                per_gaussian,
+            );
         })?;
         encode_sort(
             ctx,
@@ -340,7 +355,7 @@ pub fn encode(
     rec.step("rasterize", |enc| {
         dispatch(
             enc,
-            &pipeline(ctx, "rasterize_fwd.wgsl", "main"),
+            &pipeline_d(ctx, "rasterize_fwd.wgsl", "main", p.d),
             &binds.raster[sorted],
             (p.tiles_x, p.tiles_y),
         )

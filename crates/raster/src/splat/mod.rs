@@ -21,7 +21,11 @@ pub const TILE: u32 = 16;
 
 macro_rules! shader {
     ($name:literal) => {
-        include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shaders/", $name))
+        include_str!(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../shaders/",
+            $name
+        ))
     };
 }
 
@@ -40,9 +44,16 @@ const FILES: &[(&str, &str)] = &[
 ];
 
 /// `source` with the files named on its first line (`// prelude: a.wgsl b.wgsl`) prepended.
-pub fn with_preludes(source: &str, lookup: impl Fn(&str) -> Option<String>) -> Result<String, String> {
+pub fn with_preludes(
+    source: &str,
+    lookup: impl Fn(&str) -> Option<String>,
+) -> Result<String, String> {
     let mut out = String::new();
-    if let Some(list) = source.lines().next().and_then(|l| l.strip_prefix("// prelude:")) {
+    if let Some(list) = source
+        .lines()
+        .next()
+        .and_then(|l| l.strip_prefix("// prelude:"))
+    {
         for name in list.split_whitespace() {
             out.push_str(&lookup(name).ok_or_else(|| format!("prelude {name} not found"))?);
             out.push('\n');
@@ -101,6 +112,29 @@ fn sources() -> &'static HashMap<String, String> {
 fn pipeline(ctx: &GpuContext, name: &str, entry: &str) -> std::sync::Arc<wgpu::ComputePipeline> {
     let src = sources().get(name).map(String::as_str).unwrap_or("");
     ctx.pipeline(name, src, entry)
+}
+
+const D_DECL: &str = "const D: u32 = 32u;";
+
+/// `name` built for `d` feature channels (the per-pixel channel loops then unroll); each
+/// (pass, d) source is assembled once.
+fn pipeline_d(
+    ctx: &GpuContext,
+    name: &str,
+    entry: &str,
+    d: u32,
+) -> std::sync::Arc<wgpu::ComputePipeline> {
+    static BUILT: OnceLock<Mutex<HashMap<String, String>>> = OnceLock::new();
+    let key = format!("{name}#d{d}");
+    let mut built = BUILT
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap_or_else(|p| p.into_inner());
+    let src = built.entry(key.clone()).or_insert_with(|| {
+        let template = sources().get(name).map(String::as_str).unwrap_or("");
+        template.replace(D_DECL, &format!("const D: u32 = {d}u;"))
+    });
+    ctx.pipeline(&key, src, entry)
 }
 
 /// The uniform every pass reads (`Params` in splat_common.wgsl).
@@ -192,7 +226,9 @@ impl Gaussians<'_> {
             }
         }
         if n >= (u32::MAX / 16) as usize {
-            return Err(GpuError::Invalid(format!("rasterize: {n} Gaussians are too many")));
+            return Err(GpuError::Invalid(format!(
+                "rasterize: {n} Gaussians are too many"
+            )));
         }
         Ok(())
     }
@@ -362,14 +398,21 @@ impl State {
             binds: None,
             bwd_binds: HashMap::new(),
             sort_passes,
-            scans: (0..forward::SCANS).map(|_| crate::ScanScratch::default()).collect(),
+            scans: (0..forward::SCANS)
+                .map(|_| crate::ScanScratch::default())
+                .collect(),
             current: None,
             next_id: 1,
         }
     }
 
     /// Grow buffers for this render and drop bind groups that point at replaced buffers.
-    fn prepare(&mut self, ctx: &GpuContext, g: &Gaussians, cam: &Camera) -> Result<Params, GpuError> {
+    fn prepare(
+        &mut self,
+        ctx: &GpuContext,
+        g: &Gaussians,
+        cam: &Camera,
+    ) -> Result<Params, GpuError> {
         let (tx, ty) = cam.tiles();
         let sizes = Sizes {
             n: g.len() as u64,
@@ -378,7 +421,8 @@ impl State {
             tiles: tx as u64 * ty as u64,
             isect: self.isect_cap,
         };
-        if self.bufs.ensure(ctx, sizes)? {
+        let d_changed = self.sizes.is_some_and(|old| old.d != sizes.d);
+        if self.bufs.ensure(ctx, sizes)? || d_changed {
             self.binds = None;
             self.bwd_binds.clear();
         }
@@ -482,6 +526,9 @@ mod tests {
             validate(name, &full);
             if *name == "rasterize_bwd.wgsl" {
                 validate("rasterize_bwd (CAS)", &cas_variant(&full).unwrap());
+            }
+            if full.contains(D_DECL) {
+                validate(name, &full.replace(D_DECL, "const D: u32 = 1u;"));
             }
         }
     }
