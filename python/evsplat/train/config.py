@@ -68,10 +68,14 @@ class TrainConfig:
 
 
 def _tiny() -> TrainConfig:
-    """Small enough to train the tiny built-in scene in minutes on 2 CPU cores with lavapipe."""
-    cfg = TrainConfig(preset="tiny", num_gaussians=4000)
-    cfg.schedule = ScheduleConfig(iterations=1500, checkpoint_every=250, log_every=10)
-    cfg.model = dataclasses.replace(cfg.model, mlp_width=64, mlp_depth=4, mlp_skip=2)
+    """Small enough to train the tiny built-in scene in about 7 minutes on 2 CPU cores with
+    lavapipe (~0.5 s per iteration measured). A short schedule needs larger colour, opacity and
+    scale learning rates than 3DGS's 30k-iteration ones (documented choice: 10x, 1x, 2x)."""
+    cfg = TrainConfig(preset="tiny", num_gaussians=1500)
+    cfg.schedule = ScheduleConfig(iterations=800, checkpoint_every=200, log_every=10)
+    cfg.model = dataclasses.replace(
+        cfg.model, mlp_width=64, mlp_depth=4, mlp_skip=2, colors_lr=0.025, scales_lr=0.01
+    )
     return cfg
 
 
