@@ -45,11 +45,6 @@ def test_extreme_gaussians_give_finite_outputs_and_gradients():
     assert not meta["visible"][[4, 5, 7, 8]].any()
 
 
-@pytest.mark.xfail(
-    reason="known bug: with tens of thousands of Gaussians in one tile some pixel rows of the "
-    "tile render empty (seen from ~65k Gaussians on one pixel); outputs stay finite",
-    strict=False,
-)
 def test_a_million_gaussians_on_one_pixel_stay_finite():
     n = 1_000_000
     w = h = 32
