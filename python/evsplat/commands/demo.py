@@ -29,6 +29,8 @@ def run(args: argparse.Namespace) -> int:
     from evsplat.train import train
 
     start = time.perf_counter()
+    for folder in (args.data.parent, args.out.parent):
+        folder.mkdir(parents=True, exist_ok=True)
     print(f"[1/4] simulating the tiny '{args.scene}' scene into {args.data}")
     if args.data.exists():
         shutil.rmtree(args.data)
