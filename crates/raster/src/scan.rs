@@ -28,11 +28,15 @@ struct Level {
 #[derive(Default)]
 pub struct ScanScratch {
     levels: Vec<Level>,
+    /// (scan, add) bind groups per level, valid for `bound_to` until a level buffer changes.
+    binds: Vec<(wgpu::BindGroup, wgpu::BindGroup)>,
+    bound_to: Option<wgpu::Buffer>,
 }
 
 impl ScanScratch {
     fn level(&mut self, ctx: &GpuContext, index: usize, sums_needed: u32) -> &Level {
         while self.levels.len() <= index {
+            self.binds.truncate(self.levels.len());
             self.levels.push(Level {
                 sums: ctx.storage_buffer("scan sums", 4),
                 sums_cap: 1,
@@ -49,6 +53,8 @@ impl ScanScratch {
             let cap = sums_needed.next_power_of_two();
             level.sums = ctx.storage_buffer("scan sums", cap as u64 * 4);
             level.sums_cap = cap;
+            // Levels `index` (output) and `index + 1` (input) bind this buffer.
+            self.binds.truncate(index);
         }
         &self.levels[index]
     }
@@ -86,36 +92,44 @@ impl ScanScratch {
             }
             sizes.push(blocks);
         }
-        let buffer_at = |scratch: &ScanScratch, i: usize| -> wgpu::Buffer {
-            if i == 0 {
-                data.clone()
+        // Bind groups are built only when the data buffer or a level buffer changed.
+        if self.bound_to.as_ref() != Some(data) {
+            self.binds.clear();
+            self.bound_to = Some(data.clone());
+        }
+        while self.binds.len() < groups.len() {
+            let i = self.binds.len();
+            let input = if i == 0 {
+                data
             } else {
-                scratch.levels[i - 1].sums.clone()
-            }
-        };
-        let mut binds = Vec::new();
-        for (i, &blocks) in groups.iter().enumerate() {
-            let input = buffer_at(self, i);
+                &self.levels[i - 1].sums
+            };
             let level = &self.levels[i];
             let (bs, ps) = (&level.sums, &level.params);
-            let bind_scan = ctx.bind_buffers(&scan, &[&input, bs, ps]);
-            let bind_add = ctx.bind_buffers(&add, &[&input, bs, ps]);
-            binds.push((bind_scan, bind_add, blocks));
+            let bind_scan = ctx.bind_buffers(&scan, &[input, bs, ps]);
+            let bind_add = ctx.bind_buffers(&add, &[input, bs, ps]);
+            self.binds.push((bind_scan, bind_add));
         }
+        let binds: Vec<_> = self
+            .binds
+            .iter()
+            .zip(&groups)
+            .map(|((s, a), &g)| (s, a, g))
+            .collect();
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("scan"),
             timestamp_writes: None,
         });
         pass.set_pipeline(&scan);
-        for (bind_scan, _, blocks) in &binds {
-            let (x, y) = dispatch_dims(*blocks);
+        for &(bind_scan, _, blocks) in &binds {
+            let (x, y) = dispatch_dims(blocks);
             pass.set_bind_group(0, bind_scan, &[]);
             pass.dispatch_workgroups(x, y, 1);
         }
         // Up-sweep: add each level's scanned block totals back into the level below.
         pass.set_pipeline(&add);
-        for (_, bind_add, blocks) in binds.iter().rev().skip(1) {
-            let (x, y) = dispatch_dims(*blocks);
+        for &(_, bind_add, blocks) in binds.iter().rev().skip(1) {
+            let (x, y) = dispatch_dims(blocks);
             pass.set_bind_group(0, bind_add, &[]);
             pass.dispatch_workgroups(x, y, 1);
         }
@@ -179,6 +193,36 @@ mod tests {
             assert_eq!(
                 exclusive_scan_u32(ctx, &v).unwrap(),
                 cpu_scan(&v),
+                "n = {n}"
+            );
+        }
+    }
+
+    #[test]
+    fn one_scratch_reused_across_sizes_and_buffers_matches_cpu_scan() {
+        let ctx = GpuContext::global().expect("a Vulkan adapter (lavapipe in CI) is required");
+        let mut scratch = ScanScratch::default();
+        let small = ctx.storage_buffer("a", 4 * 1_000_003);
+        let other = ctx.storage_buffer("b", 4 * 1_000_003);
+        // Growing levels, switching buffers and repeating a buffer all reuse or rebuild binds.
+        for (n, buf) in [
+            (300, &small),
+            (70_000, &small),
+            (10, &other),
+            (1_000_003, &other),
+            (300, &small),
+        ] {
+            let v: Vec<u32> = (0..n as u32)
+                .map(|i| i.wrapping_mul(2_654_435_761) % 977)
+                .collect();
+            ctx.queue.write_buffer(buf, 0, bytemuck::cast_slice(&v));
+            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            scratch.encode(ctx, &mut enc, buf, n as u32);
+            ctx.queue.submit([enc.finish()]);
+            let out = ctx.read_buffer(buf, n as u64 * 4).unwrap();
+            assert_eq!(
+                bytemuck::cast_slice::<u8, u32>(&out),
+                &cpu_scan(&v)[..],
                 "n = {n}"
             );
         }
