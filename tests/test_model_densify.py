@@ -96,9 +96,19 @@ def test_densifier_does_nothing_outside_its_interval_or_window():
     assert m.num_gaussians == 4
 
 
-def test_densifier_iteration_points_scale_with_the_run_length():
+def test_densifier_window_scales_with_the_run_length_but_resets_count_iterations():
     d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=3000)
-    assert (d.start, d.stop, d.reset_interval) == (50, 1500, 300)
+    assert (d.start, d.stop, d.reset_interval) == (50, 1500, 3000)
+
+
+def test_a_run_shorter_than_the_reset_period_never_resets_opacity():
+    m = four_gaussians()
+    opt = adam_with_state(m)
+    d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=800)
+    for it in range(800):
+        d.accumulate(torch.zeros(4, 2), torch.ones(4, dtype=torch.int32), W, H)
+        assert "reset" not in d.step(m, opt, it)
+    assert float(m.opacities().min()) > 0.05
 
 
 def test_opacity_reset_caps_opacities_and_zeroes_their_adam_moments():

@@ -36,13 +36,19 @@ class ModelConfig:
 
 @dataclass
 class DensifyConfig:
-    """3DGS adaptive density control; iteration points are fractions of the whole run."""
+    """3DGS adaptive density control.
+
+    The densification window is a fraction of the run so short runs keep 3DGS's proportions; the
+    interval and the opacity-reset period stay in iterations, since they count the views that the
+    gradient statistics and the recovery after a reset need. A run shorter than one reset period
+    therefore never resets (a reset 20 iterations before a prune would empty a short run).
+    """
 
     grad_threshold: float = 2e-4  # 3DGS: mean screen-space gradient that triggers densification
     interval: int = 100  # 3DGS: densify every 100 iterations
     start_fraction: float = 500 / 30_000  # 3DGS: from iteration 500 of 30k
     stop_fraction: float = 15_000 / 30_000  # 3DGS: until iteration 15k of 30k
-    opacity_reset_fraction: float = 3000 / 30_000  # 3DGS: opacity reset every 3000 of 30k
+    opacity_reset_interval: int = 3000  # 3DGS: opacity reset every 3000 iterations (0 = never)
     prune_opacity: float = 0.005  # 3DGS: prune Gaussians with opacity below this
     percent_dense: float = 0.01  # 3DGS: clone if max scale <= this x extent, else split
     split_count: int = 2  # 3DGS: a split Gaussian becomes two

@@ -30,17 +30,23 @@ def ssim(
     a4, b4 = shape4, b.reshape(shape4.shape)
     channels = a4.shape[1]
     g = gaussian_window(window, sigma).to(a.dtype)
-    kernel = (g[:, None] * g[None, :]).expand(channels, 1, window, window).contiguous()
-
-    def blur(x: Tensor) -> Tensor:
-        return F.conv2d(x, kernel, padding=window // 2, groups=channels)
-
-    mu_a, mu_b = blur(a4), blur(b4)
+    # The five local statistics in one separable pass (a row then a column convolution): the
+    # same sums as the 11x11 window with zero padding, at 2/11 of the multiply-adds.
+    stack = torch.cat([a4, b4, a4 * a4, b4 * b4, a4 * b4], dim=1)
+    k = 5 * channels
+    pad = window // 2
+    rows = F.conv2d(
+        stack, g.reshape(1, 1, 1, -1).expand(k, 1, 1, window), padding=(0, pad), groups=k
+    )
+    blurred = F.conv2d(
+        rows, g.reshape(1, 1, -1, 1).expand(k, 1, window, 1), padding=(pad, 0), groups=k
+    )
+    mu_a, mu_b, e_aa, e_bb, e_ab = blurred.split(channels, dim=1)
     # Not clamped at 0: identical inputs then give cov == var exactly (SSIM exactly 1), and
     # the rounding below zero is far smaller than C2.
-    var_a = blur(a4 * a4) - mu_a * mu_a
-    var_b = blur(b4 * b4) - mu_b * mu_b
-    cov = blur(a4 * b4) - mu_a * mu_b
+    var_a = e_aa - mu_a * mu_a
+    var_b = e_bb - mu_b * mu_b
+    cov = e_ab - mu_a * mu_b
     rng = 1.0 if data_range is None else float(data_range)
     if not rng > 0:
         raise ValueError(f"ssim: data_range={data_range}; it must be positive")

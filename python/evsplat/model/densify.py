@@ -41,8 +41,8 @@ def _update_params(
 class Densifier:
     """Gradient statistics and the 3DGS density-control schedule.
 
-    ``accumulate`` after each backward pass, ``step`` after each optimizer step. Iteration
-    points come from fractions of ``total_iterations`` so short runs keep 3DGS's proportions.
+    ``accumulate`` after each backward pass, ``step`` after each optimizer step. The window
+    [start, stop) comes from fractions of ``total_iterations``; see ``DensifyConfig``.
     """
 
     def __init__(self, cfg: DensifyConfig, scene_extent: float, total_iterations: int = 30_000):
@@ -50,7 +50,7 @@ class Densifier:
         self.extent = float(scene_extent)
         self.start = int(round(cfg.start_fraction * total_iterations))
         self.stop = int(round(cfg.stop_fraction * total_iterations))
-        self.reset_interval = max(int(round(cfg.opacity_reset_fraction * total_iterations)), 1)
+        self.reset_interval = cfg.opacity_reset_interval  # 0: never
         self.grad_accum = torch.zeros(0)
         self.denom = torch.zeros(0)
         self.max_radii = torch.zeros(0)
@@ -96,7 +96,8 @@ class Densifier:
         cfg, counts = self.cfg, {}
         if self.start < iteration < self.stop and iteration % cfg.interval == 0:
             counts.update(self._densify_and_prune(model, optimizer, iteration))
-        if 0 < iteration < self.stop and iteration % self.reset_interval == 0:
+        resets = self.reset_interval > 0 and 0 < iteration < self.stop
+        if resets and iteration % self.reset_interval == 0:
             self._reset_opacity(model, optimizer)
             counts["reset"] = 1
         excess = model.num_gaussians - cfg.max_gaussians
@@ -150,7 +151,8 @@ class Densifier:
         prune = torch.cat([split, torch.zeros(n_new, dtype=torch.bool)]) | (
             opac < cfg.prune_opacity
         )
-        if iteration > self.reset_interval:  # 3DGS: size pruning only once opacities were reset
+        # 3DGS: size pruning only once opacities were reset
+        if 0 < self.reset_interval < iteration:
             radii = torch.cat([self.max_radii, torch.zeros(n_new)])
             big_world = (
                 model.scales().detach().max(dim=-1).values > cfg.max_world_scale * self.extent
