@@ -375,6 +375,7 @@ pub fn run(
     st: &mut State,
     g: &Gaussians,
     cam: &Camera,
+    id: u64,
     mut profile: Option<&mut PassTimes>,
 ) -> Result<ForwardOutput, GpuError> {
     let packed = g.pack();
@@ -415,8 +416,6 @@ pub fn run(
         let (depth, rest) = rest.split_at(pixels);
         let (alpha, rest) = rest.split_at(pixels);
         let proj = &rest[..8 * n];
-        let id = st.next_id;
-        st.next_id += 1;
         st.current = Some(id);
         return Ok(ForwardOutput {
             image: image.to_vec(),

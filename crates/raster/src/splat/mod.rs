@@ -368,12 +368,72 @@ struct State {
     scans: Vec<crate::ScanScratch>,
     /// The render whose per-pixel state is in the buffers.
     current: Option<u64>,
-    next_id: u64,
+    /// Pool clock of the last use, for least-recently-used reuse.
+    used: u64,
+    /// The render here was differentiated already: its state is not needed again.
+    spent: bool,
 }
 
-fn state() -> &'static Mutex<Option<State>> {
-    static STATE: OnceLock<Mutex<Option<State>>> = OnceLock::new();
-    STATE.get_or_init(|| Mutex::new(None))
+/// Renders whose per-pixel state a backward pass may still need each keep their own buffers,
+/// up to this many: a training step renders two or three views and differentiates them in
+/// reverse order, which with one set of buffers would re-render every view but the last.
+const STATES: usize = 3;
+
+/// The per-process states and the render-id counter.
+struct Pool {
+    states: Vec<State>,
+    next_id: u64,
+    clock: u64,
+}
+
+impl Pool {
+    /// The state for a new render with `d` channels: a spent one of the same width first, then
+    /// any spent one, a new one while the pool has room, else the least recently used.
+    fn for_forward(&mut self, ctx: &GpuContext, d: u64) -> &mut State {
+        let same_d = |s: &State| s.sizes.is_some_and(|z| z.d == d);
+        let pick = (self.states.iter().position(|s| s.spent && same_d(s)))
+            .or_else(|| self.states.iter().position(|s| s.spent));
+        let i = match pick {
+            Some(i) => i,
+            None if self.states.len() < STATES => {
+                self.states.push(State::new(ctx));
+                self.states.len() - 1
+            }
+            None => (0..self.states.len())
+                .min_by_key(|&i| self.states[i].used)
+                .unwrap_or(0),
+        };
+        self.touch(i)
+    }
+
+    /// The state holding render `id`, else (it was evicted) the least recently used one.
+    fn for_backward(&mut self, ctx: &GpuContext, id: u64) -> &mut State {
+        if self.states.is_empty() {
+            self.states.push(State::new(ctx));
+        }
+        let i = (self.states.iter().position(|s| s.current == Some(id)))
+            .or_else(|| (0..self.states.len()).min_by_key(|&i| self.states[i].used))
+            .unwrap_or(0);
+        self.touch(i)
+    }
+
+    fn touch(&mut self, i: usize) -> &mut State {
+        self.clock += 1;
+        let st = &mut self.states[i];
+        st.used = self.clock;
+        st
+    }
+}
+
+fn pool() -> &'static Mutex<Pool> {
+    static POOL: OnceLock<Mutex<Pool>> = OnceLock::new();
+    POOL.get_or_init(|| {
+        Mutex::new(Pool {
+            states: Vec::new(),
+            next_id: 1,
+            clock: 0,
+        })
+    })
 }
 
 impl State {
@@ -402,7 +462,8 @@ impl State {
                 .map(|_| crate::ScanScratch::default())
                 .collect(),
             current: None,
-            next_id: 1,
+            used: 0,
+            spent: false,
         }
     }
 
@@ -434,8 +495,8 @@ impl State {
     }
 }
 
-fn lock() -> std::sync::MutexGuard<'static, Option<State>> {
-    state().lock().unwrap_or_else(|p| p.into_inner())
+fn lock() -> std::sync::MutexGuard<'static, Pool> {
+    pool().lock().unwrap_or_else(|p| p.into_inner())
 }
 
 /// Render `g` from `cam`. With `profile`, each pass is submitted and timed on its own.
@@ -447,9 +508,12 @@ pub fn rasterize_forward(
 ) -> Result<ForwardOutput, GpuError> {
     g.check()?;
     cam.check()?;
-    let mut guard = lock();
-    let st = guard.get_or_insert_with(|| State::new(ctx));
-    forward::run(ctx, st, g, cam, profile)
+    let mut pool = lock();
+    let id = pool.next_id;
+    pool.next_id += 1;
+    let st = pool.for_forward(ctx, g.d as u64);
+    st.spent = false;
+    forward::run(ctx, st, g, cam, id, profile)
 }
 
 /// Gradients of a loss given its gradients with respect to the outputs of render `id` (which is
@@ -486,8 +550,9 @@ pub fn rasterize_backward(
                 .into(),
         ));
     }
-    let mut guard = lock();
-    let st = guard.get_or_insert_with(|| State::new(ctx));
+    let mut pool = lock();
+    let st = pool.for_backward(ctx, id);
+    st.spent = true;
     backward::run(
         ctx,
         st,
