@@ -1,8 +1,8 @@
 """The built-in dynamic scenes, echoing the paper's BlenderDynamicEvent set.
 
 World frame follows the camera convention: x right, y down, z forward. Every scene has a tiled
-static background wall and floor, a hand-held-like moving camera, and an object moving fast enough to
-blur a 30 fps camera (tens of pixels per 33 ms). Poses are functions of time in seconds.
+static background wall and floor, a hand-held-like moving camera, and an object moving fast
+enough to blur a 30 fps camera (tens of pixels per 33 ms). Poses are functions of time in seconds.
 """
 
 from __future__ import annotations

@@ -301,15 +301,22 @@ class Trainer:
         self.mlp_optimizer.zero_grad(set_to_none=True)
 
     def _schedule_learning_rates(self, iteration: int) -> None:
-        """Exponential decay of the position and MLP learning rates (3DGS / Deformable-3DGS)."""
-        mc = self.cfg.model
-        frac = min(iteration / max(self.cfg.schedule.iterations, 1), 1.0)
+        """Exponential decay of the position and MLP learning rates (3DGS / Deformable-3DGS).
+
+        The MLP's decay runs from the end of the warm-up, when it starts training, to the end of
+        the run: decaying from iteration 0 would leave a short run's MLP almost no learning rate
+        by the time the motion stage is under way.
+        """
+        mc, sc = self.cfg.model, self.cfg.schedule
+        frac = min(iteration / max(sc.iterations, 1), 1.0)
         for group in self.optimizer.param_groups:
             if group.get("name") == "means":
                 start = mc.means_lr * self.extent
                 group["lr"] = start * (mc.means_lr_final / mc.means_lr) ** frac
+        moving = (iteration - sc.warmup_end) / max(sc.iterations - sc.warmup_end, 1)
+        frac_mlp = min(max(moving, 0.0), 1.0)
         for group in self.mlp_optimizer.param_groups:
-            group["lr"] = mc.mlp_lr * (mc.mlp_lr_final / mc.mlp_lr) ** frac
+            group["lr"] = mc.mlp_lr * (mc.mlp_lr_final / mc.mlp_lr) ** frac_mlp
 
     # ---- checkpoints ---------------------------------------------------------------------
 

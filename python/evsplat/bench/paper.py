@@ -1,0 +1,177 @@
+"""`evsplat bench paper`: the paper's three experiments, regenerated into docs/results.md.
+
+Table 1: the four built-in scenes with our method and two baselines run on the same data (an
+event-only static 3DGS, and the method without the motion losses L_ef and L_m), beside the
+paper's numbers for its scenes. Table 2: speed factors 1-4 on the ball scene. Table 3: the loss
+ablation L_e -> +L_ef -> +L_m -> +L_d -> +L_ne/L_sp. Every run goes through the training
+benchmark (`evsplat.bench.train.run_one`), so it is simulated, trained in its own process and
+scored exactly like `evsplat bench --preset ...`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from evsplat.bench.train import SCENES, Case, machine_info, plot_pareto, run_one
+from evsplat.data.atomic import write_text_atomic
+
+HELP = "the paper's Tables 1-3 (scenes, speed factors, loss ablation) into docs/results.md"
+
+# FastEventDGS, Table 1 (its BlenderDynamicEvent scenes; "Alarm" is its clock scene).
+PAPER_TABLE1 = {
+    "butterfly": (24.27, 0.902, 0.120),
+    "duck": (21.25, 0.891, 0.244),
+    "clock": (23.24, 0.899, 0.147),
+    "ball": (22.89, 0.876, 0.271),
+}
+PAPER_TABLE2 = {1: 22.91, 2: 21.16, 3: 19.14, 4: 18.31}  # PSNR on Ball per speed factor
+PAPER_TABLE3 = {"e": 18.61, "full": 22.91}  # L_e only and the full method (intermediate rows
+# are in the paper's figure-style table; only its end points are quoted here)
+ABLATION = ["e", "e+ef", "e+ef+m", "e+ef+m+d", "full"]
+ABLATION_LABEL = {
+    "e": "L_e",
+    "e+ef": "+ L_ef",
+    "e+ef+m": "+ L_m",
+    "e+ef+m+d": "+ L_d",
+    "full": "+ L_ne, L_sp (full)",
+}
+TABLE1_VARIANTS = ["static", "no-motion-losses", "full"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--full-size",
+        action="store_true",
+        help="400x400 (600x400 duck) scenes with the default preset instead of the 96 px tiny "
+        "variants with the tiny preset (hours on a CPU; meant for a GPU machine)",
+    )
+    parser.add_argument("--iters", type=int, default=None, help="iterations per run")
+    parser.add_argument("--out", type=Path, default=Path("bench_results/paper"))
+    parser.add_argument("--doc", type=Path, default=Path("docs/results.md"))
+    parser.add_argument(
+        "--tables", default="1,2,3", help="comma list of the tables to run (default 1,2,3)"
+    )
+
+
+def _fmt(v, nd: int = 2) -> str:
+    return "-" if v is None else f"{v:.{nd}f}"
+
+
+def _table1(rows: list[dict]) -> list[str]:
+    lines = [
+        "| scene | paper PSNR/SSIM/LPIPS | static 3DGS | no L_ef, L_m | ours (full) | "
+        "moving-mask PSNR static -> full |",
+        "|---|---|---|---|---|---|",
+    ]
+    for scene in SCENES:
+        by = {r["variant"]: r for r in rows if r["case"].startswith(scene + "-")}
+        if not by:
+            continue
+        p = PAPER_TABLE1[scene]
+        cells = [
+            f"{_fmt(by[v]['psnr'])} / {_fmt(by[v]['ssim'], 3)} / {_fmt(by[v]['lpips'], 3)}"
+            if v in by
+            else "-"
+            for v in TABLE1_VARIANTS
+        ]
+        st, fu = by.get("static", {}), by.get("full", {})
+        moving = f"{_fmt(st.get('psnr_moving'))} -> {_fmt(fu.get('psnr_moving'))}"
+        lines.append(
+            f"| {scene} | {p[0]} / {p[1]} / {p[2]} | " + " | ".join(cells) + f" | {moving} |"
+        )
+    return lines
+
+
+def _table2(rows: list[dict]) -> list[str]:
+    lines = [
+        "| speed | paper PSNR | ours PSNR | ours SSIM | moving-mask PSNR |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        k = int(r["case"].rsplit("-x", 1)[1])
+        lines.append(
+            f"| x{k} | {PAPER_TABLE2[k]} | {_fmt(r['psnr'])} | {_fmt(r['ssim'], 3)} | "
+            f"{_fmt(r['psnr_moving'])} |"
+        )
+    return lines
+
+
+def _table3(rows: list[dict]) -> list[str]:
+    lines = [
+        "| losses | paper PSNR | ours PSNR | ours SSIM | moving-mask PSNR | time s |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in sorted(rows, key=lambda r: ABLATION.index(r["variant"])):
+        paper = PAPER_TABLE3.get(r["variant"], "-")
+        lines.append(
+            f"| {ABLATION_LABEL[r['variant']]} | {paper} | {_fmt(r['psnr'])} | "
+            f"{_fmt(r['ssim'], 3)} | {_fmt(r['psnr_moving'])} | {r['wall_seconds']:.0f} |"
+        )
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    tables = {int(t) for t in args.tables.split(",") if t}
+    tiny = not args.full_size
+    spec = {"train_preset": "tiny" if tiny else "default", "iterations": args.iters}
+    info = machine_info()
+    print(f"machine: {info['machine']}\nadapter: {info['adapter']}\ncommit: {info['commit']}")
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    results: dict[str, list[dict]] = {"1": [], "2": [], "3": []}
+    plan: list[tuple[str, Case, str]] = []
+    if 1 in tables:
+        plan += [("1", Case(s, tiny=tiny), v) for s in SCENES for v in TABLE1_VARIANTS]
+    if 2 in tables:
+        plan += [("2", Case("ball", tiny=tiny, speed=k), "full") for k in (1, 2, 3, 4)]
+    if 3 in tables:
+        plan += [("3", Case("ball", tiny=tiny), v) for v in ABLATION]
+    done: dict[tuple[str, str], dict] = {}
+    for table, case, variant in plan:
+        key = (case.name, variant)
+        if key not in done:  # ball x1 full serves all three tables
+            done[key] = run_one(case, variant, spec, out, args.iters)
+            r = done[key]
+            print(
+                f"table {table}: {case.name:<16} {variant:<18} {r['iterations']:>5} it "
+                f"{r['wall_seconds']:>7.1f} s  PSNR {r['psnr']:.2f}  SSIM {r['ssim']:.3f}  "
+                f"moving {_fmt(r['psnr_moving'])}",
+                flush=True,
+            )
+        results[table].append(done[key])
+    rows = list(done.values())
+    write_text_atomic(out / "results.json", json.dumps({**info, "rows": rows}, indent=2))
+    plot_pareto(rows, args.doc.parent / "results_pareto.png", f"paper tables ({info['adapter']})")
+
+    size = "96x96 tiny variants, preset tiny" if tiny else "full size, preset default"
+    iters = rows[0]["iterations"] if rows else "-"
+    doc = [
+        "# Results: the paper's experiments on our built-in scenes",
+        "",
+        "Regenerate with `evsplat bench paper` (add `--full-size` on a GPU machine). Metrics are "
+        "on the held-out intermediate frames after the paper's per-image linear colour fit in log "
+        "space (§5); the moving-mask PSNR is computed on the pixels of the moving object only. "
+        "LPIPS is '-' when its weights are not on the machine (they are never downloaded).",
+        "",
+        f"- Machine: {info['machine']}",
+        f"- Adapter: {info['adapter']}",
+        f"- Commit: {info['commit']}",
+        f"- Sizes: {size}; {iters} iterations per run; 0.6 s sequences (tiny).",
+        "- The paper's numbers are for its own BlenderDynamicEvent renders at 30k iterations on a "
+        "GPU; ours are for our analytic re-creations of those scenes, so they are comparable in "
+        "kind, not digit for digit.",
+        "",
+    ]
+    if results["1"]:
+        doc += ["## Table 1: scenes and baselines", "", *_table1(results["1"]), ""]
+    if results["2"]:
+        doc += ["## Table 2: speed factor on ball", "", *_table2(results["2"]), ""]
+    if results["3"]:
+        doc += ["## Table 3: loss ablation on ball", "", *_table3(results["3"]), ""]
+    doc += ["![time against PSNR](results_pareto.png)", ""]
+    args.doc.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(args.doc, "\n".join(doc))
+    print(f"written: {args.doc}, {args.doc.parent / 'results_pareto.png'}, {out / 'results.json'}")
+    return 0
