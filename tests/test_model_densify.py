@@ -150,6 +150,20 @@ def test_max_gaussians_cap_prunes_the_least_opaque():
     assert_optimizer_matches_model(opt, m)
 
 
+def test_near_the_budget_only_the_strongest_gradients_are_densified():
+    m = four_gaussians()
+    opt = adam_with_state(m)
+    d = Densifier(dataclasses.replace(DensifyConfig(), max_gaussians=5), 1.0, 30_000)
+    # 0 and 2 (small) both pass the threshold; 2's gradient is larger; room for one more.
+    grads = torch.tensor([[1e-4, 0.0], [0.0, 0.0], [3e-4, 0.0], [0.0, 0.0]])
+    d.accumulate(grads, torch.tensor([3, 3, 3, 3]), W, H)
+    counts = d.step(m, opt, 600)
+    assert counts == {"cloned": 1, "split": 0, "pruned": 1}  # 3 is transparent
+    # Kept 0, 1, 2, then the clone of 2: no growth past the budget, nothing capped.
+    assert torch.equal(m.sh.detach().reshape(-1), torch.tensor([0.0, 1.0, 2.0, 2.0]))
+    assert_optimizer_matches_model(opt, m)
+
+
 def test_accumulate_adds_ndc_gradient_norms_of_visible_gaussians_only():
     d = Densifier(DensifyConfig(), scene_extent=1.0)
     grads = torch.tensor([[3.0, 4.0], [1.0, 1.0], [float("nan"), 0.0]])

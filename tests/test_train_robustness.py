@@ -73,3 +73,30 @@ def test_persistent_nan_gradient_stops_with_the_term_and_keeps_the_last_good_che
     good = load_checkpoint(latest_checkpoint(run))
     assert good["iteration"] == 5
     assert all(torch.isfinite(v).all() for v in good["gaussians"].values() if torch.is_tensor(v))
+
+
+def test_three_views_give_l_e_as_the_mean_over_their_three_windows(
+    tiny_data, tmp_path, monkeypatch
+):
+    real = loop.event_loss
+    seen: list[float] = []
+
+    def recording(delta, esi, mask, lam):
+        value = real(delta, esi, mask, lam)
+        seen.append(float(value))
+        return value
+
+    monkeypatch.setattr(loop, "event_loss", recording)
+    trainer = _trainer(tiny_data, tmp_path / "run", 10)
+    trainer.cfg.loss.views = 3
+    result = trainer.step(0)
+    assert result.skipped is None
+    assert len(seen) == 3  # windows (t0,t1), (t0,t2), (t1,t2)
+    assert result.losses["e"] == pytest.approx(sum(seen) / 3, rel=1e-6)
+
+
+def test_fewer_than_two_views_is_refused(tiny_data, tmp_path):
+    cfg = preset("tiny")
+    cfg.loss.views = 1
+    with pytest.raises(EvsplatError, match="at least 2"):
+        Trainer(load_dataset(tiny_data), cfg, tmp_path / "run")

@@ -65,6 +65,7 @@ class LossConfig:
     lambda_ssim: float = 0.2  # eq. 9 λ_e; documented choice: 3DGS's D-SSIM weight 0.2
     window_min: float = 0.02  # eq. 7 Δt_k, shortest L_e window; documented choice (EventNeRF)
     window_max: float = 0.1  # eq. 7 Δt_k, longest L_e window; documented choice (EventNeRF)
+    views: int = 2  # renders per step; L_e on every pair of them (2: the paper's one window)
     flow_window: float = 0.005  # eq. 13 Δτ, short window for L_ef; documented choice
     motion_window: float = 0.02  # §4.3 Δt split into m sub-windows for L_m; documented choice
     patch_n: int = 128  # §4.3 n sampled Gaussians; documented choice

@@ -38,6 +38,7 @@ ABLATION_LABEL = {
     "full": "+ L_ne, L_sp (full)",
 }
 TABLE1_VARIANTS = ["static", "no-motion-losses", "full"]
+KEEP_FROM = "## Full-size runs"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -171,6 +172,10 @@ def run(args: argparse.Namespace) -> int:
     if results["3"]:
         doc += ["## Table 3: loss ablation on ball", "", *_table3(results["3"]), ""]
     doc += ["![time against PSNR](results_pareto.png)", ""]
+    # Sections after KEEP_FROM (full-size runs recorded by hand) survive regeneration.
+    old = args.doc.read_text() if args.doc.is_file() else ""
+    if KEEP_FROM in old:
+        doc += [old[old.index(KEEP_FROM) :].rstrip("\n"), ""]
     args.doc.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.doc, "\n".join(doc))
     print(f"written: {args.doc}, {args.doc.parent / 'results_pareto.png'}, {out / 'results.json'}")

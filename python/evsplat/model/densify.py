@@ -114,6 +114,13 @@ class Densifier:
         self._ensure_size(n0)
         grads = self.grad_accum / self.denom.clamp_min(1)
         high = grads >= cfg.grad_threshold
+        room = cfg.max_gaussians - n0  # a clone adds one Gaussian, a split into two one net
+        if int(high.sum()) > max(room, 0):
+            # Budget: densify only the strongest gradients that fit, rather than growing past
+            # the cap and pruning what was just added.
+            keep = torch.zeros_like(high)
+            keep[torch.argsort(grads, descending=True)[: max(room, 0)]] = True
+            high &= keep
         max_scale = model.scales().detach().max(dim=-1).values
         small = max_scale <= cfg.percent_dense * self.extent
         clone, split = high & small, high & ~small

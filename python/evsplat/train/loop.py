@@ -101,6 +101,8 @@ class Trainer:
         self.run_dir = Path(run_dir)
         self.depth_prior = depth_prior
         torch.manual_seed(cfg.seed)
+        if cfg.loss.views < 2:
+            raise EvsplatError(f"loss.views = {cfg.loss.views}: L_e needs at least 2 renders")
         self.channels = 1 if data.bayer == "mono" else 3
         self.depth_range = tuple(data.meta.get("depth_range") or cfg.model.init_depth_range)
         self.extent = scene_extent(data, self.depth_range)
@@ -171,16 +173,23 @@ class Trainer:
         moving = cfg.deform and stage is not Stage.WARMUP
         self.renderer.mlp = self.mlp if moving else None
 
-        # Long window [t0, t1) of random length for L_e; the short flow window starts at t1.
-        dt = int(rng.uniform(lc.window_min, lc.window_max) * duration)
+        # `views` render times t_0 < ... < t_last, consecutive gaps of random length; L_e compares
+        # every pair (with 3 views: three windows from three renders instead of one from two).
+        # The short flow window of L_ef starts at the last time, where the motion losses attach.
+        draw = [rng.uniform(lc.window_min, lc.window_max) for _ in range(lc.views - 1)]
+        gaps = [int(g * duration) for g in draw]
         dtau = max(int(lc.flow_window * duration), 1) if moving else 0
-        t1 = int(rng.integers(self.data.t_start_us + dt, self.data.t_end_us - dtau + 1))
-        t0 = t1 - dt
-        esi, mask, count = self._esi(t0, t1)
-        if count == 0:
+        span = sum(gaps)
+        if span > duration - dtau:
+            return StepResult({}, stage, skipped="windows longer than the sequence")
+        t1 = int(rng.integers(self.data.t_start_us + span, self.data.t_end_us - dtau + 1))
+        times = [t1 - sum(gaps[k:]) for k in range(lc.views - 1)] + [t1]
+        pairs = [(i, j) for j in range(lc.views) for i in range(j)]
+        windows = [self._esi(times[i], times[j]) for i, j in pairs]
+        if all(count == 0 for _, _, count in windows):
             return StepResult({}, stage, skipped="no events in window")
 
-        pose0, pose1 = self._pose(t0), self._pose(t1)
+        pose1 = self._pose(t1)
         g1 = self.renderer.gaussians_at(t1)
         extra = None
         if moving and lc.w_flow > 0:
@@ -188,10 +197,18 @@ class Trainer:
             means_later = self.renderer.gaussians_at(t1 + dtau)[0]
             extra = gaussian_flow_features(g1[0], means_later, viewmat(pose1), self.renderer.K)
         out1 = self.renderer.render(t1, pose1, extra=extra, gaussians=g1)
-        out0 = self.renderer.render(t0, pose0)
-        log1, log0 = self._log_image(out1), self._log_image(out0)
-        delta = log1 - log0
-        losses: dict[str, torch.Tensor] = {"e": event_loss(delta, esi, mask, lc.lambda_ssim)}
+        logs = [self._log_image(self.renderer.render(t, self._pose(t))) for t in times[:-1]]
+        log1 = self._log_image(out1)
+        logs.append(log1)
+        terms = [
+            event_loss(logs[j] - logs[i], esi, mask, lc.lambda_ssim)
+            for (i, j), (esi, mask, count) in zip(pairs, windows)
+            if count > 0
+        ]
+        losses: dict[str, torch.Tensor] = {"e": torch.stack(terms).mean()}
+        # The refinement losses see the last window, as with two views.
+        delta = logs[-1] - logs[-2]
+        mask = windows[pairs.index((lc.views - 2, lc.views - 1))][1]
 
         if moving:
             losses.update(self._motion_losses(t1, dtau, pose1, out1, log1, rng))
