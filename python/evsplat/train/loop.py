@@ -41,6 +41,7 @@ from evsplat.train.config import TrainConfig
 from evsplat.train.depth_prior import DepthPrior
 from evsplat.train.skips import (
     Plateau,
+    Window,
     classify_static,
     follow_rows,
     holdout_loss,
@@ -153,7 +154,7 @@ class Trainer:
         self.bad_in_a_row = 0
         sk = cfg.skips
         # A fixed, noise-free yardstick for early stopping; these windows still train too.
-        self.holdout = []
+        self.holdout: list[Window] = []
         if sk.early_stop:
             self.holdout = holdout_windows(
                 self._esi, data.t_start_us, data.t_end_us, cfg.loss, sk.early_stop_windows, cfg.seed
@@ -255,8 +256,8 @@ class Trainer:
         static = self.renderer.static_mask
         if static is not None:
             if counts:  # clones, splits and prunes change the rows the mask must follow
-                static = self.renderer.static_mask = follow_rows(static, self.densifier.origin)
-            values["static_frac"] = float(static.float().mean())
+                self.renderer.static_mask = follow_rows(static, self.densifier.origin)
+            values["static_frac"] = self._static_fraction()
         values["gaussians"] = float(self.model.means.shape[0])
         return StepResult(values, stage)
 
