@@ -90,6 +90,15 @@ def test_deformed_mask_keeps_static_gaussians_canonical_and_moves_the_rest():
     assert torch.allclose(rots.norm(dim=-1), torch.ones(10), atol=1e-6)
 
 
+def test_deformed_with_every_gaussian_static_is_canonical():
+    cfg = dataclasses.replace(ModelConfig(), mlp_width=32, mlp_depth=4, mlp_skip=1)
+    mlp = DeformationMLP(cfg)
+    _trained_like(mlp)
+    model = GaussianModel.random_init(5, 1, [0, 0, 0], [1, 1, 1])
+    means, _, scales = deformed(model, mlp, 0.6, mask=torch.zeros(5, dtype=torch.bool))
+    assert torch.equal(means, model.means) and torch.equal(scales, model.scales())
+
+
 def test_deformed_is_canonical_without_mlp_and_gradients_reach_mlp_and_gaussians():
     model = GaussianModel.random_init(6, 1, [0, 0, 0], [1, 1, 1])
     means, rots, scales = deformed(model, None, 0.3)

@@ -176,3 +176,17 @@ def test_accumulate_adds_ndc_gradient_norms_of_visible_gaussians_only():
     e = Densifier(DensifyConfig(), scene_extent=1.0)
     e.load_state_dict(d.state_dict())
     assert torch.equal(e.grad_accum, d.grad_accum) and torch.equal(e.max_radii, d.max_radii)
+
+
+def test_densifier_origin_maps_rows_after_a_step_to_rows_before():
+    m = four_gaussians()
+    opt = adam_with_state(m)
+    d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=30_000)
+    grads = torch.tensor([[1e-4, 0.0], [0.0, 1e-4], [1e-7, 0.0], [1e-7, 0.0]])
+    d.accumulate(grads, torch.tensor([3, 5, 3, 3]), W, H)
+    torch.manual_seed(0)
+    d.step(m, opt, 600)
+    # Kept 0 and 2, then the clone of 0 and the two children of 1: new rows have no origin.
+    assert d.origin.tolist() == [0, 2, -1, -1, -1]
+    d.step(m, opt, 601)  # nothing happens: every row is its own origin
+    assert d.origin.tolist() == [0, 1, 2, 3, 4]

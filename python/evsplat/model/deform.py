@@ -17,7 +17,8 @@ def positional_encoding(p: Tensor, frequencies: int) -> Tensor:
     if frequencies == 0:
         return p
     freqs = 2.0 ** torch.arange(frequencies, dtype=p.dtype, device=p.device)
-    scaled = (p[:, None, :] * freqs[:, None]).reshape(p.shape[0], -1)  # [N, F·D]
+    # An explicit width: with N = 0 (every Gaussian static) -1 would be ambiguous.
+    scaled = (p[:, None, :] * freqs[:, None]).reshape(p.shape[0], frequencies * p.shape[1])
     return torch.cat([p, torch.sin(scaled), torch.cos(scaled)], dim=-1)
 
 

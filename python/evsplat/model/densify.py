@@ -54,6 +54,9 @@ class Densifier:
         self.grad_accum = torch.zeros(0)
         self.denom = torch.zeros(0)
         self.max_radii = torch.zeros(0)
+        # For each Gaussian after the last `step`, its row before it (-1: created by it), so
+        # per-Gaussian state kept elsewhere (the static mask) can follow clones and prunes.
+        self.origin = torch.zeros(0, dtype=torch.long)
 
     def _reset_stats(self, n: int) -> None:
         self.grad_accum = torch.zeros(n)
@@ -91,9 +94,10 @@ class Densifier:
         high-gradient Gaussians and prune transparent (and, after the first opacity reset, huge)
         ones; every ``reset_interval`` iterations cap opacities at 0.01. Any time: prune the least
         opaque Gaussians down to ``max_gaussians``. Returns the counts of what was done, empty
-        when nothing was.
+        when nothing was; ``origin`` maps the rows after it to the rows before.
         """
         cfg, counts = self.cfg, {}
+        self.origin = torch.arange(model.num_gaussians)
         if self.start < iteration < self.stop and iteration % cfg.interval == 0:
             counts.update(self._densify_and_prune(model, optimizer, iteration))
         resets = self.reset_interval > 0 and 0 < iteration < self.stop
@@ -154,6 +158,7 @@ class Densifier:
 
         _update_params(model, optimizer, append)
         n_new = model.num_gaussians - n0
+        self.origin = torch.cat([self.origin, torch.full((n_new,), -1, dtype=torch.long)])
         opac = model.opacities().detach()
         prune = torch.cat([split, torch.zeros(n_new, dtype=torch.bool)]) | (
             opac < cfg.prune_opacity
@@ -172,6 +177,7 @@ class Densifier:
 
     def _prune(self, model: GaussianModel, optimizer, keep: Tensor) -> None:
         _update_params(model, optimizer, lambda _n, old, _s: old[keep])
+        self.origin = self.origin[keep]
         if self.grad_accum.shape[0] == keep.shape[0]:
             self.grad_accum = self.grad_accum[keep]
             self.denom = self.denom[keep]

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
-from evsplat.config import DensifyConfig, LossConfig, ModelConfig
+from evsplat.config import DensifyConfig, LossConfig, ModelConfig, SkipConfig
 from evsplat.errors import EvsplatError
 
 
@@ -47,6 +47,7 @@ class TrainConfig:
     model: ModelConfig = field(default_factory=ModelConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     loss: LossConfig = field(default_factory=LossConfig)
+    skips: SkipConfig = field(default_factory=SkipConfig)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -64,6 +65,7 @@ class TrainConfig:
             model=ModelConfig(**d["model"]),
             densify=DensifyConfig(**d["densify"]),
             loss=LossConfig(**d["loss"]),
+            skips=SkipConfig(**d.get("skips", {})),  # configs saved before skips existed
         )
 
 

@@ -39,6 +39,15 @@ from evsplat.render import Renderer, RenderOut
 from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from evsplat.train.config import TrainConfig
 from evsplat.train.depth_prior import DepthPrior
+from evsplat.train.skips import (
+    Plateau,
+    Window,
+    classify_static,
+    follow_rows,
+    holdout_loss,
+    holdout_windows,
+    static_due,
+)
 from evsplat.train.stages import Stage, stage_at
 
 MAX_BAD_STEPS = 20  # consecutive non-finite steps before training stops
@@ -58,6 +67,7 @@ class TrainStats:
     skipped_empty: int = 0
     seconds: float = 0.0
     history: list[dict] = field(default_factory=list)
+    stopped_early_at: int | None = None  # completed iterations when the held-out loss plateaued
 
 
 def _init_points(data: Dataset, n: int, rng: np.random.Generator, depth_range: tuple[float, float]):
@@ -144,6 +154,14 @@ class Trainer:
         self.stats = TrainStats()
         self.start_iteration = 0
         self.bad_in_a_row = 0
+        sk = cfg.skips
+        # A fixed, noise-free yardstick for early stopping; these windows still train too.
+        self.holdout: list[Window] = []
+        if sk.early_stop:
+            self.holdout = holdout_windows(
+                self._esi, data.t_start_us, data.t_end_us, cfg.loss, sk.early_stop_windows, cfg.seed
+            )
+        self.plateau = Plateau()
 
     # ---- one iteration -------------------------------------------------------------------
 
@@ -162,6 +180,9 @@ class Trainer:
     def _pose(self, t_us: float) -> np.ndarray:
         return self.data.trajectory.pose(float(t_us))
 
+    def _log_image_at(self, t_us: int) -> torch.Tensor:
+        return self._log_image(self.renderer.render(t_us, self._pose(t_us)))
+
     def step(self, iteration: int) -> StepResult:
         cfg, lc = self.cfg, self.cfg.loss
         stage = stage_at(iteration, cfg.schedule)
@@ -172,6 +193,10 @@ class Trainer:
         duration = self.data.t_end_us - self.data.t_start_us
         moving = cfg.deform and stage is not Stage.WARMUP
         self.renderer.mlp = self.mlp if moving else None
+        if moving and static_due(cfg.skips, iteration, cfg.schedule.iterations):
+            self.renderer.static_mask = classify_static(
+                self.mlp, self.model.means, self.extent, cfg.skips
+            )
 
         # `views` render times t_0 < ... < t_last, consecutive gaps of random length; L_e compares
         # every pair (with 3 views: three windows from three renders instead of one from two).
@@ -245,6 +270,11 @@ class Trainer:
         counts = self.densifier.step(self.model, self.optimizer, iteration)
         if counts:
             values.update({f"n_{k}": float(v) for k, v in counts.items()})
+        static = self.renderer.static_mask
+        if static is not None:
+            if counts:  # clones, splits and prunes change the rows the mask must follow
+                self.renderer.static_mask = follow_rows(static, self.densifier.origin)
+            values["static_frac"] = self._static_fraction()
         values["gaussians"] = float(self.model.means.shape[0])
         return StepResult(values, stage)
 
@@ -348,6 +378,8 @@ class Trainer:
             "optimizer": self.optimizer.state_dict(),
             "mlp_optimizer": self.mlp_optimizer.state_dict(),
             "densifier": self.densifier.state_dict(),
+            "static_mask": self.renderer.static_mask,
+            "early_stop": self.plateau.state_dict(),
             "camera": {
                 "K": data.K.tolist(),
                 "width": data.width,
@@ -385,6 +417,9 @@ class Trainer:
         self.optimizer.load_state_dict(state["optimizer"])
         self.mlp_optimizer.load_state_dict(state["mlp_optimizer"])
         self.densifier.load_state_dict(state["densifier"])
+        self.renderer.static_mask = state.get("static_mask")  # absent before skips existed
+        if "early_stop" in state:
+            self.plateau.load_state_dict(state["early_stop"])
         s = state["stats"]
         self.stats.skipped_nonfinite = s["skipped_nonfinite"]
         self.stats.skipped_empty = s["skipped_empty"]
@@ -415,14 +450,16 @@ class Trainer:
     # ---- the loop ------------------------------------------------------------------------
 
     def run(self, progress: bool = True) -> TrainStats:
-        """Train from ``start_iteration`` to the end of the schedule, checkpointing on the way."""
+        """Train from ``start_iteration`` to the end of the schedule, checkpointing on the way;
+        a run whose held-out loss plateaued stops there, and stays stopped when resumed."""
         from tqdm import tqdm
 
         sc = self.cfg.schedule
         self.run_dir.mkdir(parents=True, exist_ok=True)
         write_text_atomic(self.run_dir / "config.json", json.dumps(self.cfg.to_dict(), indent=2))
+        end = sc.iterations if self.plateau.stopped_at is None else self.start_iteration
         bar = tqdm(
-            range(self.start_iteration, sc.iterations),
+            range(self.start_iteration, end),
             initial=self.start_iteration,
             total=sc.iterations,
             disable=not progress,
@@ -436,16 +473,20 @@ class Trainer:
             self.stats.seconds += time.perf_counter() - t
             last = it + 1
             self._account(it, result)
-            if it % sc.log_every == 0 or last == sc.iterations:
+            stop = self._holdout_due(last) and self._plateaued(last, result.stage)
+            if it % sc.log_every == 0 or last == sc.iterations or stop:
                 entry = {"iteration": it, "stage": result.stage.value, **result.losses}
                 self.stats.history.append(entry)
                 shown = {k: f"{v:.3g}" for k, v in result.losses.items() if not k.startswith("n_")}
                 bar.set_postfix({"stage": result.stage.value, **shown}, refresh=False)
+            if stop:
+                break
             # No checkpoint during a streak of skipped steps: the last one stays the last good one.
             if last % sc.checkpoint_every == 0 and last < sc.iterations and not self.bad_in_a_row:
                 self.save(last)
         self.save(last)
         self.stats.iterations = last
+        self.stats.stopped_early_at = self.plateau.stopped_at
         write_text_atomic(self.run_dir / "stats.json", json.dumps(self.summary(), indent=2))
         return self.stats
 
@@ -461,9 +502,33 @@ class Trainer:
             "skipped_nonfinite": s.skipped_nonfinite,
             "skipped_empty": s.skipped_empty,
             "gaussians": int(self.model.num_gaussians),
+            "stopped_early": s.stopped_early_at is not None,
+            "stopped_early_at": s.stopped_early_at,
+            "static_fraction": self._static_fraction(),
             # ru_maxrss is in KiB on Linux
             "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         }
+
+    def _static_fraction(self) -> float:
+        static = self.renderer.static_mask
+        return 0.0 if static is None else float(static.float().mean())
+
+    def _holdout_due(self, done: int) -> bool:
+        """Whether the held-out loss is evaluated after ``done`` iterations: never in warm-up,
+        where the loss falls fast and the MLP is still off, nor at the end, which stops anyway."""
+        sc, sk = self.cfg.schedule, self.cfg.skips
+        inside = sc.warmup_end < done < sc.iterations
+        return bool(self.holdout) and inside and done % sk.early_stop_every == 0
+
+    def _plateaued(self, done: int, stage: Stage) -> bool:
+        """Evaluate and log the held-out L_e after ``done`` iterations; True when it has not
+        improved for ``early_stop_patience`` evaluations."""
+        self.renderer.mlp = self.mlp if self._mlp_active(done) else None
+        value = holdout_loss(self.holdout, self._log_image_at, self.cfg.loss.lambda_ssim)
+        stop = self.plateau.update(value, done, self.cfg.skips)
+        entry = {"iteration": done, "stage": stage.value, "holdout_e": value}
+        self.stats.history.append({**entry, "holdout_best": self.plateau.best})
+        return stop
 
     def _account(self, iteration: int, result: StepResult) -> None:
         if result.skipped is None:

@@ -1,0 +1,214 @@
+"""Skips: static Gaussians bypass the deformation MLP, and training stops early when a fixed
+held-out event loss plateaus; both survive densification, checkpoints and resume."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from evsplat.config import SkipConfig
+from evsplat.data.dataset import load_dataset
+from evsplat.data.simulator import simulate_dataset
+from evsplat.model.gaussians import GaussianModel
+from evsplat.render import Renderer
+from evsplat.train import train
+from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint
+from evsplat.train.config import TrainConfig, preset
+from evsplat.train.loop import Trainer
+from evsplat.train.skips import Plateau, classify_static, follow_rows
+
+EXTENT = 5.0
+
+
+class CodedMLP(nn.Module):
+    """Deforms each Gaussian by the code in its canonical y (0: not at all, 1: Δx, 2: Δq,
+    3: Δs, 4: Δx below the threshold), by sin(πt): zero at both ends of the sequence."""
+
+    def forward(self, x: torch.Tensor, t: float):
+        code, amp = x[:, 1].round(), math.sin(math.pi * t)
+        dx, dq, ds = torch.zeros(len(x), 3), torch.zeros(len(x), 4), torch.zeros(len(x), 3)
+        dx[:, 0] = amp * (0.5 * (code == 1) + 1e-5 * (code == 4))
+        dq[:, 1] = amp * 0.5 * (code == 2)
+        ds[:, 2] = amp * 0.5 * (code == 3)
+        return dx, dq, ds
+
+
+def coded_means(codes: list[int]) -> torch.Tensor:
+    x = torch.linspace(-0.4, 0.4, len(codes))
+    return torch.stack([x, torch.tensor(codes, dtype=torch.float32), torch.full_like(x, 3.0)], 1)
+
+
+def test_classification_marks_exactly_the_gaussians_the_mlp_leaves_still():
+    codes = [0, 1, 2, 3, 4, 0, 1]
+    static = classify_static(CodedMLP(), coded_means(codes), EXTENT, SkipConfig())
+    assert static.tolist() == [c in (0, 4) for c in codes]
+
+
+def test_render_with_the_mask_equals_render_without_it_when_static_ones_truly_do_not_move():
+    codes = [0, 1, 0, 1, 0, 0, 1, 0]
+    model = GaussianModel(len(codes), 1)
+    with torch.no_grad():
+        model.means.copy_(coded_means(codes))
+        model.log_scales.fill_(math.log(0.08))
+        model.opacity_logits.fill_(2.0)
+        model.sh.copy_(torch.linspace(-1, 1, len(codes)).reshape(-1, 1, 1))
+    c2w = np.eye(4)
+    c2w[1, 3] = 0.5  # look between the two rows of Gaussians
+    renderer = Renderer(model, CodedMLP(), torch.tensor([[40.0, 0, 32], [0, 40, 32], [0, 0, 1]]),
+                        64, 64, 0, 1_000_000)  # fmt: skip
+    t = 500_000  # mid-sequence: the coded Gaussians are at their largest displacement
+    static = classify_static(CodedMLP(), model.means, EXTENT, SkipConfig())
+    assert static.tolist() == [c == 0 for c in codes]
+    with torch.no_grad():
+        full = renderer.render(t, c2w).image
+        renderer.static_mask = static
+        masked = renderer.render(t, c2w).image
+        renderer.static_mask = torch.ones(len(codes), dtype=torch.bool)
+        all_static = renderer.render(t, c2w).image
+    assert torch.allclose(masked, full, atol=1e-6)
+    assert not torch.allclose(all_static, full, atol=1e-3), "moving Gaussians must matter"
+
+
+def test_follow_rows_keeps_survivors_drops_pruned_and_makes_new_rows_dynamic():
+    mask = torch.tensor([True, False, True, True])
+    origin = torch.tensor([0, 2, 3, -1, -1])  # row 1 pruned, two rows appended
+    assert follow_rows(mask, origin).tolist() == [True, True, True, False, False]
+
+
+def test_plateau_counts_evaluations_without_relative_improvement():
+    cfg = SkipConfig(early_stop_patience=2, early_stop_min_delta=0.01)
+    p = Plateau()
+    assert not p.update(1.0, 10, cfg)
+    assert not p.update(0.995, 20, cfg)  # 0.5 % better: not enough
+    assert not p.update(0.9, 30, cfg)  # 10 % better: the count restarts
+    assert not p.update(0.9, 40, cfg)
+    assert p.update(0.95, 50, cfg) and p.stopped_at == 50 and p.best == 0.9
+
+
+def test_default_patience_leaves_a_tiny_preset_run_too_few_evaluations_to_stop():
+    sc, sk = preset("tiny").schedule, SkipConfig()
+    after_warmup = range(sc.warmup_end + 1, sc.iterations)
+    evaluations = [d for d in after_warmup if d % sk.early_stop_every == 0]
+    # A stop needs one evaluation to set the best and `patience` more without progress.
+    assert sk.early_stop and len(evaluations) <= sk.early_stop_patience
+
+
+def test_configs_saved_before_skips_existed_load_with_the_defaults():
+    d = TrainConfig().to_dict()
+    del d["skips"]
+    assert TrainConfig.from_dict(d).skips == SkipConfig()
+
+
+# ---- with a Trainer on the tiny scene ------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("data") / "ball"
+    simulate_dataset("ball", out, tiny=True, seed=0, progress=False)
+    return out
+
+
+def small_config(iterations: int) -> TrainConfig:
+    cfg = preset("tiny")
+    cfg.num_gaussians = 200
+    cfg.schedule.iterations = iterations
+    cfg.schedule.checkpoint_every = 1000
+    cfg.skips = SkipConfig(static=False, early_stop=False)
+    return cfg
+
+
+def test_static_mask_follows_densification_and_survives_a_checkpoint(tiny_data, tmp_path):
+    cfg = small_config(12)
+    cfg.schedule.warmup_fraction = 1 / 12  # MLP on from iteration 1
+    # Everything is static at iteration 2, then the densification at 4 and 8 changes N.
+    cfg.skips = SkipConfig(early_stop=False, static_start_fraction=2 / 12, static_dx=1e9,
+                           static_dq=1e9, static_ds=1e9)  # fmt: skip
+    cfg.densify = dataclasses.replace(
+        cfg.densify, start_fraction=0.0, stop_fraction=1.0, interval=4, grad_threshold=0.0
+    )
+    trainer = Trainer(load_dataset(tiny_data), cfg, tmp_path / "run")
+    sizes, previous = set(), None
+    for it in range(10):
+        values = trainer.step(it).losses
+        mask, n = trainer.renderer.static_mask, trainer.model.num_gaussians
+        sizes.add(n)
+        if it < 2:
+            assert mask is None and "static_frac" not in values
+            continue
+        assert mask.shape == (n,)
+        assert values["static_frac"] == pytest.approx(float(mask.float().mean()))
+        if it == 2:
+            assert bool(mask.all())
+        elif n != len(previous):  # survivors keep their class, new Gaussians are dynamic
+            origin = trainer.densifier.origin
+            assert torch.equal(mask[origin >= 0], previous[origin[origin >= 0]])
+            assert not bool(mask[origin < 0].any()) and bool((origin < 0).any())
+        previous = mask.clone()
+    assert len(sizes) >= 3, "densification should have changed N twice"
+    trainer.save(10)
+    state = load_checkpoint(latest_checkpoint(tmp_path / "run"))
+    assert torch.equal(state["static_mask"], trainer.renderer.static_mask)
+    assert torch.equal(Renderer.from_state(state).static_mask, trainer.renderer.static_mask)
+    resumed = Trainer(load_dataset(tiny_data), cfg, tmp_path / "run")
+    assert resumed.resume()
+    assert torch.equal(resumed.renderer.static_mask, trainer.renderer.static_mask)
+    resumed.step(10)  # renders with the restored mask: shapes agree
+
+
+def flat_config() -> TrainConfig:
+    """Nothing can change: learning rates ~0 (ratios must stay finite) and no densification."""
+    cfg = small_config(40)  # warm-up ends at 4
+    cfg.model = dataclasses.replace(
+        cfg.model, means_lr=1e-30, means_lr_final=1e-30, mlp_lr=1e-30, mlp_lr_final=1e-30,
+        scales_lr=0.0, quats_lr=0.0, opacity_lr=0.0, colors_lr=0.0,
+    )  # fmt: skip
+    cfg.densify = dataclasses.replace(cfg.densify, start_fraction=1.0)
+    cfg.skips = SkipConfig(static=False, early_stop_every=4, early_stop_patience=3)
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def flat_run(tiny_data, tmp_path_factory) -> tuple[Path, object]:
+    run = tmp_path_factory.mktemp("runs") / "flat"
+    return run, train(tiny_data, run, config=flat_config(), progress=False)
+
+
+def test_flat_held_out_loss_stops_at_the_predicted_iteration(flat_run):
+    run, stats = flat_run
+    # Evaluations after 8 (the first after warm-up: best), 12, 16, 20 (third without progress).
+    assert stats.iterations == 20 and stats.stopped_early_at == 20
+    assert load_checkpoint(latest_checkpoint(run))["iteration"] == 20
+    summary = json.loads((run / "stats.json").read_text())
+    assert summary["stopped_early"] and summary["stopped_early_at"] == 20
+    held = [h for h in stats.history if "holdout_e" in h]
+    assert [h["iteration"] for h in held] == [8, 12, 16, 20]
+    assert max(h["holdout_e"] for h in held) - min(h["holdout_e"] for h in held) < 1e-4
+
+
+def test_resuming_an_early_stopped_run_does_not_train_further(flat_run, tiny_data):
+    run, _ = flat_run
+    stats = train(tiny_data, run, resume=True, progress=False)
+    assert stats.iterations == 20 and stats.stopped_early_at == 20
+    assert load_checkpoint(latest_checkpoint(run))["iteration"] == 20
+
+
+def test_improving_held_out_loss_does_not_stop(tiny_data, tmp_path):
+    cfg = small_config(24)  # warm-up ends at 2; evaluations after 4, 8, ..., 20
+    # The tiny preset's 1500 Gaussians: the held-out loss falls slowly but at every evaluation
+    # (~0.05 % per 4 iterations here), so any real improvement is enough to go on.
+    cfg.num_gaussians = preset("tiny").num_gaussians
+    cfg.skips = SkipConfig(
+        static=False, early_stop_every=4, early_stop_patience=2, early_stop_min_delta=0.0
+    )
+    stats = train(tiny_data, tmp_path / "run", config=cfg, progress=False)
+    assert stats.iterations == 24 and stats.stopped_early_at is None
+    held = [h["holdout_e"] for h in stats.history if "holdout_e" in h]
+    assert len(held) == 5 and held[-1] < held[0]
