@@ -74,7 +74,7 @@ PRESETS: dict[str, dict] = {
         "cases": [Case("ball", tiny=True)],
         "variants": ["static", "e", "full"],
         "train_preset": "tiny",
-        "iterations": 600,
+        "iterations": 400,
     },
     "full": {
         "cases": [Case(s) for s in SCENES],
