@@ -133,6 +133,7 @@ def run_one(case: Case, variant: str, spec: dict, out: Path, iters: int | None) 
 
     data_dir = out / "data" / case.name
     if not (data_dir / "meta.json").is_file():
+        data_dir.parent.mkdir(parents=True, exist_ok=True)
         simulate_dataset(case.scene, data_dir, speed=case.speed, tiny=case.tiny, progress=False)
     cfg = preset(spec["train_preset"])
     VARIANTS[variant](cfg)
