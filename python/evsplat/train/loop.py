@@ -222,7 +222,7 @@ class Trainer:
             means_later = self.renderer.gaussians_at(t1 + dtau)[0]
             extra = gaussian_flow_features(g1[0], means_later, viewmat(pose1), self.renderer.K)
         out1 = self.renderer.render(t1, pose1, extra=extra, gaussians=g1)
-        logs = [self._log_image(self.renderer.render(t, self._pose(t))) for t in times[:-1]]
+        logs = [self._log_image_at(t) for t in times[:-1]]
         log1 = self._log_image(out1)
         logs.append(log1)
         terms = [
