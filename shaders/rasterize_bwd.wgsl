@@ -1,8 +1,8 @@
 // prelude: splat_common.wgsl
-// Backward compositing, one 16x4 workgroup per 16x16 tile, four pixels per invocation: each pixel
-// replays its list back to front
-// from the stored final transmittance and last contributor (as 3DGS), and accumulates per-Gaussian
-// gradients of the 2-D mean, conic, opacity, camera z and features with atomics.
+// Backward compositing, one 16x4 workgroup per 16x16 tile, PX pixels per invocation: each pixel
+// replays its list back to front from the stored final transmittance and last contributor (as
+// 3DGS); an invocation sums its pixels' gradients of the 2-D mean, conic, opacity, camera z and
+// features per Gaussian, then adds them with one atomic each.
 // grad_add is the float32 atomicAdd; the compare-and-swap build replaces its body (see
 // crates/raster/src/splat/mod.rs), so both paths come from this one source.
 
@@ -21,8 +21,6 @@
 fn grad_add(i: u32, v: f32) {
     atomicAdd(&grads[i], v);
 }
-
-const PX: u32 = 4u; // pixels per invocation (rows y, y+4, y+8, y+12), as in the forward pass
 
 @compute @workgroup_size(16, 4)
 fn main(
@@ -45,7 +43,7 @@ fn main(
     var after_z: array<f32, PX>;
     var n_walk = 0u;
     for (var j = 0u; j < PX; j = j + 1u) {
-        let py = wid.y * TILE + lid.y + 4u * j;
+        let py = tile_row(wid.y, lid.y, j);
         t[j] = 1.0;
         t_final[j] = 1.0;
         if (px >= params.width || py >= params.height) {
@@ -91,9 +89,9 @@ fn main(
             if (k >= last[j]) {
                 continue;
             }
-            let py = wid.y * TILE + lid.y + 4u * j;
+            let py = tile_row(wid.y, lid.y, j);
             let dd = mo.xy - vec2<f32>(f32(px) + 0.5, f32(py) + 0.5);
-            let power = -0.5 * (co.x * dd.x * dd.x + co.z * dd.y * dd.y) - co.y * dd.x * dd.y;
+            let power = splat_power(co, dd);
             if (power < POWER_CUT) {
                 continue;
             }

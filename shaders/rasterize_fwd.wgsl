@@ -1,6 +1,6 @@
 // prelude: splat_common.wgsl
-// Forward compositing, one 16x16 workgroup per tile, one thread per pixel: the tile's Gaussians
-// are loaded 256 at a time into workgroup memory and blended front to back.
+// Forward compositing, one 16x4 workgroup per 16x16 tile, PX pixels per invocation: each pixel
+// blends the tile's depth-sorted Gaussians front to back.
 // Per pixel it also stores what the backward pass replays from: final transmittance, the number
 // of list entries walked up to the last contributor, and sum(w z).
 
@@ -14,8 +14,6 @@
 @group(0) @binding(7) var<storage, read_write> out_alpha: array<f32>;
 // (final T, bitcast entries walked to the last contributor, sum of w z, 0) per pixel.
 @group(0) @binding(8) var<storage, read_write> aux: array<vec4<f32>>;
-
-const PX: u32 = 4u; // pixels per invocation, one per 4 rows: each Gaussian load serves 4 pixels
 
 @compute @workgroup_size(16, 4)
 fn main(
@@ -32,7 +30,7 @@ fn main(
     var live: array<bool, PX>;
     var n_live = 0u;
     for (var j = 0u; j < PX; j = j + 1u) {
-        let py = wid.y * TILE + lid.y + 4u * j;
+        let py = tile_row(wid.y, lid.y, j);
         t[j] = 1.0;
         live[j] = px < params.width && py < params.height;
         if (live[j]) {
@@ -50,9 +48,9 @@ fn main(
             if (!live[j]) {
                 continue;
             }
-            let py = wid.y * TILE + lid.y + 4u * j;
+            let py = tile_row(wid.y, lid.y, j);
             let dd = mo.xy - vec2<f32>(f32(px) + 0.5, f32(py) + 0.5);
-            let power = -0.5 * (co.x * dd.x * dd.x + co.z * dd.y * dd.y) - co.y * dd.x * dd.y;
+            let power = splat_power(co, dd);
             if (power < POWER_CUT) {
                 continue;
             }
@@ -76,7 +74,7 @@ fn main(
         }
     }
     for (var j = 0u; j < PX; j = j + 1u) {
-        let py = wid.y * TILE + lid.y + 4u * j;
+        let py = tile_row(wid.y, lid.y, j);
         if (px >= params.width || py >= params.height) {
             continue;
         }

@@ -45,6 +45,19 @@ const MAX_VAR_PX: f32 = 1e12; // cull 2-D variances beyond (1e6 px)^2: keeps the
 const QUAT_EPS2: f32 = 1e-12; // squared-norm floor when normalising quaternions
 const ALPHA_EPS: f32 = 1e-6; // depth = sum(w z) / alpha only where alpha exceeds this, else 0
 const CULLED_KEY: u32 = 0xffffffffu;
+// Compositing: a 16x4 workgroup covers a 16x16 tile, each invocation PX pixels (rows y, y+4,
+// y+8, y+12), so every Gaussian loaded from the tile list serves PX pixels.
+const PX: u32 = 4u;
+
+// Pixel row of an invocation's j-th pixel in its tile.
+fn tile_row(tile_y: u32, local_y: u32, j: u32) -> u32 {
+    return tile_y * TILE + local_y + 4u * j;
+}
+
+// Exponent of a splat at offset dd = mean2d - pixel centre with conic (a, b, c) in co.xyz.
+fn splat_power(co: vec4<f32>, dd: vec2<f32>) -> f32 {
+    return -0.5 * (co.x * dd.x * dd.x + co.z * dd.y * dd.y) - co.y * dd.x * dd.y;
+}
 
 // Tile rectangle [x0, x1) x [y0, y1) covered by the square of half-side `radius` around `m`.
 fn tile_rect(m: vec2<f32>, radius: f32) -> vec4<u32> {
