@@ -186,7 +186,8 @@ def test_densifier_origin_maps_rows_after_a_step_to_rows_before():
     d.accumulate(grads, torch.tensor([3, 5, 3, 3]), W, H)
     torch.manual_seed(0)
     d.step(m, opt, 600)
-    # Kept 0 and 2, then the clone of 0 and the two children of 1: new rows have no origin.
-    assert d.origin.tolist() == [0, 2, -1, -1, -1]
+    # Kept 0 and 2, then the clone of 0 and the two children of 1 (the split parent itself
+    # is gone): new rows point at the row they came from.
+    assert d.origin.tolist() == [0, 2, 0, 1, 1]
     d.step(m, opt, 601)  # nothing happens: every row is its own origin
     assert d.origin.tolist() == [0, 1, 2, 3, 4]

@@ -11,7 +11,7 @@ NAMES = ["butterfly", "duck", "clock", "ball"]
 
 
 def test_the_four_paper_like_scenes_exist_with_paper_sizes():
-    assert scene_names() == NAMES
+    assert scene_names() == [*NAMES, "still"]
     sizes = {n: (get_scene(n).width, get_scene(n).height) for n in NAMES}
     assert sizes == {
         "butterfly": (400, 400),
@@ -24,6 +24,15 @@ def test_the_four_paper_like_scenes_exist_with_paper_sizes():
         assert max(s.width, s.height) <= 96 and s.duration_us <= 1_000_000
         # the demo input: a clearly visible moving object
         assert s.render(300_000)[2].mean() > 0.1
+
+
+def test_the_still_scene_is_the_ball_room_with_nothing_moving_but_the_camera():
+    s = get_scene("still", tiny=True)
+    a, b = s.render(100_000), s.render(500_000)
+    assert not a[2].any() and not b[2].any()  # no moving-object mask
+    # Only the camera moves: every primitive's pose is the same at any two times.
+    assert all(np.array_equal(p.pose(0.1), p.pose(0.5)) for p in s.primitives)
+    assert not np.allclose(s.c2w(100_000), s.c2w(500_000))
 
 
 def test_size_override_scales_the_intrinsics():

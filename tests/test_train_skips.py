@@ -22,22 +22,27 @@ from evsplat.train import train
 from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint
 from evsplat.train.config import TrainConfig, preset
 from evsplat.train.loop import Trainer
-from evsplat.train.skips import Plateau, classify_static, follow_rows
+from evsplat.train.skips import Plateau, bake, classify_static, follow_rows
 
-EXTENT = 5.0
+PX_PER_UNIT = 100.0  # a Gaussian moving 0.01 moves one pixel
 
 
 class CodedMLP(nn.Module):
     """Deforms each Gaussian by the code in its canonical y (0: not at all, 1: Δx, 2: Δq,
-    3: Δs, 4: Δx below the threshold), by sin(πt): zero at both ends of the sequence."""
+    3: Δs, 4: Δx below the pixel threshold) by sin(πt), zero at both ends of the sequence;
+    code 5 is a constant offset in all three (Δx, Δq, Δs), which is no motion."""
 
     def forward(self, x: torch.Tensor, t: float):
         code, amp = x[:, 1].round(), math.sin(math.pi * t)
         dx, dq, ds = torch.zeros(len(x), 3), torch.zeros(len(x), 4), torch.zeros(len(x), 3)
-        dx[:, 0] = amp * (0.5 * (code == 1) + 1e-5 * (code == 4))
-        dq[:, 1] = amp * 0.5 * (code == 2)
-        ds[:, 2] = amp * 0.5 * (code == 3)
+        dx[:, 0] = amp * (0.5 * (code == 1) + 1e-5 * (code == 4)) + 0.3 * (code == 5)
+        dq[:, 1] = amp * 0.5 * (code == 2) + 0.2 * (code == 5)
+        ds[:, 2] = amp * 0.5 * (code == 3) - 0.4 * (code == 5)
         return dx, dq, ds
+
+
+def scale(n: int) -> torch.Tensor:
+    return torch.full((n,), PX_PER_UNIT)
 
 
 def coded_means(codes: list[int]) -> torch.Tensor:
@@ -46,9 +51,15 @@ def coded_means(codes: list[int]) -> torch.Tensor:
 
 
 def test_classification_marks_exactly_the_gaussians_the_mlp_leaves_still():
-    codes = [0, 1, 2, 3, 4, 0, 1]
-    static = classify_static(CodedMLP(), coded_means(codes), EXTENT, SkipConfig())
-    assert static.tolist() == [c in (0, 4) for c in codes]
+    codes = [0, 1, 2, 3, 4, 5, 0, 1]
+    static, mean = classify_static(CodedMLP(), coded_means(codes), scale(8), SkipConfig())
+    assert static.tolist() == [c in (0, 4, 5) for c in codes]
+    # The time mean of the offset-only Gaussian is the offset itself.
+    assert mean.dx[5].tolist() == pytest.approx([0.3, 0, 0])
+    assert mean.ds[5].tolist() == pytest.approx([0, 0, -0.4])
+    # 16 samples of 0.5 sin(πt) on [0, 1]: their mean, the oracle for a moving one.
+    want = 0.5 * np.sin(np.pi * np.linspace(0, 1, 16)).mean()
+    assert float(mean.dx[1, 0]) == pytest.approx(want, rel=1e-5)
 
 
 def test_render_with_the_mask_equals_render_without_it_when_static_ones_truly_do_not_move():
@@ -64,7 +75,7 @@ def test_render_with_the_mask_equals_render_without_it_when_static_ones_truly_do
     renderer = Renderer(model, CodedMLP(), torch.tensor([[40.0, 0, 32], [0, 40, 32], [0, 0, 1]]),
                         64, 64, 0, 1_000_000)  # fmt: skip
     t = 500_000  # mid-sequence: the coded Gaussians are at their largest displacement
-    static = classify_static(CodedMLP(), model.means, EXTENT, SkipConfig())
+    static, _ = classify_static(CodedMLP(), model.means, scale(len(codes)), SkipConfig())
     assert static.tolist() == [c == 0 for c in codes]
     with torch.no_grad():
         full = renderer.render(t, c2w).image
@@ -76,10 +87,36 @@ def test_render_with_the_mask_equals_render_without_it_when_static_ones_truly_do
     assert not torch.allclose(all_static, full, atol=1e-3), "moving Gaussians must matter"
 
 
-def test_follow_rows_keeps_survivors_drops_pruned_and_makes_new_rows_dynamic():
+def test_baking_a_constant_deformation_keeps_the_render_without_the_mlp():
+    codes = [5, 5, 0, 5]
+    model = GaussianModel(len(codes), 1)
+    with torch.no_grad():
+        model.means.copy_(coded_means(codes))
+        model.log_scales.fill_(math.log(0.08))
+        model.quats.copy_(torch.tensor([[0.9, 0.1, 0.3, -0.2]]).repeat(len(codes), 1))
+        model.opacity_logits.fill_(2.0)
+        model.sh.copy_(torch.linspace(-1, 1, len(codes)).reshape(-1, 1, 1))
+    c2w = np.eye(4)
+    c2w[1, 3] = 2.5
+    K = torch.tensor([[40.0, 0, 32], [0, 40, 32], [0, 0, 1]])
+    renderer = Renderer(model, CodedMLP(), K, 64, 64, 0, 1_000_000)
+    with torch.no_grad():
+        before = renderer.render(300_000, c2w).image
+        static, mean = classify_static(CodedMLP(), model.means, scale(4), SkipConfig())
+        assert bool(static.all())
+        bake(model, static, mean)
+        renderer.static_mask = static
+        after = renderer.render(300_000, c2w).image
+        renderer.mlp = None
+        canonical = renderer.render(300_000, c2w).image
+    assert torch.allclose(after, before, atol=1e-5)
+    assert torch.equal(after, canonical)
+
+
+def test_follow_rows_keeps_survivors_drops_pruned_and_children_take_their_parent():
     mask = torch.tensor([True, False, True, True])
-    origin = torch.tensor([0, 2, 3, -1, -1])  # row 1 pruned, two rows appended
-    assert follow_rows(mask, origin).tolist() == [True, True, True, False, False]
+    origin = torch.tensor([0, 2, 3, 1, 2])  # row 1 pruned; a child of 1 and one of 2 appended
+    assert follow_rows(mask, origin).tolist() == [True, True, True, False, True]
 
 
 def test_plateau_counts_evaluations_without_relative_improvement():
@@ -129,7 +166,7 @@ def test_static_mask_follows_densification_and_survives_a_checkpoint(tiny_data, 
     cfg = small_config(12)
     cfg.schedule.warmup_fraction = 1 / 12  # MLP on from iteration 1
     # Everything is static at iteration 2, then the densification at 4 and 8 changes N.
-    cfg.skips = SkipConfig(early_stop=False, static_start_fraction=2 / 12, static_dx=1e9,
+    cfg.skips = SkipConfig(early_stop=False, static_start_fraction=2 / 12, static_px=1e9,
                            static_dq=1e9, static_ds=1e9)  # fmt: skip
     cfg.densify = dataclasses.replace(
         cfg.densify, start_fraction=0.0, stop_fraction=1.0, interval=4, grad_threshold=0.0
@@ -147,10 +184,9 @@ def test_static_mask_follows_densification_and_survives_a_checkpoint(tiny_data, 
         assert values["static_frac"] == pytest.approx(float(mask.float().mean()))
         if it == 2:
             assert bool(mask.all())
-        elif n != len(previous):  # survivors keep their class, new Gaussians are dynamic
+        elif n != len(previous):  # survivors keep their class, children their parent's
             origin = trainer.densifier.origin
-            assert torch.equal(mask[origin >= 0], previous[origin[origin >= 0]])
-            assert not bool(mask[origin < 0].any()) and bool((origin < 0).any())
+            assert torch.equal(mask, previous[origin])
         previous = mask.clone()
     assert len(sizes) >= 3, "densification should have changed N twice"
     trainer.save(10)

@@ -65,10 +65,11 @@ def _central_diff(x: Tensor, dim: int) -> Tensor:
 
 
 def linearized_brightness_change(log_img: Tensor, flow: Tensor) -> Tensor:
-    """ΔÎ ≈ -∇L · F (eq. 3 / 13) for log image ``log_img [H,W]`` and ``flow [H,W,2]`` in pixels
-    over the whole interval Δτ (so no extra Δτ factor)."""
-    gx = _central_diff(log_img, 1)
-    gy = _central_diff(log_img, 0)
+    """ΔÎ ≈ -∇L · F (eq. 3 / 13) for log image ``log_img [H,W]`` (or ``[C,H,W]``, one flow for
+    every channel) and ``flow [H,W,2]`` in pixels over the whole interval Δτ (so no extra Δτ
+    factor)."""
+    gx = _central_diff(log_img, -1)
+    gy = _central_diff(log_img, -2)
     return -(gx * flow[..., 0] + gy * flow[..., 1])
 
 

@@ -94,7 +94,8 @@ class Densifier:
         high-gradient Gaussians and prune transparent (and, after the first opacity reset, huge)
         ones; every ``reset_interval`` iterations cap opacities at 0.01. Any time: prune the least
         opaque Gaussians down to ``max_gaussians``. Returns the counts of what was done, empty
-        when nothing was; ``origin`` maps the rows after it to the rows before.
+        when nothing was; ``origin`` maps the rows after it to the rows before (a new row to its
+        clone or split parent).
         """
         cfg, counts = self.cfg, {}
         self.origin = torch.arange(model.num_gaussians)
@@ -158,7 +159,9 @@ class Densifier:
 
         _update_params(model, optimizer, append)
         n_new = model.num_gaussians - n0
-        self.origin = torch.cat([self.origin, torch.full((n_new,), -1, dtype=torch.long)])
+        # Children remember their parent, so per-Gaussian flags (static) carry over to them.
+        parents = torch.nonzero(clone).reshape(-1), torch.nonzero(split).reshape(-1).repeat(k)
+        self.origin = torch.cat([self.origin, *parents])
         opac = model.opacities().detach()
         prune = torch.cat([split, torch.zeros(n_new, dtype=torch.bool)]) | (
             opac < cfg.prune_opacity

@@ -254,4 +254,20 @@ def ball() -> dict:
     )
 
 
-SCENES = {"butterfly": butterfly, "duck": duck, "clock": clock, "ball": ball}
+# ---------------------------------------------------------------- static counterpart
+
+
+def still() -> dict:
+    """The ball scene with the ball at rest on the floor: only the camera moves. Not in the
+    paper; it is the scene where skipping the deformation MLP must cost no accuracy."""
+    spec = ball()
+    rest = trans(-0.5, FLOOR_Y - 0.38, 3.0) @ rot("z", 0.4)
+    ball_prim = spec["primitives"][-1]
+    spec["primitives"][-1] = Primitive(
+        ball_prim.kind, ball_prim.size, static(rest), ball_prim.texture, False
+    )
+    spec["description"] = "the ball scene's room and ball, with the ball at rest: a static scene"
+    return spec
+
+
+SCENES = {"butterfly": butterfly, "duck": duck, "clock": clock, "ball": ball, "still": still}

@@ -37,15 +37,18 @@ from evsplat.model.densify import Densifier
 from evsplat.model.gaussians import GaussianModel
 from evsplat.render import Renderer, RenderOut
 from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
+from evsplat.train.coarse import bin_events, coarse_due, half_renderer
 from evsplat.train.config import TrainConfig
 from evsplat.train.depth_prior import DepthPrior
 from evsplat.train.skips import (
     Plateau,
     Window,
+    bake,
     classify_static,
     follow_rows,
     holdout_loss,
     holdout_windows,
+    pixels_per_unit,
     static_due,
 )
 from evsplat.train.stages import Stage, stage_at
@@ -165,17 +168,27 @@ class Trainer:
 
     # ---- one iteration -------------------------------------------------------------------
 
-    def _log_image(self, out: RenderOut) -> torch.Tensor:
-        """Log intensity each pixel's sensor sees: its own Bayer channel, or the one channel."""
+    def _log_image(self, out: RenderOut, coarse: bool = False) -> torch.Tensor:
+        """Log intensity each pixel's sensor sees: its own Bayer channel, or the one channel.
+        A coarse colour render keeps all three channels ``[3,h,w]``, as its binned events do."""
         img = out.image
-        own = bayer_select(img, self.channel_map) if self.channel_map is not None else img[..., 0]
-        return log_intensity(own)
+        if self.channel_map is None:
+            return log_intensity(img[..., 0])
+        if coarse:
+            return log_intensity(img).permute(2, 0, 1)
+        return log_intensity(bayer_select(img, self.channel_map))
 
-    def _esi(self, t0: int, t1: int) -> tuple[torch.Tensor, torch.Tensor, int]:
+    def _esi(
+        self, t0: int, t1: int, coarse: bool = False
+    ) -> tuple[torch.Tensor, torch.Tensor, int]:
+        """(ESI, event mask, event count) of [t0, t1), 2x2-binned for a coarse render."""
         ev = self.data.events
         i0, i1 = ev.window(t0, t1)
         esi, mask = ev.esi_and_mask(i0, i1, self.data.c_pos, self.data.c_neg)
-        return torch.from_numpy(esi), torch.from_numpy(mask), i1 - i0
+        esi, mask = torch.from_numpy(esi), torch.from_numpy(mask)
+        if coarse:
+            esi, mask = bin_events(esi, mask, self.channel_map)
+        return esi, mask, i1 - i0
 
     def _pose(self, t_us: float) -> np.ndarray:
         return self.data.trajectory.pose(float(t_us))
@@ -194,9 +207,9 @@ class Trainer:
         moving = cfg.deform and stage is not Stage.WARMUP
         self.renderer.mlp = self.mlp if moving else None
         if moving and static_due(cfg.skips, iteration, cfg.schedule.iterations):
-            self.renderer.static_mask = classify_static(
-                self.mlp, self.model.means, self.extent, cfg.skips
-            )
+            self._classify_static()
+        coarse = coarse_due(cfg, iteration, stage)
+        view = half_renderer(self.renderer) if coarse else self.renderer
 
         # `views` render times t_0 < ... < t_last, consecutive gaps of random length; L_e compares
         # every pair (with 3 views: three windows from three renders instead of one from two).
@@ -210,20 +223,20 @@ class Trainer:
         t1 = int(rng.integers(self.data.t_start_us + span, self.data.t_end_us - dtau + 1))
         times = [t1 - sum(gaps[k:]) for k in range(lc.views - 1)] + [t1]
         pairs = [(i, j) for j in range(lc.views) for i in range(j)]
-        windows = [self._esi(times[i], times[j]) for i, j in pairs]
+        windows = [self._esi(times[i], times[j], coarse) for i, j in pairs]
         if all(count == 0 for _, _, count in windows):
             return StepResult({}, stage, skipped="no events in window")
 
         pose1 = self._pose(t1)
-        g1 = self.renderer.gaussians_at(t1)
+        g1 = view.gaussians_at(t1)
         extra = None
         if moving and lc.w_flow > 0:
             # Gaussian flow: 2-D motion of each Gaussian over [t1, t1 + dtau] at the pose of t1.
-            means_later = self.renderer.gaussians_at(t1 + dtau)[0]
-            extra = gaussian_flow_features(g1[0], means_later, viewmat(pose1), self.renderer.K)
-        out1 = self.renderer.render(t1, pose1, extra=extra, gaussians=g1)
-        logs = [self._log_image_at(t) for t in times[:-1]]
-        log1 = self._log_image(out1)
+            means_later = view.gaussians_at(t1 + dtau)[0]
+            extra = gaussian_flow_features(g1[0], means_later, viewmat(pose1), view.K)
+        out1 = view.render(t1, pose1, extra=extra, gaussians=g1)
+        logs = [self._log_image(view.render(t, self._pose(t)), coarse) for t in times[:-1]]
+        log1 = self._log_image(out1, coarse)
         logs.append(log1)
         terms = [
             event_loss(logs[j] - logs[i], esi, mask, lc.lambda_ssim)
@@ -231,14 +244,11 @@ class Trainer:
             if count > 0
         ]
         losses: dict[str, torch.Tensor] = {"e": torch.stack(terms).mean()}
-        # The refinement losses see the last window, as with two views.
-        delta = logs[-1] - logs[-2]
-        mask = windows[pairs.index((lc.views - 2, lc.views - 1))][1]
-
         if moving:
-            losses.update(self._motion_losses(t1, dtau, pose1, out1, log1, rng))
+            losses.update(self._motion_losses(view, t1, dtau, pose1, out1, log1, rng))
         if stage is Stage.REFINE:
-            losses.update(self._refine_losses(t1, out1, delta, mask))
+            # The refinement losses see the last window (pairs end with (views-2, views-1)).
+            losses.update(self._refine_losses(t1, out1, logs[-1] - logs[-2], windows[-1][1]))
 
         weights = {
             "e": 1.0,
@@ -260,7 +270,7 @@ class Trainer:
             return StepResult(values, stage, skipped=f"non-finite {bad}")
 
         self.densifier.accumulate(
-            out1.meta["means2d_grad"], out1.meta["radii"], self.data.width, self.data.height
+            out1.meta["means2d_grad"], out1.meta["radii"], view.width, view.height
         )
         self.optimizer.step()
         if moving:
@@ -278,14 +288,29 @@ class Trainer:
         values["gaussians"] = float(self.model.means.shape[0])
         return StepResult(values, stage)
 
-    def _motion_losses(self, t1, dtau, pose1, out1, log1, rng) -> dict[str, torch.Tensor]:
+    def _classify_static(self) -> None:
+        """Mark the dynamic Gaussians that stopped moving static and bake their deformation."""
+        old = self.renderer.static_mask
+        if old is None:
+            old = torch.zeros(self.model.num_gaussians, dtype=torch.bool)
+        centre = torch.from_numpy(self.pose_samples[1][:, :3, 3].mean(0).astype(np.float32))
+        scale = pixels_per_unit(self.model.means, centre, float(self.data.K[0, 0]), 1e-2)
+        static, mean = classify_static(self.mlp, self.model.means, scale, self.cfg.skips)
+        fresh = static & ~old
+        bake(self.model, fresh, mean)
+        self.renderer.static_mask = old | fresh
+
+    def _motion_losses(self, view, t1, dtau, pose1, out1, log1, rng) -> dict[str, torch.Tensor]:
+        """L_ef and L_m for the render ``out1`` that ``view`` (full or coarse) made at ``t1``."""
         lc, data = self.cfg.loss, self.data
+        coarse = view is not self.renderer
         out: dict[str, torch.Tensor] = {}
         # L_ef (eq. 13): linearised event model over [t1, t1 + dtau].
-        short, _, count = self._esi(t1, t1 + dtau) if lc.w_flow > 0 else (None, None, 0)
+        window = self._esi(t1, t1 + dtau, coarse) if lc.w_flow > 0 else (None, None, 0)
+        short, _, count = window
         if count > 0:
             flow_cam = camera_flow(
-                out1.depth, self.renderer.K, viewmat(pose1), viewmat(self._pose(t1 + dtau))
+                out1.depth, view.K, viewmat(pose1), viewmat(self._pose(t1 + dtau))
             )
             flow = flow_cam + out1.extra
             pred = linearized_brightness_change(log1, flow)

@@ -13,6 +13,7 @@ from torch import Tensor
 from evsplat.config import LossConfig, SkipConfig
 from evsplat.losses.event import event_loss
 from evsplat.model.deform import DeformationMLP
+from evsplat.model.gaussians import GaussianModel, normalize_quats
 
 CHUNK = 65_536  # Gaussians per MLP pass when classifying: bounds the activations' memory
 HOLDOUT_STREAM = 2**40  # RNG stream of the held-out windows; no iteration's seed reaches it
@@ -27,30 +28,65 @@ def static_due(cfg: SkipConfig, iteration: int, iterations: int) -> bool:
     return cfg.static and iteration >= start and (iteration - start) % cfg.static_every == 0
 
 
+@dataclass
+class Deformation:
+    """A time-averaged deformation per Gaussian: what a static one keeps for good."""
+
+    dx: Tensor  # [N,3]
+    dq: Tensor  # [N,4]
+    ds: Tensor  # [N,3]
+
+
 @torch.no_grad()
-def classify_static(mlp: DeformationMLP, means: Tensor, extent: float, cfg: SkipConfig) -> Tensor:
-    """[N] bool: the Gaussians whose Δx (relative to ``extent``), Δq and Δs stay below the
-    thresholds at ``cfg.static_times`` times spanning [0, 1]."""
+def classify_static(
+    mlp: DeformationMLP, means: Tensor, pixels_per_unit: Tensor, cfg: SkipConfig
+) -> tuple[Tensor, Deformation]:
+    """([N] bool static, the time-averaged deformation) from ``cfg.static_times`` times in [0, 1].
+
+    A Gaussian is static when its deformation hardly *changes* with time: Δx stays within
+    ``cfg.static_px`` pixels of its mean (``pixels_per_unit`` [N] converts world units to
+    pixels at the Gaussian's distance), Δq within ``static_dq`` and Δs within ``static_ds`` of
+    theirs. A constant offset is no motion: the MLP's heads learn one for every Gaussian early
+    on, and baking it into the canonical Gaussian keeps the render unchanged.
+    """
     times = torch.linspace(0.0, 1.0, cfg.static_times).tolist()
-    static = torch.ones(means.shape[0], dtype=torch.bool)
-    for a in range(0, means.shape[0], CHUNK):
+    n = means.shape[0]
+    static = torch.zeros(n, dtype=torch.bool)
+    mean = Deformation(torch.zeros(n, 3), torch.zeros(n, 4), torch.zeros(n, 3))
+    for a in range(0, n, CHUNK):
         x = means[a : a + CHUNK].detach()
-        keep = static[a : a + CHUNK]
-        for t in times:
-            dx, dq, ds = mlp(x, t)
-            keep &= dx.norm(dim=-1) <= cfg.static_dx * extent
-            keep &= dq.norm(dim=-1) <= cfg.static_dq
-            keep &= ds.abs().amax(dim=-1) <= cfg.static_ds
-    return static
+        dx, dq, ds = (torch.stack(d) for d in zip(*(mlp(x, t) for t in times)))
+        mean.dx[a : a + CHUNK], mean.dq[a : a + CHUNK] = dx.mean(0), dq.mean(0)
+        mean.ds[a : a + CHUNK] = ds.mean(0)
+        moved_px = (dx - dx.mean(0)).norm(dim=-1).amax(0) * pixels_per_unit[a : a + CHUNK]
+        static[a : a + CHUNK] = (
+            (moved_px <= cfg.static_px)
+            & ((dq - dq.mean(0)).norm(dim=-1).amax(0) <= cfg.static_dq)
+            & ((ds - ds.mean(0)).abs().amax(-1).amax(0) <= cfg.static_ds)
+        )
+    return static, mean
+
+
+@torch.no_grad()
+def bake(model: GaussianModel, rows: Tensor, deformation: Deformation) -> None:
+    """Fold the time-averaged deformation of ``rows`` [N] bool into their canonical parameters,
+    exactly as ``deformed`` applies a deformation, so they render the same without the MLP."""
+    d = deformation
+    model.means[rows] += d.dx[rows]
+    model.log_scales[rows] += d.ds[rows]
+    model.quats[rows] = normalize_quats(model.rotations()[rows] + d.dq[rows])
+
+
+def pixels_per_unit(means: Tensor, centre: Tensor, focal: float, near: float) -> Tensor:
+    """[N] pixels per world unit of sideways motion at each Gaussian's distance from ``centre``
+    (the cameras' mean position); distances below ``near`` count as ``near``."""
+    return focal / (means.detach() - centre).norm(dim=-1).clamp_min(near)
 
 
 def follow_rows(mask: Tensor, origin: Tensor) -> Tensor:
-    """``mask`` re-indexed after densification: row i takes ``mask[origin[i]]``; new Gaussians
-    (origin -1) are dynamic until the next classification, pruned ones are gone."""
-    out = torch.zeros(origin.shape[0], dtype=torch.bool)
-    old = origin >= 0
-    out[old] = mask[origin[old]]
-    return out
+    """``mask`` re-indexed after densification: row i takes ``mask[origin[i]]`` (clones and
+    split children take their parent's), pruned rows are gone."""
+    return mask[origin]
 
 
 # ---- early stop ----------------------------------------------------------------------------
