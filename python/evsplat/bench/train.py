@@ -123,8 +123,19 @@ def machine_info() -> dict:
     }
 
 
-def run_one(case: Case, variant: str, spec: dict, out: Path, iters: int | None) -> dict:
-    """Simulate (cached), train in a subprocess, evaluate; one result row."""
+def run_one(
+    case: Case,
+    variant: str,
+    spec: dict,
+    out: Path,
+    iters: int | None,
+    apply: Callable | None = None,
+    cli: tuple[str, ...] = (),
+) -> dict:
+    """Simulate (cached), train in a subprocess, evaluate; one result row.
+
+    ``apply`` changes the preset's config (default: the named entry of ``VARIANTS``); ``cli``
+    are extra `evsplat train` arguments."""
     from evsplat.data.dataset import load_dataset
     from evsplat.data.simulator import simulate_dataset
     from evsplat.eval import evaluate
@@ -136,7 +147,7 @@ def run_one(case: Case, variant: str, spec: dict, out: Path, iters: int | None) 
         data_dir.parent.mkdir(parents=True, exist_ok=True)
         simulate_dataset(case.scene, data_dir, speed=case.speed, tiny=case.tiny, progress=False)
     cfg = preset(spec["train_preset"])
-    VARIANTS[variant](cfg)
+    (apply or VARIANTS[variant])(cfg)
     n = iters or spec["iterations"]
     if n:
         cfg.schedule.iterations = n
@@ -150,7 +161,7 @@ def run_one(case: Case, variant: str, spec: dict, out: Path, iters: int | None) 
         shutil.rmtree(run_dir)
     start = time.perf_counter()
     cmd = [sys.executable, "-m", "evsplat.cli", "train", str(data_dir), "--out", str(run_dir)]
-    cmd += ["--config", str(cfg_path), "--no-progress"]
+    cmd += ["--config", str(cfg_path), "--no-progress", *cli]
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     wall = time.perf_counter() - start
     stats = json.loads((run_dir / "stats.json").read_text())
@@ -168,6 +179,8 @@ def run_one(case: Case, variant: str, spec: dict, out: Path, iters: int | None) 
         "ssim": metrics["ssim"],
         "lpips": metrics["lpips"],
         "psnr_moving": metrics["psnr_moving"],
+        "static_fraction": stats.get("static_fraction", 0.0),
+        "stopped_early_at": stats.get("stopped_early_at"),
     }
 
 

@@ -1,0 +1,149 @@
+"""`evsplat bench skips`: what each skip saves and what it costs, on a static and a dynamic scene.
+
+Every skip is measured as a pair of runs that differ only in it, on the scene where it should
+apply (`still`: only the camera moves) and on one where it should not matter (`ball`). Runs go
+through the training benchmark (`run_one`: own process, held-out evaluation), and the table is
+written into docs/results.md as its own section, replaced on every regeneration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from evsplat.bench.train import Case, machine_info, run_one
+from evsplat.data.atomic import write_text_atomic
+
+HELP = "time saved and PSNR change of every skip, on a static and a dynamic scene"
+SECTION = "## Skipping what a scene does not need"
+CASES = (Case("still", tiny=True), Case("ball", tiny=True))
+
+
+@dataclass(frozen=True)
+class Variant:
+    apply: Callable
+    cli: tuple[str, ...] = ()  # extra `evsplat train` arguments
+
+
+def _defaults(cfg) -> None:
+    return None
+
+
+def _set(section: str | None, **values) -> Callable:
+    def apply(cfg) -> None:
+        target = cfg if section is None else getattr(cfg, section)
+        for k, v in values.items():
+            setattr(target, k, v)
+
+    return apply
+
+
+VARIANTS: dict[str, Variant] = {
+    "defaults": Variant(_defaults),
+    "no-mlp": Variant(_set(None, deform=False)),
+    "static-gaussians-off": Variant(_set("skips", static=False)),
+    "coarse": Variant(_set("skips", coarse_fraction=0.3)),
+    "early-stop-patience-2": Variant(_set("skips", early_stop_patience=2)),
+    "early-stop-off": Variant(_set("skips", early_stop=False)),
+    "budget-3000": Variant(_set("densify", max_gaussians=3000)),
+    "no-depth-prior": Variant(_defaults, ("--depth-prior", "none")),
+}
+
+# (what is skipped, variant with the skip, variant without it)
+PAIRS = [
+    ("deformation MLP and motion losses (static scene, `deform=False`)", "no-mlp", "defaults"),
+    ("MLP for Gaussians classified static (`skips.static`)", "defaults", "static-gaussians-off"),
+    ("full resolution in the first 30% (`skips.coarse_fraction=0.3`)", "coarse", "defaults"),
+    ("iterations after the held-out L_e plateaus (patience 2)", "early-stop-patience-2",
+     "early-stop-off"),
+    ("Gaussians beyond a budget of 3000 (default 6000)", "budget-3000", "defaults"),
+    ("depth stage without a depth prior (`--depth-prior none`)", "no-depth-prior", "defaults"),
+]  # fmt: skip
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--iters", type=int, default=400, help="iterations per run (default 400)")
+    parser.add_argument("--out", type=Path, default=Path("bench_results/skips"))
+    parser.add_argument("--doc", type=Path, default=Path("docs/results.md"))
+
+
+def _fmt(v, nd: int = 2) -> str:
+    return "-" if v is None else f"{v:.{nd}f}"
+
+
+def table(rows: dict[tuple[str, str], dict]) -> list[str]:
+    """One line per (skip, scene): both runs, the time saved and the PSNR change."""
+    lines = [
+        "| skipped | scene | with: s / PSNR / SSIM | without: s / PSNR / SSIM | time saved | "
+        "PSNR change | moving-mask PSNR with / without |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for what, on, off in PAIRS:
+        for case in CASES:
+            a, b = rows.get((case.name, on)), rows.get((case.name, off))
+            if a is None or b is None:
+                continue
+            saved = 1.0 - a["wall_seconds"] / b["wall_seconds"]
+            lines.append(
+                f"| {what} | {case.scene} | {a['wall_seconds']:.0f} / {_fmt(a['psnr'])} / "
+                f"{_fmt(a['ssim'], 3)} | {b['wall_seconds']:.0f} / {_fmt(b['psnr'])} / "
+                f"{_fmt(b['ssim'], 3)} | {100 * saved:+.0f}% | {a['psnr'] - b['psnr']:+.2f} dB | "
+                f"{_fmt(a['psnr_moving'])} / {_fmt(b['psnr_moving'])} |"
+            )
+    return lines
+
+
+def replace_section(old: str, section: list[str]) -> str:
+    """``old`` with its SECTION (up to the next '## ' heading) replaced by ``section``, or
+    ``section`` appended when there is none."""
+    new = "\n".join(section).rstrip("\n") + "\n"
+    if SECTION not in old:
+        return old.rstrip("\n") + "\n\n" + new
+    head, rest = old.split(SECTION, 1)
+    nxt = rest.find("\n## ")
+    tail = "" if nxt < 0 else rest[nxt + 1 :]
+    return head + new + ("\n" + tail if tail else "")
+
+
+def run(args: argparse.Namespace) -> int:
+    info = machine_info()
+    print(f"machine: {info['machine']}\nadapter: {info['adapter']}\ncommit: {info['commit']}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    spec = {"train_preset": "tiny", "iterations": args.iters}
+    rows: dict[tuple[str, str], dict] = {}
+    for case in CASES:
+        for name, variant in VARIANTS.items():
+            r = run_one(case, name, spec, args.out, args.iters, variant.apply, variant.cli)
+            rows[(case.name, name)] = r
+            print(
+                f"{case.name:<16} {name:<22} {r['iterations']:>5} it {r['wall_seconds']:>7.1f} s "
+                f"PSNR {r['psnr']:.2f} SSIM {r['ssim']:.3f} moving {_fmt(r['psnr_moving'])} "
+                f"static {r['static_fraction']:.2f}",
+                flush=True,
+            )
+    write_text_atomic(
+        args.out / "results.json",
+        json.dumps({**info, "rows": [r for r in rows.values()]}, indent=2),
+    )
+    section = [
+        SECTION,
+        "",
+        f"Regenerate with `evsplat bench skips` (tiny preset, {args.iters} iterations per run, "
+        "96x96, seed 0). Each line is a pair of runs that differ only in the skip, on `still` "
+        "(the ball room with the ball at rest: only the camera moves) and on `ball`. Time is the "
+        "training process's wall time; 'time saved' is relative to the run without the skip.",
+        "",
+        f"- Machine: {info['machine']}",
+        f"- Adapter: {info['adapter']}",
+        f"- Commit: {info['commit']}",
+        "",
+        *table(rows),
+        "",
+    ]
+    old = args.doc.read_text() if args.doc.is_file() else ""
+    write_text_atomic(args.doc, replace_section(old, section))
+    print(f"written: {args.doc}, {args.out / 'results.json'}")
+    return 0

@@ -1,0 +1,63 @@
+"""`evsplat bench skips` pairs runs that differ in one skip, passes each variant's config change
+and train arguments to the run, and replaces only its own section of docs/results.md."""
+
+from __future__ import annotations
+
+import argparse
+
+import evsplat.bench.skips as skips
+from evsplat.train.config import preset
+
+
+def _fake_run(case, variant, spec, out, iters, apply, cli):
+    cfg = preset("tiny")
+    apply(cfg)
+    # Time follows what the variant switched off, so the table's arithmetic can be checked.
+    wall = 50.0 if not cfg.deform else 100.0
+    row = {
+        "case": case.name,
+        "variant": variant,
+        "iterations": iters,
+        "wall_seconds": wall + (10.0 if cli else 0.0),
+        "psnr": 20.0 + (0.5 if cfg.skips.static else 0.0),
+        "ssim": 0.5,
+        "psnr_moving": None if case.scene == "still" else 12.0,
+        "static_fraction": 0.0,
+    }
+    return row, cfg
+
+
+def test_each_variant_reaches_its_run_and_the_table_reports_both_sides(tmp_path, monkeypatch):
+    calls = {}
+
+    def fake(*a):
+        row, cfg = _fake_run(*a)
+        calls[(row["case"], row["variant"])] = cfg, a[-1]
+        return row
+
+    monkeypatch.setattr(skips, "run_one", fake)
+    doc = tmp_path / "results.md"
+    doc.write_text(
+        "# Results\n\n## Skipping what a scene does not need\n\nold table\n\n## Next\n\nkept\n"
+    )
+    args = argparse.Namespace(iters=9, out=tmp_path / "b", doc=doc)
+    assert skips.run(args) == 0
+    assert len(calls) == len(skips.CASES) * len(skips.VARIANTS)
+    assert calls[("still-tiny-x1", "no-mlp")][0].deform is False
+    assert calls[("ball-tiny-x1", "coarse")][0].skips.coarse_fraction == 0.3
+    assert calls[("ball-tiny-x1", "budget-3000")][0].densify.max_gaussians == 3000
+    assert calls[("ball-tiny-x1", "no-depth-prior")][1] == ("--depth-prior", "none")
+    text = doc.read_text()
+    assert "old table" not in text and text.count(skips.SECTION) == 1
+    assert text.rstrip().endswith("## Next\n\nkept")
+    # no MLP: 50 s against 100 s is half the time; the static skip is worth +0.5 dB here.
+    assert "| still | 50 / 20.50 / 0.500 | 100 / 20.50 / 0.500 | +50% | +0.00 dB | - / - |" in text
+    line = next(x for x in text.splitlines() if x.startswith("| MLP for Gaussians") and "ball" in x)
+    assert line.endswith("| +0% | +0.50 dB | 12.00 / 12.00 |")
+    assert "9 iterations per run" in text
+
+
+def test_a_missing_section_is_appended():
+    assert (
+        skips.replace_section("# R\n", [skips.SECTION, "", "t"]) == f"# R\n\n{skips.SECTION}\n\nt\n"
+    )
