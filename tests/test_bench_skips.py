@@ -23,6 +23,8 @@ def _fake_run(case, variant, spec, out, iters, apply, cli):
         "ssim": 0.5,
         "psnr_moving": None if case.scene == "still" else 12.0,
         "static_fraction": 0.0,
+        "static_scene": False,
+        "stopped_early_at": None,
     }
     return row, cfg
 
@@ -50,8 +52,8 @@ def test_each_variant_reaches_its_run_and_the_table_reports_both_sides(tmp_path,
     text = doc.read_text()
     assert "old table" not in text and text.count(skips.SECTION) == 1
     assert text.rstrip().endswith("## Next\n\nkept")
-    # no MLP: 50 s against 100 s is half the time; the static skip is worth +0.5 dB here.
-    assert "| still | 50 / 20.50 / 0.500 | 100 / 20.50 / 0.500 | +50% | +0.00 dB | - / - |" in text
+    # no MLP: 50 s against 100 s is half the time; in these fake runs the static skip adds 0.5 dB.
+    assert "| still | 50 / 20.50 / 0.500 | 100 / 20.00 / 0.500 | +50% | +0.50 dB | - / - |" in text
     line = next(x for x in text.splitlines() if x.startswith("| MLP for Gaussians") and "ball" in x)
     assert line.endswith("| +0% | +0.50 dB | 12.00 / 12.00 |")
     assert "9 iterations per run" in text

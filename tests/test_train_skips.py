@@ -167,7 +167,7 @@ def test_static_mask_follows_densification_and_survives_a_checkpoint(tiny_data, 
     cfg.schedule.warmup_fraction = 1 / 12  # MLP on from iteration 1
     # Everything is static at iteration 2, then the densification at 4 and 8 changes N.
     cfg.skips = SkipConfig(early_stop=False, static_start_fraction=2 / 12, static_px=1e9,
-                           static_dq=1e9, static_ds=1e9)  # fmt: skip
+                           static_dq=1e9, static_ds=1e9, static_scene_fraction=2.0)  # fmt: skip
     cfg.densify = dataclasses.replace(
         cfg.densify, start_fraction=0.0, stop_fraction=1.0, interval=4, grad_threshold=0.0
     )
@@ -248,3 +248,23 @@ def test_improving_held_out_loss_does_not_stop(tiny_data, tmp_path):
     assert stats.iterations == 24 and stats.stopped_early_at is None
     held = [h["holdout_e"] for h in stats.history if "holdout_e" in h]
     assert len(held) == 5 and held[-1] < held[0]
+
+
+def test_a_scene_found_static_drops_the_mlp_and_motion_losses_for_good(tiny_data, tmp_path):
+    cfg = small_config(8)
+    cfg.schedule.warmup_fraction = 1 / 8  # MLP and motion losses from iteration 1
+    cfg.schedule.refine_fraction = 0.99
+    cfg.skips = SkipConfig(early_stop=False, static_start_fraction=3 / 8, static_px=1e9,
+                           static_dq=1e9, static_ds=1e9)  # fmt: skip
+    trainer = Trainer(load_dataset(tiny_data), cfg, tmp_path / "run")
+    seen = [set(trainer.step(it).losses) for it in range(6)]
+    assert {"ef", "m"} <= seen[2] and not ({"ef", "m"} & (seen[3] | seen[4] | seen[5]))
+    assert trainer.static_scene and bool(trainer.renderer.static_mask.all())
+    assert trainer.renderer.mlp is None
+    trainer.save(6)
+    assert trainer.summary()["static_scene"] is True
+    state = load_checkpoint(latest_checkpoint(tmp_path / "run"))
+    assert state["static_scene"] is True and state["mlp"] is None
+    resumed = Trainer(load_dataset(tiny_data), cfg, tmp_path / "run")
+    assert resumed.resume() and resumed.static_scene
+    assert not {"ef", "m"} & set(resumed.step(6).losses)

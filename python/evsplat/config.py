@@ -98,10 +98,17 @@ class SkipConfig:
     # Documented choice: γ(t)'s fastest band (2^5 with pe_t=6) has period ~0.2; 16 samples
     # see each of its lobes.
     static_times: int = 16
-    # Largest change over time (from its time mean) that still counts as static:
-    static_px: float = 0.5  # Δx seen from the mean camera position, in pixels; documented choice
-    static_dq: float = 1e-2  # |Δq| (about 1° of rotation); documented choice
-    static_ds: float = 1e-2  # Δs in log scale (1% size change); documented choice
+    # Largest change over time (from its time mean) that still counts as static. Documented
+    # choice: an MLP trained on a static scene still wiggles every Gaussian by ~0.4 px, 2° and
+    # 2% (measured on the `still` scene); a moving object moves by tens of pixels.
+    static_px: float = 1.0  # Δx seen from the mean camera position, in pixels
+    static_dq: float = 5e-2  # |Δq| (about 3° of rotation)
+    static_ds: float = 5e-2  # Δs in log scale (5% size change)
+    # Static scene: when the first classification finds at least this fraction of the Gaussians
+    # static, the scene is taken as static: every Gaussian is baked and the MLP and the motion
+    # losses are off for the rest of the run. Documented choice: 0.95 (measured at 400
+    # iterations: 96% on `still`, 79% on `ball`).
+    static_scene_fraction: float = 0.95
     # Coarse-to-fine: iterations before this fraction of the run render at half resolution and
     # compare with 2x2-binned events (never in the refinement stage, whose losses want detail).
     coarse_fraction: float = 0.0

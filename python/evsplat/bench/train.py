@@ -180,6 +180,7 @@ def run_one(
         "lpips": metrics["lpips"],
         "psnr_moving": metrics["psnr_moving"],
         "static_fraction": stats.get("static_fraction", 0.0),
+        "static_scene": stats.get("static_scene", False),
         "stopped_early_at": stats.get("stopped_early_at"),
     }
 

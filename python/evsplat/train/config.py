@@ -65,8 +65,15 @@ class TrainConfig:
             model=ModelConfig(**d["model"]),
             densify=DensifyConfig(**d["densify"]),
             loss=LossConfig(**d["loss"]),
-            skips=SkipConfig(**d.get("skips", {})),  # configs saved before skips existed
+            skips=_skips(d.get("skips", {})),
         )
+
+
+def _skips(d: dict) -> SkipConfig:
+    """Skip settings of a saved config; configs saved before a setting existed (or after one
+    was renamed) take its default, since skips change speed, not what a checkpoint holds."""
+    known = {f.name for f in dataclasses.fields(SkipConfig)}
+    return SkipConfig(**{k: v for k, v in d.items() if k in known})
 
 
 def _tiny() -> TrainConfig:

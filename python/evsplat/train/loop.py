@@ -165,6 +165,7 @@ class Trainer:
                 self._esi, data.t_start_us, data.t_end_us, cfg.loss, sk.early_stop_windows, cfg.seed
             )
         self.plateau = Plateau()
+        self.static_scene = False  # set when the static classification finds no motion
 
     # ---- one iteration -------------------------------------------------------------------
 
@@ -204,10 +205,12 @@ class Trainer:
         # resumed run makes exactly the choices an uninterrupted one makes.
         torch.manual_seed(int(rng.integers(2**62)))
         duration = self.data.t_end_us - self.data.t_start_us
-        moving = cfg.deform and stage is not Stage.WARMUP
+        motion_stage = cfg.deform and stage is not Stage.WARMUP
+        if motion_stage and not self.static_scene:
+            if static_due(cfg.skips, iteration, cfg.schedule.iterations):
+                self._classify_static()  # may find the whole scene static
+        moving = motion_stage and not self.static_scene
         self.renderer.mlp = self.mlp if moving else None
-        if moving and static_due(cfg.skips, iteration, cfg.schedule.iterations):
-            self._classify_static()
         coarse = coarse_due(cfg, iteration, stage)
         view = half_renderer(self.renderer) if coarse else self.renderer
 
@@ -295,7 +298,13 @@ class Trainer:
             old = torch.zeros(self.model.num_gaussians, dtype=torch.bool)
         centre = torch.from_numpy(self.pose_samples[1][:, :3, 3].mean(0).astype(np.float32))
         scale = pixels_per_unit(self.model.means, centre, float(self.data.K[0, 0]), 1e-2)
-        static, mean = classify_static(self.mlp, self.model.means, scale, self.cfg.skips)
+        sk = self.cfg.skips
+        static, mean = classify_static(self.mlp, self.model.means, scale, sk)
+        first = self.renderer.static_mask is None
+        if first and float(static.float().mean()) >= sk.static_scene_fraction:
+            # A static scene: nothing left for the MLP or the motion losses to explain.
+            static[:] = True
+            self.static_scene = True
         fresh = static & ~old
         bake(self.model, fresh, mean)
         self.renderer.static_mask = old | fresh
@@ -404,6 +413,7 @@ class Trainer:
             "mlp_optimizer": self.mlp_optimizer.state_dict(),
             "densifier": self.densifier.state_dict(),
             "static_mask": self.renderer.static_mask,
+            "static_scene": self.static_scene,
             "early_stop": self.plateau.state_dict(),
             "camera": {
                 "K": data.K.tolist(),
@@ -443,6 +453,7 @@ class Trainer:
         self.mlp_optimizer.load_state_dict(state["mlp_optimizer"])
         self.densifier.load_state_dict(state["densifier"])
         self.renderer.static_mask = state.get("static_mask")  # absent before skips existed
+        self.static_scene = bool(state.get("static_scene", False))
         if "early_stop" in state:
             self.plateau.load_state_dict(state["early_stop"])
         s = state["stats"]
@@ -454,7 +465,9 @@ class Trainer:
 
     def _mlp_active(self, iteration: int) -> bool:
         """Whether renders after ``iteration`` completed iterations use the MLP."""
-        return self.cfg.deform and iteration > self.cfg.schedule.warmup_end
+        return (
+            self.cfg.deform and iteration > self.cfg.schedule.warmup_end and not self.static_scene
+        )
 
     def save(self, iteration: int) -> Path:
         path = save_checkpoint(
@@ -530,6 +543,7 @@ class Trainer:
             "stopped_early": s.stopped_early_at is not None,
             "stopped_early_at": s.stopped_early_at,
             "static_fraction": self._static_fraction(),
+            "static_scene": self.static_scene,
             # ru_maxrss is in KiB on Linux
             "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         }
