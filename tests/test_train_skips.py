@@ -104,7 +104,7 @@ def test_baking_a_constant_deformation_keeps_the_render_without_the_mlp():
         before = renderer.render(300_000, c2w).image
         static, mean = classify_static(CodedMLP(), model.means, scale(4), SkipConfig())
         assert bool(static.all())
-        bake(model, static, mean)
+        bake(model, torch.nonzero(static).reshape(-1), mean.select(static))
         renderer.static_mask = static
         after = renderer.render(300_000, c2w).image
         renderer.mlp = None

@@ -292,22 +292,25 @@ class Trainer:
         return StepResult(values, stage)
 
     def _classify_static(self) -> None:
-        """Mark the dynamic Gaussians that stopped moving static and bake their deformation."""
-        old = self.renderer.static_mask
-        if old is None:
-            old = torch.zeros(self.model.num_gaussians, dtype=torch.bool)
-        centre = torch.from_numpy(self.pose_samples[1][:, :3, 3].mean(0).astype(np.float32))
-        scale = pixels_per_unit(self.model.means, centre, float(self.data.K[0, 0]), 1e-2)
-        sk = self.cfg.skips
-        static, mean = classify_static(self.mlp, self.model.means, scale, sk)
+        """Mark the dynamic Gaussians that stopped moving static and bake their deformation;
+        static ones stay static, so only the dynamic ones go through the MLP."""
         first = self.renderer.static_mask is None
+        n = self.model.num_gaussians
+        old = torch.zeros(n, dtype=torch.bool) if first else self.renderer.static_mask
+        dynamic = torch.nonzero(~old).reshape(-1)
+        means = self.model.means[dynamic]
+        centre = torch.from_numpy(self.pose_samples[1][:, :3, 3].mean(0).astype(np.float32))
+        scale = pixels_per_unit(means, centre, float(self.data.K[0, 0]), 1e-2)
+        sk = self.cfg.skips
+        static, mean = classify_static(self.mlp, means, scale, sk)
         if first and float(static.float().mean()) >= sk.static_scene_fraction:
             # A static scene: nothing left for the MLP or the motion losses to explain.
             static[:] = True
             self.static_scene = True
-        fresh = static & ~old
-        bake(self.model, fresh, mean)
-        self.renderer.static_mask = old | fresh
+        bake(self.model, dynamic[static], mean.select(static))
+        new = old.clone()
+        new[dynamic[static]] = True
+        self.renderer.static_mask = new
 
     def _motion_losses(self, view, t1, dtau, pose1, out1, log1, rng) -> dict[str, torch.Tensor]:
         """L_ef and L_m for the render ``out1`` that ``view`` (full or coarse) made at ``t1``."""

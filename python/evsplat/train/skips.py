@@ -36,6 +36,9 @@ class Deformation:
     dq: Tensor  # [N,4]
     ds: Tensor  # [N,3]
 
+    def select(self, rows: Tensor) -> Deformation:
+        return Deformation(self.dx[rows], self.dq[rows], self.ds[rows])
+
 
 @torch.no_grad()
 def classify_static(
@@ -69,12 +72,12 @@ def classify_static(
 
 @torch.no_grad()
 def bake(model: GaussianModel, rows: Tensor, deformation: Deformation) -> None:
-    """Fold the time-averaged deformation of ``rows`` [N] bool into their canonical parameters,
-    exactly as ``deformed`` applies a deformation, so they render the same without the MLP."""
+    """Fold ``deformation`` (one row per index in ``rows`` [K]) into those Gaussians' canonical
+    parameters, exactly as ``deformed`` applies it, so they render the same without the MLP."""
     d = deformation
-    model.means[rows] += d.dx[rows]
-    model.log_scales[rows] += d.ds[rows]
-    model.quats[rows] = normalize_quats(model.rotations()[rows] + d.dq[rows])
+    model.means[rows] += d.dx
+    model.log_scales[rows] += d.ds
+    model.quats[rows] = normalize_quats(model.rotations()[rows] + d.dq)
 
 
 def pixels_per_unit(means: Tensor, centre: Tensor, focal: float, near: float) -> Tensor:
