@@ -14,7 +14,7 @@ import argparse
 import json
 from pathlib import Path
 
-from evsplat.bench.train import SCENES, Case, machine_info, plot_pareto, run_one
+from evsplat.bench.train import SCENES, Case, fmt, machine_info, plot_pareto, run_one
 from evsplat.data.atomic import write_text_atomic
 
 HELP = "the paper's Tables 1-3 (scenes, speed factors, loss ablation) into docs/results.md"
@@ -56,10 +56,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _fmt(v, nd: int = 2) -> str:
-    return "-" if v is None else f"{v:.{nd}f}"
-
-
 def _table1(rows: list[dict]) -> list[str]:
     lines = [
         "| scene | paper PSNR/SSIM/LPIPS | static 3DGS | no L_ef, L_m | ours (full) | "
@@ -72,13 +68,13 @@ def _table1(rows: list[dict]) -> list[str]:
             continue
         p = PAPER_TABLE1[scene]
         cells = [
-            f"{_fmt(by[v]['psnr'])} / {_fmt(by[v]['ssim'], 3)} / {_fmt(by[v]['lpips'], 3)}"
+            f"{fmt(by[v]['psnr'])} / {fmt(by[v]['ssim'], 3)} / {fmt(by[v]['lpips'], 3)}"
             if v in by
             else "-"
             for v in TABLE1_VARIANTS
         ]
         st, fu = by.get("static", {}), by.get("full", {})
-        moving = f"{_fmt(st.get('psnr_moving'))} -> {_fmt(fu.get('psnr_moving'))}"
+        moving = f"{fmt(st.get('psnr_moving'))} -> {fmt(fu.get('psnr_moving'))}"
         lines.append(
             f"| {scene} | {p[0]} / {p[1]} / {p[2]} | " + " | ".join(cells) + f" | {moving} |"
         )
@@ -93,8 +89,8 @@ def _table2(rows: list[dict]) -> list[str]:
     for r in rows:
         k = int(r["case"].rsplit("-x", 1)[1])
         lines.append(
-            f"| x{k} | {PAPER_TABLE2[k]} | {_fmt(r['psnr'])} | {_fmt(r['ssim'], 3)} | "
-            f"{_fmt(r['psnr_moving'])} |"
+            f"| x{k} | {PAPER_TABLE2[k]} | {fmt(r['psnr'])} | {fmt(r['ssim'], 3)} | "
+            f"{fmt(r['psnr_moving'])} |"
         )
     return lines
 
@@ -107,8 +103,8 @@ def _table3(rows: list[dict]) -> list[str]:
     for r in sorted(rows, key=lambda r: ABLATION.index(r["variant"])):
         paper = PAPER_TABLE3.get(r["variant"], "-")
         lines.append(
-            f"| {ABLATION_LABEL[r['variant']]} | {paper} | {_fmt(r['psnr'])} | "
-            f"{_fmt(r['ssim'], 3)} | {_fmt(r['psnr_moving'])} | {r['wall_seconds']:.0f} |"
+            f"| {ABLATION_LABEL[r['variant']]} | {paper} | {fmt(r['psnr'])} | "
+            f"{fmt(r['ssim'], 3)} | {fmt(r['psnr_moving'])} | {r['wall_seconds']:.0f} |"
         )
     return lines
 
@@ -138,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
             print(
                 f"table {table}: {case.name:<16} {variant:<18} {r['iterations']:>5} it "
                 f"{r['wall_seconds']:>7.1f} s  PSNR {r['psnr']:.2f}  SSIM {r['ssim']:.3f}  "
-                f"moving {_fmt(r['psnr_moving'])}",
+                f"moving {fmt(r['psnr_moving'])}",
                 flush=True,
             )
         results[table].append(done[key])

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from evsplat.bench.train import Case, machine_info, run_one
+from evsplat.bench.train import Case, fmt, machine_info, run_one
 from evsplat.data.atomic import write_text_atomic
 
 HELP = "time saved and PSNR change of every skip, on a static and a dynamic scene"
@@ -71,10 +71,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--doc", type=Path, default=Path("docs/results.md"))
 
 
-def _fmt(v, nd: int = 2) -> str:
-    return "-" if v is None else f"{v:.{nd}f}"
-
-
 def table(rows: dict[tuple[str, str], dict]) -> list[str]:
     """One line per (skip, scene): both runs, the time saved and the PSNR change."""
     lines = [
@@ -89,10 +85,10 @@ def table(rows: dict[tuple[str, str], dict]) -> list[str]:
                 continue
             saved = 1.0 - a["wall_seconds"] / b["wall_seconds"]
             lines.append(
-                f"| {what} | {case.scene} | {a['wall_seconds']:.0f} / {_fmt(a['psnr'])} / "
-                f"{_fmt(a['ssim'], 3)} | {b['wall_seconds']:.0f} / {_fmt(b['psnr'])} / "
-                f"{_fmt(b['ssim'], 3)} | {100 * saved:+.0f}% | {a['psnr'] - b['psnr']:+.2f} dB | "
-                f"{_fmt(a['psnr_moving'])} / {_fmt(b['psnr_moving'])} |"
+                f"| {what} | {case.scene} | {a['wall_seconds']:.0f} / {fmt(a['psnr'])} / "
+                f"{fmt(a['ssim'], 3)} | {b['wall_seconds']:.0f} / {fmt(b['psnr'])} / "
+                f"{fmt(b['ssim'], 3)} | {100 * saved:+.0f}% | {a['psnr'] - b['psnr']:+.2f} dB | "
+                f"{fmt(a['psnr_moving'])} / {fmt(b['psnr_moving'])} |"
             )
     return lines
 
@@ -121,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
             rows[(case.name, name)] = r
             print(
                 f"{case.name:<16} {name:<22} {r['iterations']:>5} it {r['wall_seconds']:>7.1f} s "
-                f"PSNR {r['psnr']:.2f} SSIM {r['ssim']:.3f} moving {_fmt(r['psnr_moving'])} "
+                f"PSNR {r['psnr']:.2f} SSIM {r['ssim']:.3f} moving {fmt(r['psnr_moving'])} "
                 f"static {r['static_fraction']:.2f} static scene {r['static_scene']} "
                 f"stopped at {r['stopped_early_at']}",
                 flush=True,

@@ -185,6 +185,11 @@ def run_one(
     }
 
 
+def fmt(v, nd: int = 2) -> str:
+    """A table cell: the number to ``nd`` decimals, '-' when it was not measured."""
+    return "-" if v is None else f"{v:.{nd}f}"
+
+
 def pareto_front(points: list[tuple[float, float]]) -> list[int]:
     """Indices of points not dominated (less time and more PSNR), sorted by time."""
     order = sorted(range(len(points)), key=lambda i: (points[i][0], -points[i][1]))

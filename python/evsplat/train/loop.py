@@ -194,8 +194,10 @@ class Trainer:
     def _pose(self, t_us: float) -> np.ndarray:
         return self.data.trajectory.pose(float(t_us))
 
-    def _log_image_at(self, t_us: int) -> torch.Tensor:
-        return self._log_image(self.renderer.render(t_us, self._pose(t_us)))
+    def _log_image_at(self, t_us: int, view: Renderer | None = None) -> torch.Tensor:
+        """Render at ``t_us`` with ``view`` (default the full-resolution renderer) and log it."""
+        view = view or self.renderer
+        return self._log_image(view.render(t_us, self._pose(t_us)), view is not self.renderer)
 
     def step(self, iteration: int) -> StepResult:
         cfg, lc = self.cfg, self.cfg.loss
@@ -238,7 +240,7 @@ class Trainer:
             means_later = view.gaussians_at(t1 + dtau)[0]
             extra = gaussian_flow_features(g1[0], means_later, viewmat(pose1), view.K)
         out1 = view.render(t1, pose1, extra=extra, gaussians=g1)
-        logs = [self._log_image(view.render(t, self._pose(t)), coarse) for t in times[:-1]]
+        logs = [self._log_image_at(t, view) for t in times[:-1]]
         log1 = self._log_image(out1, coarse)
         logs.append(log1)
         terms = [
