@@ -51,6 +51,16 @@ fn histogram(
     @builtin(num_workgroups) nwg: vec3<u32>,
 ) {
     let block = wid.x + wid.y * nwg.x;
+    let nb = num_blocks();
+    // The tile keys' blocks follow the buffer's capacity, usually far beyond the live count:
+    // a block with no live element only writes its zero counts (whole workgroup, so the
+    // barriers below stay in uniform control flow).
+    if (block * WG >= live_count()) {
+        if (lid < 16u && block < nb) {
+            hist[lid * nb + block] = 0u;
+        }
+        return;
+    }
     if (lid < 16u) {
         atomicStore(&local_hist[lid], 0u);
     }
@@ -60,7 +70,6 @@ fn histogram(
         atomicAdd(&local_hist[digit(keys_in[i])], 1u);
     }
     workgroupBarrier();
-    let nb = num_blocks();
     if (lid < 16u && block < nb) {
         hist[lid * nb + block] = atomicLoad(&local_hist[lid]);
     }
@@ -73,6 +82,9 @@ fn scatter(
     @builtin(num_workgroups) nwg: vec3<u32>,
 ) {
     let block = wid.x + wid.y * nwg.x;
+    if (block * WG >= live_count()) {
+        return; // nothing live in this block (see histogram)
+    }
     let i = block * WG + lid;
     let live = i < live_count();
     var key = 0u;

@@ -72,6 +72,22 @@ def test_forward_when_every_gaussian_is_culled_is_empty():
     assert_forward_matches((behind, *rest), 32, 32)
 
 
+def test_intersection_capacity_follows_the_counts_without_losing_any():
+    # The tile-key capacity grows on overflow (re-render) and shrinks after small renders; a
+    # large render right after small ones must still composite every intersection.
+    small = make_scene(3, 3, 32, 32, seed=1)
+    means, quats, scales, *rest = make_scene(900, 3, 128, 128, seed=2)
+    big = (means, quats, scales * 2.0, *rest)  # wide splats: tens of thousands of tile keys
+    for scene, size in [(small, 32), (big, 128), (small, 32), (small, 32), (big, 128)]:
+        *_, meta = assert_forward_matches(scene, size, size)
+    # Tiles (16 px) each visible splat's square of radius r touches: far above the smallest
+    # capacity (4096), so the last render overflowed the shrunk one.
+    r = meta["radii"].float()[:, None]
+    lo = ((meta["means2d"] - r) / 16).floor().clamp(0, 8)
+    hi = ((meta["means2d"] + r) / 16).floor().add(1).clamp(0, 8)
+    assert int((hi - lo).prod(dim=1)[meta["visible"]].sum()) > 4 * 4096
+
+
 def test_forward_matches_reference_with_rotated_camera_and_off_centre_principal_point():
     means, quats, scales, opac, feats, _, _ = make_scene(120, 3, 40, 30, seed=7)
     angle = torch.tensor(0.3)

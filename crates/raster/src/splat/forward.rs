@@ -11,6 +11,8 @@ use crate::ScanScratch;
 pub const SCANS: usize = 17;
 /// 4-bit radix passes over the 32-bit depth keys.
 const DEPTH_PASSES: usize = 8;
+/// Smallest tile-intersection capacity (16 sort blocks); the capacity follows the counts.
+pub const MIN_ISECT_CAP: u64 = 1 << 12;
 
 /// A bind group for `pipeline` with the given (binding, buffer) pairs.
 pub fn bind(
@@ -408,9 +410,18 @@ pub fn run(
         let counters = &raw[raw.len() - 16..];
         let m = u32::from_le_bytes([counters[0], counters[1], counters[2], counters[3]]);
         if m as u64 > st.isect_cap {
-            // Render again with room for every intersection (rare: capacity only grows).
+            // Render again with room for every intersection (rare: the capacity follows the
+            // counts of earlier renders).
             st.isect_cap = (m as u64 + m as u64 / 2).next_power_of_two();
             continue;
+        }
+        // The tile sort and ranges dispatch over the whole capacity, and on lavapipe every
+        // workgroup costs ~13 µs even with nothing live in it: size the next render's capacity
+        // to this one's count (2x headroom, shrinking only when 8x too large, so renders of
+        // different sizes do not alternate between overflow and re-render).
+        let want = (2 * m as u64).next_power_of_two().max(MIN_ISECT_CAP);
+        if 4 * want <= st.isect_cap {
+            st.isect_cap = want;
         }
         let (image, rest) = all.split_at(pixels * d);
         let (depth, rest) = rest.split_at(pixels);

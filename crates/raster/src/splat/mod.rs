@@ -359,7 +359,7 @@ pub type PassTimes = Vec<(&'static str, f64)>;
 
 struct State {
     bufs: Buffers,
-    /// Intersection capacity (grows when a render overflows it).
+    /// Intersection capacity (grows when a render overflows it, shrinks when far too large).
     isect_cap: u64,
     sizes: Option<Sizes>,
     binds: Option<forward::Binds>,
@@ -453,7 +453,7 @@ impl State {
             .collect();
         Self {
             bufs: Buffers::new(ctx, std::mem::size_of::<Params>() as u64),
-            isect_cap: 1 << 16,
+            isect_cap: forward::MIN_ISECT_CAP,
             sizes: None,
             binds: None,
             bwd_binds: HashMap::new(),
