@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,12 +21,15 @@ from evsplat.data.atomic import write_text_atomic
 HELP = "time saved and PSNR change of every skip, on a static and a dynamic scene"
 SECTION = "## Skipping what a scene does not need"
 CASES = (Case("still", tiny=True), Case("ball", tiny=True))
+# (image side, Gaussians) of the render-level measurements; the first also hosts the empty tiles.
+RENDER_CASES = ((96, 2_400), (400, 20_000))
 
 
 @dataclass(frozen=True)
 class Variant:
     apply: Callable
     cli: tuple[str, ...] = ()  # extra `evsplat train` arguments
+    long: bool = False  # run for --long-iters on the static scene only (early stop needs time)
 
 
 def _defaults(cfg) -> None:
@@ -49,6 +53,8 @@ VARIANTS: dict[str, Variant] = {
     "early-stop-patience-2": Variant(_set("skips", early_stop_patience=2)),
     "budget-3000": Variant(_set("densify", max_gaussians=3000)),
     "no-depth-prior": Variant(_defaults, ("--depth-prior", "none")),
+    "early-stop-patience-2-long": Variant(_set("skips", early_stop_patience=2), long=True),
+    "no-early-stop-long": Variant(_set("skips", early_stop=False), long=True),
 }
 
 # (what is skipped, variant with the skip, variant without it). The default early stop
@@ -60,6 +66,8 @@ PAIRS = [
     ("full resolution in the first 30% (`skips.coarse_fraction=0.3`)", "coarse", "defaults"),
     ("iterations after the held-out L_e plateaus (patience 2)", "early-stop-patience-2",
      "defaults"),
+    ("the same, in long runs (early stop off without it)", "early-stop-patience-2-long",
+     "no-early-stop-long"),
     ("Gaussians beyond a budget of 3000 (default 6000)", "budget-3000", "defaults"),
     ("depth stage without a depth prior (`--depth-prior none`)", "no-depth-prior", "defaults"),
 ]  # fmt: skip
@@ -67,6 +75,15 @@ PAIRS = [
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--iters", type=int, default=300, help="iterations per run (default 300)")
+    parser.add_argument(
+        "--long-iters",
+        type=int,
+        default=1500,
+        help="iterations of the early-stop pair on the static scene (default 1500)",
+    )
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="timed calls per render measurement (median)"
+    )
     parser.add_argument("--out", type=Path, default=Path("bench_results/skips"))
     parser.add_argument("--doc", type=Path, default=Path("docs/results.md"))
 
@@ -74,8 +91,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def table(rows: dict[tuple[str, str], dict]) -> list[str]:
     """One line per (skip, scene): both runs, the time saved and the PSNR change."""
     lines = [
-        "| skipped | scene | with: s / PSNR / SSIM | without: s / PSNR / SSIM | time saved | "
-        "PSNR change | moving-mask PSNR with / without |",
+        "| skipped | scene | with: it / s / PSNR / SSIM | without: it / s / PSNR / SSIM | "
+        "time saved | PSNR change | moving-mask PSNR with / without |",
         "|---|---|---|---|---|---|---|",
     ]
     for what, on, off in PAIRS:
@@ -85,11 +102,50 @@ def table(rows: dict[tuple[str, str], dict]) -> list[str]:
                 continue
             saved = 1.0 - a["wall_seconds"] / b["wall_seconds"]
             lines.append(
-                f"| {what} | {case.scene} | {a['wall_seconds']:.0f} / {fmt(a['psnr'])} / "
-                f"{fmt(a['ssim'], 3)} | {b['wall_seconds']:.0f} / {fmt(b['psnr'])} / "
-                f"{fmt(b['ssim'], 3)} | {100 * saved:+.0f}% | {a['psnr'] - b['psnr']:+.2f} dB | "
+                f"| {what} | {case.scene} | {_cell(a)} | {_cell(b)} | {100 * saved:+.0f}% | "
+                f"{a['psnr'] - b['psnr']:+.2f} dB | "
                 f"{fmt(a['psnr_moving'])} / {fmt(b['psnr_moving'])} |"
             )
+    return lines
+
+
+def _cell(r: dict) -> str:
+    return f"{r['iterations']} / {r['wall_seconds']:.0f} / {fmt(r['psnr'])} / {fmt(r['ssim'], 3)}"
+
+
+def render_table(repeats: int) -> list[str]:
+    """Skips inside one render, timed per rasterizer call (forward + backward, median):
+    one channel instead of three for a monochrome sensor, and tiles that no Gaussian touches
+    (the same splats rendered into an image four times larger, 3/4 of its tiles empty)."""
+    from evsplat.bench.raster import _gpu_call, _scene, _time
+
+    def ms(params, view, K, size) -> float:
+        return 1e3 * _time(lambda: _gpu_call(params, view, K, size, True), repeats)
+
+    lines = [
+        "| skipped | image, Gaussians | with (ms) | without (ms) | time saved |",
+        "|---|---|---|---|---|",
+    ]
+    for size, n in RENDER_CASES:
+        params, view, K = _scene(size, n)
+        mono = ms([*params[:4], params[4][:, :1].contiguous()], view, K, size)
+        colour = ms(params, view, K, size)
+        lines.append(
+            f"| two of three colour channels (monochrome sensor: 1 channel) | {size}x{size}, "
+            f"{n:,} | {mono:.1f} | {colour:.1f} | {100 * (1 - mono / colour):+.0f}% |"
+        )
+    size, n = RENDER_CASES[0]
+    params, view, K = _scene(size, n)
+    padded = K.clone()
+    padded[:2, 2] += size / 2  # the same view in the centre of an image twice as wide
+    small, large = ms(params, view, K, size), ms(params, view, padded, 2 * size)
+    tiles = math.ceil(2 * size / 16) ** 2
+    empty = tiles - math.ceil(size / 16) ** 2
+    lines.append(
+        f"| {empty} empty of {tiles} tiles (the {size}x{size} view centred in "
+        f"{2 * size}x{2 * size}; 'with' renders only the {size}x{size}) | {2 * size}x{2 * size}, "
+        f"{n:,} | {small:.1f} | {large:.1f} | {100 * (1 - small / large):+.0f}% |"
+    )
     return lines
 
 
@@ -111,9 +167,14 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     spec = {"train_preset": "tiny", "iterations": args.iters}
     rows: dict[tuple[str, str], dict] = {}
+    render_lines = render_table(args.repeats)
+    print("\n".join(render_lines), flush=True)
     for case in CASES:
         for name, variant in VARIANTS.items():
-            r = run_one(case, name, spec, args.out, args.iters, variant.apply, variant.cli)
+            if variant.long and case is not CASES[0]:
+                continue
+            iters = args.long_iters if variant.long else args.iters
+            r = run_one(case, name, spec, args.out, iters, variant.apply, variant.cli)
             rows[(case.name, name)] = r
             print(
                 f"{case.name:<16} {name:<22} {r['iterations']:>5} it {r['wall_seconds']:>7.1f} s "
@@ -130,15 +191,21 @@ def run(args: argparse.Namespace) -> int:
         SECTION,
         "",
         f"Regenerate with `evsplat bench skips` (tiny preset, {args.iters} iterations per run, "
-        "96x96, seed 0). Each line is a pair of runs that differ only in the skip, on `still` "
-        "(the ball room with the ball at rest: only the camera moves) and on `ball`. Time is the "
-        "training process's wall time; 'time saved' is relative to the run without the skip.",
+        f"{args.long_iters} for the long early-stop pair, 96x96, seed 0). Each line is a pair of "
+        "runs that differ only in the skip, on `still` (the ball room with the ball at rest: only "
+        "the camera moves) and on `ball`. Time is the training process's wall time; 'time "
+        "saved' is relative to the run without the skip.",
         "",
         f"- Machine: {info['machine']}",
         f"- Adapter: {info['adapter']}",
         f"- Commit: {info['commit']}",
         "",
         *table(rows),
+        "",
+        "Skips inside a render, per rasterizer call (forward + backward, median of "
+        f"{args.repeats}; the Gaussians of `evsplat bench raster`):",
+        "",
+        *render_lines,
         "",
     ]
     old = args.doc.read_text() if args.doc.is_file() else ""
