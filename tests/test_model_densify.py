@@ -191,3 +191,20 @@ def test_densifier_origin_maps_rows_after_a_step_to_rows_before():
     assert d.origin.tolist() == [0, 2, 0, 1, 1]
     d.step(m, opt, 601)  # nothing happens: every row is its own origin
     assert d.origin.tolist() == [0, 1, 2, 3, 4]
+
+
+def test_clones_and_split_children_carry_their_parents_time_parameters():
+    m = four_gaussians()
+    with torch.no_grad():
+        m.t_mean.copy_(torch.tensor([0.1, 0.2, 0.3, 0.4]))
+        m.t_log_scale.copy_(torch.tensor([-1.0, -2.0, -3.0, -4.0]))
+    opt = adam_with_state(m)
+    d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=30_000)
+    grads = torch.tensor([[1e-4, 0.0], [0.0, 1e-4], [1e-7, 0.0], [1e-7, 0.0]])
+    d.accumulate(grads, torch.tensor([3, 5, 3, 3]), W, H)
+    torch.manual_seed(0)
+    d.step(m, opt, 600)
+    parent_mean, parent_scale = [0.1, 0.2, 0.3, 0.4], [-1.0, -2.0, -3.0, -4.0]
+    assert m.t_mean.tolist() == pytest.approx([parent_mean[i] for i in d.origin.tolist()])
+    assert m.t_log_scale.tolist() == pytest.approx([parent_scale[i] for i in d.origin.tolist()])
+    assert_optimizer_matches_model(opt, m)

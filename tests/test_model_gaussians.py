@@ -9,7 +9,13 @@ import pytest
 import torch
 
 from evsplat.config import ModelConfig
-from evsplat.model.gaussians import GaussianModel, eval_sh, quat_to_rotmat
+from evsplat.model.gaussians import (
+    PARAM_NAMES,
+    T_LOG_SCALE_RANGE,
+    GaussianModel,
+    eval_sh,
+    quat_to_rotmat,
+)
 
 
 def test_random_init_places_means_inside_bounds_with_spacing_scale_opacity_and_grey():
@@ -117,6 +123,8 @@ def test_param_groups_cover_every_parameter_with_3dgs_rates_scaled_by_extent():
         "quats": 1e-3,
         "opacity_logits": 5e-2,
         "sh": 2.5e-3,
+        "t_mean": 1e-2,
+        "t_log_scale": 2e-2,
     }
     grouped = {id(p) for g in groups for p in g["params"]}
     assert grouped == {id(p) for p in m.parameters()}
@@ -127,9 +135,9 @@ def test_checkpoint_round_trip_and_foreign_state_is_rejected():
     m = GaussianModel.random_init(10, 3, [0, 0, 0], [1, 1, 1], sh_degree=2, seed=1)
     state = m.state_for_checkpoint()
     back = GaussianModel.from_checkpoint(state)
-    for name in ("means", "log_scales", "quats", "opacity_logits", "sh"):
+    for name in PARAM_NAMES:
         assert torch.equal(getattr(back, name), getattr(m, name))
-    assert (back.channels, back.sh_degree) == (3, 2)
+    assert (back.channels, back.sh_degree, back.temporal) == (3, 2, False)
     with pytest.raises(ValueError, match="lacks sh"):
         GaussianModel.from_checkpoint({k: v for k, v in state.items() if k != "sh"})
     bad = dict(state, quats=torch.zeros(10, 3))
@@ -138,3 +146,38 @@ def test_checkpoint_round_trip_and_foreign_state_is_rejected():
     nan = dict(state, means=torch.full((10, 3), float("nan")))
     with pytest.raises(ValueError, match="NaN"):
         GaussianModel.from_checkpoint(nan)
+
+
+def test_time_local_opacity_follows_a_gaussian_in_time_and_is_off_unless_enabled():
+    m = GaussianModel.random_init(5, 1, [0, 0, 0], [1, 1, 1], seed=3)
+    with torch.no_grad():
+        m.opacity_logits.copy_(torch.tensor([0.0, 1.0, -1.0, 2.0, 0.5]))
+        m.t_mean.copy_(torch.tensor([0.1, 0.5, 0.9, 0.5, 0.3]))
+        m.t_log_scale.copy_(torch.tensor([math.log(0.1), 0.0, math.log(0.2), -30.0, 30.0]))
+    peak = 1.0 / (1.0 + np.exp(-np.array([0.0, 1.0, -1.0, 2.0, 0.5])))
+    assert torch.allclose(m.opacities(0.4), torch.tensor(peak, dtype=torch.float32))  # off
+    m.temporal = True
+    # Widths are clamped to [0.02, 20]: -30 gives 0.02 and +30 gives 20.
+    width = np.array([0.1, 1.0, 0.2, 0.02, 20.0])
+    for t in (0.0, 0.4, 0.5, 1.0):
+        mu = np.array([0.1, 0.5, 0.9, 0.5, 0.3])
+        want = peak * np.exp(-0.5 * ((t - mu) / width) ** 2)
+        assert np.allclose(m.opacities(t).detach().numpy(), want, rtol=1e-5, atol=1e-7)
+    assert torch.equal(m.opacities(), torch.sigmoid(m.opacity_logits))  # no time: the peak
+    assert math.isclose(math.exp(T_LOG_SCALE_RANGE[0]), 0.02)
+    # Gradients reach the time parameters and stay finite at the clamp limits.
+    m.opacities(0.45).sum().backward()
+    assert torch.isfinite(m.t_mean.grad).all() and m.t_mean.grad[1] != 0
+    assert torch.isfinite(m.t_log_scale.grad).all() and m.t_log_scale.grad[0] != 0
+
+
+def test_a_checkpoint_from_before_time_local_opacity_loads_as_static():
+    m = GaussianModel.random_init(6, 1, [0, 0, 0], [1, 1, 1], seed=2)
+    m.temporal = True
+    state = m.state_for_checkpoint()
+    back = GaussianModel.from_checkpoint(state)
+    assert back.temporal and torch.equal(back.t_mean, m.t_mean)
+    old = {k: v for k, v in state.items() if not k.startswith("t_") and k != "temporal"}
+    legacy = GaussianModel.from_checkpoint(old)
+    assert not legacy.temporal
+    assert torch.equal(legacy.opacities(0.7), torch.sigmoid(m.opacity_logits))

@@ -23,6 +23,7 @@ from evsplat.raster import rasterize
 from evsplat.render import Renderer
 from evsplat.train import train
 from evsplat.train.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint
+from evsplat.train.config import preset
 
 ITERS = 40
 
@@ -58,6 +59,27 @@ def test_eval_reports_finite_metrics_for_every_test_frame(tiny_run, tiny_data):
     result = evaluate(renderer, data)
     assert len(result["frames"]) == len(data.test_frames) > 0
     assert np.isfinite(result["mean"]["psnr"]) and 0 < result["mean"]["ssim"] <= 1
+
+
+def test_time_local_opacity_is_trained_checkpointed_and_exported_at_its_time(tiny_data, tmp_path):
+    cfg = preset("tiny")
+    cfg.model.temporal_opacity = True
+    cfg.schedule.iterations = 8
+    train(tiny_data, tmp_path / "run", config=cfg, progress=False)
+    renderer, _ = Renderer.from_run(tmp_path / "run")
+    model = renderer.model
+    assert model.temporal and float(model.t_mean.std()) > 0.1  # random centres in [0, 1]
+    t_us = renderer.t_start_us + 0.25 * (renderer.t_end_us - renderer.t_start_us)
+    opacity = torch.sigmoid(torch.tensor(gaussian_arrays(renderer, t_us)["opacity_logits"]))
+    width = torch.exp(model.t_log_scale.detach())
+    want = model.opacities().detach() * torch.exp(
+        -0.5 * ((0.25 - model.t_mean.detach()) / width) ** 2
+    )
+    torch.testing.assert_close(opacity, want.clamp(1e-6, 1 - 1e-6), rtol=1e-4, atol=1e-6)
+    # A static baseline never turns it on, whatever the model settings say.
+    cfg.deform = False
+    train(tiny_data, tmp_path / "static", config=cfg, progress=False)
+    assert not Renderer.from_run(tmp_path / "static")[0].model.temporal
 
 
 def test_exported_ply_has_standard_fields_and_renders_like_the_model(tiny_run, tmp_path):

@@ -79,7 +79,7 @@ class Renderer:
             means,
             rotations,
             scales,
-            self.model.opacities(),
+            self.model.opacities(self.time(t_us)),
             features,
             w2c,
             self.K,

@@ -135,23 +135,20 @@ class Densifier:
         # from the parent Gaussian, with scales divided by split_scale_divisor.
         k = cfg.split_count
         with torch.no_grad():
-            rows = {
-                n: getattr(model, n).detach() for n in ("means", "quats", "opacity_logits", "sh")
+            # Every parameter but position and size is copied: once per clone, k times per split.
+            new = {
+                n: torch.cat([p[clone], p[split].repeat(k, *(1,) * (p.dim() - 1))])
+                for n in PARAM_NAMES
+                if n not in ("means", "log_scales")
+                for p in [getattr(model, n).detach()]
             }
+            means = model.means.detach()
             parent_scale = model.scales().detach()[split].repeat(k, 1)
             rot = quat_to_rotmat(model.rotations().detach()[split]).repeat(k, 1, 1)
             offset = torch.bmm(rot, (torch.randn_like(parent_scale) * parent_scale)[..., None])
+            new["means"] = torch.cat([means[clone], means[split].repeat(k, 1) + offset[..., 0]])
             child_log = torch.log(parent_scale / cfg.split_scale_divisor)
-            new = {
-                "means": torch.cat([rows["means"][clone], rows["means"][split].repeat(k, 1)
-                                    + offset[..., 0]]),
-                "log_scales": torch.cat([model.log_scales.detach()[clone], child_log]),
-                "quats": torch.cat([rows["quats"][clone], rows["quats"][split].repeat(k, 1)]),
-                "opacity_logits": torch.cat(
-                    [rows["opacity_logits"][clone], rows["opacity_logits"][split].repeat(k)]
-                ),
-                "sh": torch.cat([rows["sh"][clone], rows["sh"][split].repeat(k, 1, 1)]),
-            }  # fmt: skip
+            new["log_scales"] = torch.cat([model.log_scales.detach()[clone], child_log])
 
         def append(name: str, old: Tensor, is_state: bool) -> Tensor:
             extra = torch.zeros_like(new[name]) if is_state else new[name]

@@ -10,7 +10,11 @@ from torch import Tensor, nn
 
 from evsplat.config import ModelConfig
 
-PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh")
+PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh", "t_mean", "t_log_scale")
+# Time-local opacity (not in the paper): a Gaussian is visible around t_mean with width
+# exp(t_log_scale) in normalised time. The log-width is clamped: 0.02 of the sequence at the
+# narrowest (a few of the shortest L_e windows), 20x it at the widest (static).
+T_LOG_SCALE_RANGE = (math.log(0.02), math.log(20.0))
 SCALE_MIN, SCALE_MAX = 1e-6, 1e3  # guard: keeps exp(log_scale) and its inverse finite
 QUAT_EPS = 1e-12  # below this norm a quaternion carries no rotation and becomes the identity
 
@@ -110,6 +114,10 @@ class GaussianModel(nn.Module):
         self.quats = nn.Parameter(torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(num, 1))
         self.opacity_logits = nn.Parameter(torch.zeros(num))
         self.sh = nn.Parameter(torch.zeros(num, (sh_degree + 1) ** 2, channels))
+        # Off (every Gaussian visible at all times) unless the trainer turns it on.
+        self.temporal = False
+        self.t_mean = nn.Parameter(torch.full((num,), 0.5))
+        self.t_log_scale = nn.Parameter(torch.zeros(num))
 
     @property
     def num_gaussians(self) -> int:
@@ -151,15 +159,21 @@ class GaussianModel(nn.Module):
             model.means.copy_(lo + (hi - lo) * torch.rand(num, 3, generator=gen))
             model.log_scales.fill_(math.log(init_scale))
             model.opacity_logits.fill_(math.log(opacity / (1.0 - opacity)))
+            model.t_mean.copy_(torch.rand(num, generator=gen))
         return model
 
     def scales(self) -> Tensor:
         """Scales [N,3]: exp(log_scales) clamped to [1e-6, 1e3]."""
         return scale_activation(self.log_scales)
 
-    def opacities(self) -> Tensor:
-        """Opacities [N] in (0, 1): sigmoid of the logits."""
-        return torch.sigmoid(self.opacity_logits)
+    def opacities(self, t: float | None = None) -> Tensor:
+        """Opacities [N] in [0, 1): sigmoid of the logits; with time-local opacity on and a
+        normalised time ``t``, times exp(-(t - t_mean)^2 / (2 w^2)), w = exp(t_log_scale)."""
+        peak = torch.sigmoid(self.opacity_logits)
+        if t is None or not self.temporal:
+            return peak
+        width = torch.exp(self.t_log_scale.clamp(*T_LOG_SCALE_RANGE))
+        return peak * torch.exp(-0.5 * ((t - self.t_mean) / width) ** 2)
 
     def rotations(self) -> Tensor:
         """Unit quaternions [N,4] (w, x, y, z); zero quaternions give the identity."""
@@ -188,6 +202,8 @@ class GaussianModel(nn.Module):
             "quats": cfg.quats_lr,
             "opacity_logits": cfg.opacity_lr,
             "sh": cfg.colors_lr,
+            "t_mean": cfg.t_mean_lr,
+            "t_log_scale": cfg.t_scale_lr,
         }
         return [{"params": [getattr(self, n)], "lr": lrs[n], "name": n} for n in PARAM_NAMES]
 
@@ -196,18 +212,22 @@ class GaussianModel(nn.Module):
         state = {n: getattr(self, n).detach().cpu().clone() for n in PARAM_NAMES}
         state["channels"] = self.channels
         state["sh_degree"] = self.sh_degree
+        state["temporal"] = self.temporal
         return state
 
     @classmethod
     def from_checkpoint(cls, state: dict) -> GaussianModel:
         """Rebuild from ``state_for_checkpoint``; a missing or bad entry is a ValueError."""
-        missing = [k for k in (*PARAM_NAMES, "channels", "sh_degree") if k not in state]
+        # Checkpoints from before time-local opacity lack its parameters: they were static.
+        stored = [n for n in PARAM_NAMES if not (n.startswith("t_") and n not in state)]
+        missing = [k for k in (*stored, "channels", "sh_degree") if k not in state]
         if missing:
             raise ValueError(f"Gaussian state lacks {', '.join(missing)}; not an evsplat model")
         num = int(state["means"].shape[0])
         model = cls(num, int(state["channels"]), int(state["sh_degree"]))
+        model.temporal = bool(state.get("temporal", False))
         with torch.no_grad():
-            for n in PARAM_NAMES:
+            for n in stored:
                 param, value = getattr(model, n), torch.as_tensor(state[n])
                 if value.shape != param.shape:
                     raise ValueError(

@@ -126,6 +126,7 @@ class Trainer:
         self.model = GaussianModel.random_init(
             cfg.num_gaussians, self.channels, lo, hi, sh_degree=cfg.model.sh_degree, seed=cfg.seed
         )
+        self.model.temporal = cfg.deform and cfg.model.temporal_opacity
         focal = float(data.K[0, 0])
         with torch.no_grad():
             self.model.means.copy_(torch.from_numpy(points.astype(np.float32)))
