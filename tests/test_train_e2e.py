@@ -62,11 +62,10 @@ def test_eval_reports_finite_metrics_for_every_test_frame(tiny_run, tiny_data):
 
 
 def test_time_local_opacity_is_trained_checkpointed_and_exported_at_its_time(tiny_data, tmp_path):
-    cfg = preset("tiny")
-    cfg.model.temporal_opacity = True
-    cfg.schedule.iterations = 8
-    train(tiny_data, tmp_path / "run", config=cfg, progress=False)
-    renderer, _ = Renderer.from_run(tmp_path / "run")
+    run = tmp_path / "run"
+    args = ["train", str(tiny_data), "--out", str(run), "--preset", "tiny", "--iters", "8"]
+    assert main([*args, "--temporal-opacity", "--no-progress"]) == 0
+    renderer, _ = Renderer.from_run(run)
     model = renderer.model
     assert model.temporal and float(model.t_mean.std()) > 0.1  # random centres in [0, 1]
     t_us = renderer.t_start_us + 0.25 * (renderer.t_end_us - renderer.t_start_us)
@@ -77,7 +76,8 @@ def test_time_local_opacity_is_trained_checkpointed_and_exported_at_its_time(tin
     )
     torch.testing.assert_close(opacity, want.clamp(1e-6, 1 - 1e-6), rtol=1e-4, atol=1e-6)
     # A static baseline never turns it on, whatever the model settings say.
-    cfg.deform = False
+    cfg = preset("tiny")
+    cfg.model.temporal_opacity, cfg.deform, cfg.schedule.iterations = True, False, 8
     train(tiny_data, tmp_path / "static", config=cfg, progress=False)
     assert not Renderer.from_run(tmp_path / "static")[0].model.temporal
 
