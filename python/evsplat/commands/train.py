@@ -30,8 +30,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     parser.add_argument(
         "--temporal-opacity",
-        action="store_true",
-        help="time-local opacity for fast objects (not in the paper; see docs/results.md)",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="time-local opacity for fast objects (default on; not in the paper, see "
+        "docs/results.md)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -43,8 +45,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config) if args.config is not None else preset(args.preset)
     if args.seed is not None:
         cfg.seed = args.seed
-    if args.temporal_opacity:
-        cfg.model.temporal_opacity = True
+    if args.temporal_opacity is not None:
+        cfg.model.temporal_opacity = args.temporal_opacity
     if args.checkpoint_every is not None:
         cfg.schedule.checkpoint_every = max(1, args.checkpoint_every)
     stats = train(
