@@ -38,6 +38,23 @@ def test_tables_hold_every_run_and_the_papers_numbers(tmp_path, monkeypatch):
     assert "| butterfly | 24.27 / 0.902 / 0.12 |" in text
     assert "| x3 | 19.14 | 21.00 |" in text
     assert "| L_e | 18.61 | 19.00 |" in text
-    assert "iterations per run" in text and "7 iterations" in text
+    assert text.count("; 7 iterations per run.") == 3
     assert text.rstrip().endswith("ball 400x400: kept")
     assert (tmp_path / "results_pareto.png").stat().st_size > 0
+
+
+def test_rerunning_one_table_keeps_the_others_as_measured(tmp_path, monkeypatch):
+    monkeypatch.setattr(paper, "run_one", lambda *a: _fake_run(*a))
+    doc = tmp_path / "results.md"
+    args = argparse.Namespace(full_size=False, iters=7, out=tmp_path / "b", doc=doc, tables="1,3")
+    assert paper.run(args) == 0
+    first = doc.read_text()
+    table1 = first[first.index(paper.TITLES["1"]) : first.index(paper.TITLES["3"])]
+    monkeypatch.setattr(paper, "run_one", lambda *a: {**_fake_run(*a), "psnr": 30.0})
+    args.tables = "3"
+    assert paper.run(args) == 0
+    text = doc.read_text()
+    assert table1 in text  # untouched, provenance line included
+    assert paper.TITLES["2"] not in text  # never measured, not invented
+    assert "| L_e | 18.61 | 30.00 |" in text and "| L_e | 18.61 | 30.00 |" not in first
+    assert text.index(paper.TITLES["1"]) < text.index(paper.TITLES["3"]) < text.index("![time")
