@@ -82,7 +82,7 @@ def test_coarse_iterations_are_the_configured_fraction_outside_refinement():
     cfg = preset("tiny")
     cfg.skips.coarse_fraction = 0.8
     due = [coarse_due(cfg, i, stage_at(i, cfg.schedule)) for i in range(cfg.schedule.iterations)]
-    # 0.8 of the run, cut at the refinement start (2/3 of 1000).
+    # 0.8 of the run, cut at the refinement start (2/3 of the run).
     assert sum(due) == cfg.schedule.refine_start and not any(due[cfg.schedule.refine_start :])
     cfg.skips.coarse_fraction = 0.0
     assert not any(coarse_due(cfg, i, stage_at(i, cfg.schedule)) for i in range(100))

@@ -129,14 +129,6 @@ def test_plateau_counts_evaluations_without_relative_improvement():
     assert p.update(0.95, 50, cfg) and p.stopped_at == 50 and p.best == 0.9
 
 
-def test_default_patience_leaves_a_tiny_preset_run_too_few_evaluations_to_stop():
-    sc, sk = preset("tiny").schedule, SkipConfig()
-    after_warmup = range(sc.warmup_end + 1, sc.iterations)
-    evaluations = [d for d in after_warmup if d % sk.early_stop_every == 0]
-    # A stop needs one evaluation to set the best and `patience` more without progress.
-    assert sk.early_stop and len(evaluations) <= sk.early_stop_patience
-
-
 def test_configs_saved_before_skips_existed_load_with_the_defaults():
     d = TrainConfig().to_dict()
     del d["skips"]
