@@ -178,14 +178,21 @@ def test_accumulate_adds_ndc_gradient_norms_of_visible_gaussians_only():
     assert torch.equal(e.grad_accum, d.grad_accum) and torch.equal(e.max_radii, d.max_radii)
 
 
-def test_densifier_origin_maps_rows_after_a_step_to_rows_before():
-    m = four_gaussians()
-    opt = adam_with_state(m)
+def clone_0_split_1(m: GaussianModel, opt: torch.optim.Optimizer) -> Densifier:
+    """One densification step on ``four_gaussians`` that clones row 0, splits row 1 and keeps
+    rows 2 and 3 (their gradients are below the threshold)."""
     d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=30_000)
     grads = torch.tensor([[1e-4, 0.0], [0.0, 1e-4], [1e-7, 0.0], [1e-7, 0.0]])
     d.accumulate(grads, torch.tensor([3, 5, 3, 3]), W, H)
     torch.manual_seed(0)
     d.step(m, opt, 600)
+    return d
+
+
+def test_densifier_origin_maps_rows_after_a_step_to_rows_before():
+    m = four_gaussians()
+    opt = adam_with_state(m)
+    d = clone_0_split_1(m, opt)
     # Kept 0 and 2, then the clone of 0 and the two children of 1 (the split parent itself
     # is gone): new rows point at the row they came from.
     assert d.origin.tolist() == [0, 2, 0, 1, 1]
@@ -199,11 +206,7 @@ def test_clones_and_split_children_carry_their_parents_time_parameters():
         m.t_mean.copy_(torch.tensor([0.1, 0.2, 0.3, 0.4]))
         m.t_log_scale.copy_(torch.tensor([-1.0, -2.0, -3.0, -4.0]))
     opt = adam_with_state(m)
-    d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=30_000)
-    grads = torch.tensor([[1e-4, 0.0], [0.0, 1e-4], [1e-7, 0.0], [1e-7, 0.0]])
-    d.accumulate(grads, torch.tensor([3, 5, 3, 3]), W, H)
-    torch.manual_seed(0)
-    d.step(m, opt, 600)
+    d = clone_0_split_1(m, opt)
     parent_mean, parent_scale = [0.1, 0.2, 0.3, 0.4], [-1.0, -2.0, -3.0, -4.0]
     assert m.t_mean.tolist() == pytest.approx([parent_mean[i] for i in d.origin.tolist()])
     assert m.t_log_scale.tolist() == pytest.approx([parent_scale[i] for i in d.origin.tolist()])
