@@ -29,6 +29,7 @@ class RenderOut:
     alpha: torch.Tensor  # [H,W]
     meta: dict
     means: torch.Tensor  # [N,3] the deformed means that were rendered
+    opacities: torch.Tensor  # [N] their opacities at the render's time
     extra: torch.Tensor | None = None  # [H,W,E]
 
 
@@ -75,11 +76,12 @@ class Renderer:
         features = colors if extra is None else torch.cat([colors, extra], dim=1)
         background = torch.zeros(features.shape[1])
         background[:channels] = self.background
+        opacities = self.model.opacities(self.time(t_us))
         image, depth, alpha, meta = rasterize(
             means,
             rotations,
             scales,
-            self.model.opacities(self.time(t_us)),
+            opacities,
             features,
             w2c,
             self.K,
@@ -93,7 +95,7 @@ class Renderer:
             out_extra = torch.where(
                 cover > ALPHA_EPS, image[..., channels:] / cover.clamp(min=ALPHA_EPS), 0.0
             )
-        return RenderOut(image[..., :channels], depth, alpha, meta, means, out_extra)
+        return RenderOut(image[..., :channels], depth, alpha, meta, means, opacities, out_extra)
 
     @classmethod
     def from_state(cls, state: dict) -> Renderer:

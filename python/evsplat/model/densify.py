@@ -12,6 +12,9 @@ from evsplat.config import DensifyConfig
 from evsplat.model.gaussians import PARAM_NAMES, GaussianModel, quat_to_rotmat
 
 RESET_OPACITY = 0.01  # 3DGS: opacities are capped to this at each reset
+# The rasterizer skips fragments fainter than 1/255 (shaders/splat_common.wgsl, ALPHA_MIN): a
+# Gaussian whose opacity at a render's time is below it draws nothing there.
+ALPHA_MIN = 1.0 / 255.0
 
 
 def _update_params(
@@ -68,17 +71,29 @@ class Densifier:
             self._reset_stats(n)
 
     def accumulate(
-        self, means2d_grad: Tensor | None, radii: Tensor, width: int, height: int
+        self,
+        means2d_grad: Tensor | None,
+        radii: Tensor,
+        width: int,
+        height: int,
+        opacities: Tensor | None = None,
     ) -> None:
-        """Add this view's screen-space gradient norms of the visible (radius > 0) Gaussians.
+        """Add this view's screen-space gradient norms of the visible Gaussians: in the view
+        (radius > 0) and, given their ``opacities`` [N] at the view's time, not too faint to
+        draw (>= 1/255).
 
-        Pixel gradients are converted to NDC units (x W/2, x H/2) as in 3DGS, so its threshold
-        2e-4 keeps its meaning at any resolution.
+        The opacity test matters with time-local opacity: a Gaussian shown only while a fast
+        object passes would otherwise count every view of other times as one without gradient,
+        and its mean gradient (accumulated / views) would fall below the threshold however
+        badly it fits when it is shown. Pixel gradients are converted to NDC units (x W/2,
+        x H/2) as in 3DGS, so its threshold 2e-4 keeps its meaning at any resolution.
         """
         if means2d_grad is None:
             return
         self._ensure_size(means2d_grad.shape[0])
         visible = radii.reshape(-1) > 0
+        if opacities is not None:
+            visible &= opacities.detach().reshape(-1) >= ALPHA_MIN
         g = means2d_grad.detach().reshape(-1, 2) * torch.tensor([width / 2.0, height / 2.0])
         norm = torch.nan_to_num(g.norm(dim=-1), nan=0.0, posinf=0.0)
         self.grad_accum[visible] += norm[visible]

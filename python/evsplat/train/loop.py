@@ -33,7 +33,7 @@ from evsplat.losses.flow import (
 from evsplat.losses.patch import patch_motion_loss, select_visible
 from evsplat.losses.reg import non_event_loss, spatial_gradient_loss
 from evsplat.model.deform import DeformationMLP
-from evsplat.model.densify import Densifier
+from evsplat.model.densify import ALPHA_MIN, Densifier
 from evsplat.model.gaussians import GaussianModel
 from evsplat.render import Renderer, RenderOut
 from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
@@ -276,7 +276,11 @@ class Trainer:
             return StepResult(values, stage, skipped=f"non-finite {bad}")
 
         self.densifier.accumulate(
-            out1.meta["means2d_grad"], out1.meta["radii"], view.width, view.height
+            out1.meta["means2d_grad"],
+            out1.meta["radii"],
+            view.width,
+            view.height,
+            out1.opacities,
         )
         self.optimizer.step()
         if moving:
@@ -343,6 +347,7 @@ class Trainer:
                 lc.patch_n,
                 lc.depth_tolerance,
                 gen,
+                out1.opacities.detach() >= ALPHA_MIN,
             )
             if idx.numel() > 0:
                 bounds = ev.split_equal_count(i0, i1, lc.patch_m)
