@@ -126,7 +126,7 @@ class SkipConfig:
     early_stop: bool = True  # documented choice: on, with the patience below
     early_stop_windows: int = 8  # documented choice: fixed seeded windows of L_e's lengths
     early_stop_every: int = 100  # documented choice: 16 renders per 100 steps, ~5% overhead
-    # Documented choice: 10 evaluations = 1000 iterations without progress, more than the tiny
-    # preset's whole run after its warm-up, so demo runs stop only when truly flat.
+    # Documented choice: 10 evaluations = 1000 iterations without progress, half of the tiny
+    # preset's run, so a run stops only when the held-out loss is truly flat.
     early_stop_patience: int = 10
     early_stop_min_delta: float = 1e-3  # relative improvement that counts; documented choice
