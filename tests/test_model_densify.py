@@ -179,13 +179,12 @@ def test_accumulate_adds_ndc_gradient_norms_of_visible_gaussians_only():
 
 
 def test_a_view_where_a_gaussian_is_too_faint_to_draw_does_not_dilute_its_mean_gradient():
-    # Two time-local Gaussians with the same gradient whenever shown; the second is shown in
-    # one view of four (opacity below 1/255 in the others): both average the same gradient.
+    # Two time-local Gaussians with the same gradient whenever shown; the second is drawn in
+    # one view of four (too faint in the others): both average the same gradient.
     d = Densifier(DensifyConfig(), scene_extent=1.0)
     grads = torch.tensor([[1e-4, 0.0], [1e-4, 0.0]])
     for shown in (True, False, False, False):
-        faint = 0.5 if shown else 0.003  # 0.003 < 1/255
-        d.accumulate(grads, torch.tensor([3, 3]), 2, 2, torch.tensor([0.5, faint]))
+        d.accumulate(grads, torch.tensor([3, 3]), 2, 2, torch.tensor([True, shown]))
     assert d.denom.tolist() == [4.0, 1.0]
     mean = d.grad_accum / d.denom
     assert mean[0] == pytest.approx(mean[1]) and mean[1] == pytest.approx(1e-4)

@@ -11,6 +11,7 @@ import torch
 from evsplat.config import ModelConfig
 from evsplat.model.gaussians import (
     PARAM_NAMES,
+    SH_C0,
     T_LOG_SCALE_RANGE,
     GaussianModel,
     eval_sh,
@@ -181,3 +182,21 @@ def test_a_checkpoint_from_before_time_local_opacity_loads_as_static():
     legacy = GaussianModel.from_checkpoint(old)
     assert not legacy.temporal
     assert torch.equal(legacy.opacities(0.7), torch.sigmoid(m.opacity_logits))
+
+
+@pytest.mark.parametrize("opacity", [0.0039, 0.0045])
+def test_a_render_reports_as_drawn_exactly_the_gaussians_the_rasterizer_draws(opacity):
+    from evsplat.render import Renderer
+
+    m = GaussianModel(1, 1)
+    with torch.no_grad():
+        m.means.copy_(torch.tensor([[0.0, 0.0, 3.0]]))
+        m.log_scales.fill_(math.log(0.3))  # 4 px at f = 40: the centre pixels see ~0.98 of it
+        m.opacity_logits.fill_(math.log(opacity / (1 - opacity)))
+        m.sh.fill_(0.5 / SH_C0)  # white, against the grey background
+    K = torch.tensor([[40.0, 0, 16], [0, 40, 16], [0, 0, 1]])
+    out = Renderer(m, None, K, 32, 32, 0, 1_000_000).render(0, np.eye(4))
+    # Below 1/255 the rasterizer skips every fragment (shaders: ALPHA_MIN): the image stays grey.
+    touched = bool((out.image - 0.5).abs().max() > 0)
+    assert touched == (opacity > 1 / 255)
+    assert out.drawn().tolist() == [touched]

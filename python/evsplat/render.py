@@ -18,6 +18,9 @@ from evsplat.model.gaussians import GaussianModel
 from evsplat.raster import rasterize
 
 ALPHA_EPS = 1e-4  # below this coverage, alpha-normalised extra channels are set to 0
+# The rasterizer skips fragments fainter than 1/255 (shaders/splat_common.wgsl, ALPHA_MIN): a
+# Gaussian whose opacity at a render's time is below it draws nothing there.
+ALPHA_MIN = 1.0 / 255.0
 
 
 @dataclass
@@ -31,6 +34,11 @@ class RenderOut:
     means: torch.Tensor  # [N,3] the deformed means that were rendered
     opacities: torch.Tensor  # [N] their opacities at the render's time
     extra: torch.Tensor | None = None  # [H,W,E]
+
+    def drawn(self) -> torch.Tensor:
+        """[N] bool: the Gaussians opaque enough to draw anything in this render (with
+        time-local opacity, those shown at its time)."""
+        return self.opacities.detach() >= ALPHA_MIN
 
 
 @dataclass

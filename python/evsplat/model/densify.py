@@ -12,9 +12,6 @@ from evsplat.config import DensifyConfig
 from evsplat.model.gaussians import PARAM_NAMES, GaussianModel, quat_to_rotmat
 
 RESET_OPACITY = 0.01  # 3DGS: opacities are capped to this at each reset
-# The rasterizer skips fragments fainter than 1/255 (shaders/splat_common.wgsl, ALPHA_MIN): a
-# Gaussian whose opacity at a render's time is below it draws nothing there.
-ALPHA_MIN = 1.0 / 255.0
 
 
 def _update_params(
@@ -76,11 +73,11 @@ class Densifier:
         radii: Tensor,
         width: int,
         height: int,
-        opacities: Tensor | None = None,
+        drawn: Tensor | None = None,
     ) -> None:
         """Add this view's screen-space gradient norms of the visible Gaussians: in the view
-        (radius > 0) and, given their ``opacities`` [N] at the view's time, not too faint to
-        draw (>= 1/255).
+        (radius > 0) and, given ``drawn`` [N] bool (``RenderOut.drawn``), not too faint to draw
+        at the view's time.
 
         The opacity test matters with time-local opacity: a Gaussian shown only while a fast
         object passes would otherwise count every view of other times as one without gradient,
@@ -92,8 +89,8 @@ class Densifier:
             return
         self._ensure_size(means2d_grad.shape[0])
         visible = radii.reshape(-1) > 0
-        if opacities is not None:
-            visible &= opacities.detach().reshape(-1) >= ALPHA_MIN
+        if drawn is not None:
+            visible &= drawn.reshape(-1)
         g = means2d_grad.detach().reshape(-1, 2) * torch.tensor([width / 2.0, height / 2.0])
         norm = torch.nan_to_num(g.norm(dim=-1), nan=0.0, posinf=0.0)
         self.grad_accum[visible] += norm[visible]

@@ -33,7 +33,7 @@ from evsplat.losses.flow import (
 from evsplat.losses.patch import patch_motion_loss, select_visible
 from evsplat.losses.reg import non_event_loss, spatial_gradient_loss
 from evsplat.model.deform import DeformationMLP
-from evsplat.model.densify import ALPHA_MIN, Densifier
+from evsplat.model.densify import Densifier
 from evsplat.model.gaussians import GaussianModel
 from evsplat.render import Renderer, RenderOut
 from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
@@ -280,7 +280,7 @@ class Trainer:
             out1.meta["radii"],
             view.width,
             view.height,
-            out1.opacities,
+            out1.drawn(),
         )
         self.optimizer.step()
         if moving:
@@ -347,7 +347,7 @@ class Trainer:
                 lc.patch_n,
                 lc.depth_tolerance,
                 gen,
-                out1.opacities.detach() >= ALPHA_MIN,
+                out1.drawn(),
             )
             if idx.numel() > 0:
                 bounds = ev.split_equal_count(i0, i1, lc.patch_m)
