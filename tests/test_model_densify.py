@@ -188,11 +188,11 @@ def test_a_view_where_a_gaussian_is_too_faint_to_draw_does_not_dilute_its_mean_g
     assert d.denom.tolist() == [4.0, 1.0]
     mean = d.grad_accum / d.denom
     assert mean[0] == pytest.approx(mean[1]) and mean[1] == pytest.approx(1e-4)
-    # Without opacities every in-view Gaussian counts (the static case): the second's mean
+    # Without `drawn` every in-view Gaussian counts (the static case): the second's mean
     # would have been a quarter of what it is when shown.
     e = Densifier(DensifyConfig(), scene_extent=1.0)
-    grads_when_shown = [grads, torch.tensor([[1e-4, 0.0], [0.0, 0.0]])]
-    for g in (grads_when_shown[0], *[grads_when_shown[1]] * 3):
+    hidden = torch.tensor([[1e-4, 0.0], [0.0, 0.0]])  # the second gets no gradient unshown
+    for g in (grads, hidden, hidden, hidden):
         e.accumulate(g, torch.tensor([3, 3]), 2, 2)
     assert (e.grad_accum / e.denom)[1] == pytest.approx(1e-4 / 4)
 

@@ -17,6 +17,7 @@ from evsplat.model.gaussians import (
     eval_sh,
     quat_to_rotmat,
 )
+from evsplat.render import Renderer
 
 
 def test_random_init_places_means_inside_bounds_with_spacing_scale_opacity_and_grey():
@@ -186,8 +187,6 @@ def test_a_checkpoint_from_before_time_local_opacity_loads_as_static():
 
 @pytest.mark.parametrize("opacity", [0.0039, 0.0045])
 def test_a_render_reports_as_drawn_exactly_the_gaussians_the_rasterizer_draws(opacity):
-    from evsplat.render import Renderer
-
     m = GaussianModel(1, 1)
     with torch.no_grad():
         m.means.copy_(torch.tensor([[0.0, 0.0, 3.0]]))
