@@ -62,7 +62,7 @@ def test_densifier_clones_small_splits_large_and_prunes_transparent_gaussians():
         d.accumulate(grads, torch.tensor([3, 5, 3, 3]), W, H)
     torch.manual_seed(0)
     counts = d.step(m, opt, 600)
-    assert counts == {"cloned": 1, "split": 1, "pruned": 1}
+    assert counts == {"cloned": 1, "split": 1, "pruned": 1, "recycled": 0}
     # Kept originals 0 and 2, then the clone of 0, then the two children of 1.
     assert m.num_gaussians == 5
     assert torch.equal(m.sh.detach().reshape(-1), torch.tensor([0.0, 2.0, 0.0, 1.0, 1.0]))
@@ -134,7 +134,7 @@ def test_after_the_first_reset_huge_gaussians_are_pruned_by_screen_and_world_siz
     d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=30_000)
     d.accumulate(torch.zeros(4, 2), torch.tensor([3, 3, 3, 40]), W, H)  # 3 is 40 px wide
     counts = d.step(m, opt, 3100)
-    assert counts == {"cloned": 0, "split": 0, "pruned": 2}
+    assert counts == {"cloned": 0, "split": 0, "pruned": 2, "recycled": 0}
     assert torch.equal(m.sh.detach().reshape(-1), torch.tensor([0.0, 2.0]))
     assert_optimizer_matches_model(opt, m)
 
@@ -158,7 +158,7 @@ def test_near_the_budget_only_the_strongest_gradients_are_densified():
     grads = torch.tensor([[1e-4, 0.0], [0.0, 0.0], [3e-4, 0.0], [0.0, 0.0]])
     d.accumulate(grads, torch.tensor([3, 3, 3, 3]), W, H)
     counts = d.step(m, opt, 600)
-    assert counts == {"cloned": 1, "split": 0, "pruned": 1}  # 3 is transparent
+    assert counts == {"cloned": 1, "split": 0, "pruned": 1, "recycled": 0}  # 3 is transparent
     # Kept 0, 1, 2, then the clone of 2: no growth past the budget, nothing capped.
     assert torch.equal(m.sh.detach().reshape(-1), torch.tensor([0.0, 1.0, 2.0, 2.0]))
     assert_optimizer_matches_model(opt, m)
@@ -229,4 +229,56 @@ def test_clones_and_split_children_carry_their_parents_time_parameters():
     parent_mean, parent_scale = [0.1, 0.2, 0.3, 0.4], [-1.0, -2.0, -3.0, -4.0]
     assert m.t_mean.tolist() == pytest.approx([parent_mean[i] for i in d.origin.tolist()])
     assert m.t_log_scale.tolist() == pytest.approx([parent_scale[i] for i in d.origin.tolist()])
+    assert_optimizer_matches_model(opt, m)
+
+
+def test_at_the_budget_the_faintest_gaussians_make_room_for_high_gradients():
+    m = four_gaussians()
+    with torch.no_grad():  # peak opacities 0.5, 0.02, 0.5, 0.03: 1 and 3 are faint
+        m.opacity_logits.copy_(torch.logit(torch.tensor([0.5, 0.02, 0.5, 0.03])))
+    opt = adam_with_state(m)
+    cfg = dataclasses.replace(DensifyConfig(), max_gaussians=4, recycle_fraction=0.25)
+    d = Densifier(cfg, 1.0, 30_000)
+    # 0 and 2 (small, opaque) both want a clone; the budget is full and allows recycling one
+    # Gaussian (0.25 x 4): the faintest, 1, goes and the stronger gradient, 2, is cloned.
+    grads = torch.tensor([[1e-4, 0.0], [0.0, 0.0], [3e-4, 0.0], [0.0, 0.0]])
+    d.accumulate(grads, torch.tensor([3, 3, 3, 3]), W, H)
+    counts = d.step(m, opt, 600)
+    assert counts == {"cloned": 1, "split": 0, "pruned": 0, "recycled": 1}
+    assert torch.equal(m.sh.detach().reshape(-1), torch.tensor([0.0, 2.0, 3.0, 2.0]))
+    assert_optimizer_matches_model(opt, m)
+    # Nothing faint enough: nothing is recycled, and nothing is densified past the budget.
+    with torch.no_grad():
+        m.opacity_logits.fill_(0.0)
+    d.accumulate(torch.tensor([[3e-4, 0.0]] * 4), torch.tensor([3, 3, 3, 3]), W, H)
+    assert d.step(m, opt, 700) == {"cloned": 0, "split": 0, "pruned": 0, "recycled": 0}
+
+
+def test_split_children_of_time_local_gaussians_are_sampled_from_the_parent_in_time():
+    n = 4000
+    m = GaussianModel(n, 1)
+    m.temporal = True
+    with torch.no_grad():
+        m.log_scales.fill_(math.log(0.05))  # all large: all split
+        m.opacity_logits.fill_(0.0)
+        m.t_mean.copy_(torch.full((n,), 0.5))
+        # Half time-local (width 0.05), half static (width 10).
+        m.t_log_scale.copy_(torch.log(torch.tensor([0.05, 10.0])).repeat(n // 2))
+    opt = adam_with_state(m)
+    d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=30_000)
+    d.accumulate(torch.full((n, 2), 1e-4), torch.full((n,), 3), W, H)
+    torch.manual_seed(0)
+    assert d.step(m, opt, 600)["split"] == n
+    parents = d.origin
+    local = torch.tensor([True, False]).repeat(n // 2)[parents]
+    t_mean, width = m.t_mean.detach(), torch.exp(m.t_log_scale.detach())
+    # Local children: centres drawn from N(0.5, 0.05) (mean and spread within 4 standard
+    # errors of 2n samples), widths divided like the scales (by 1.6).
+    sample = t_mean[local]
+    assert abs(float(sample.mean()) - 0.5) < 4 * 0.05 / math.sqrt(n)
+    assert float(sample.std()) == pytest.approx(0.05, rel=0.05)
+    assert torch.allclose(width[local], torch.full_like(width[local], 0.05 / 1.6))
+    # Static children keep their parent's time: a background must not become time-local.
+    assert torch.equal(t_mean[~local], torch.full_like(t_mean[~local], 0.5))
+    assert torch.allclose(width[~local], torch.full_like(width[~local], 10.0))
     assert_optimizer_matches_model(opt, m)

@@ -173,6 +173,23 @@ def test_time_local_opacity_follows_a_gaussian_in_time_and_is_off_unless_enabled
     assert torch.isfinite(m.t_log_scale.grad).all() and m.t_log_scale.grad[0] != 0
 
 
+def test_start_time_local_narrows_a_random_fraction_and_rejects_bad_settings():
+    n = 10_000
+    m = GaussianModel.random_init(n, 1, [0, 0, 0], [1, 1, 1], seed=0)
+    m.start_time_local(0.3, 0.05, seed=1)
+    width = torch.exp(m.t_log_scale.detach())
+    local = torch.isclose(width, torch.tensor(0.05))
+    # A binomial(n, 0.3) count: within 4 standard deviations; the others keep width 1.
+    assert abs(int(local.sum()) - 0.3 * n) < 4 * math.sqrt(n * 0.3 * 0.7)
+    assert torch.equal(width[~local], torch.ones(int((~local).sum())))
+    again = GaussianModel.random_init(n, 1, [0, 0, 0], [1, 1, 1], seed=0)
+    again.start_time_local(0.3, 0.05, seed=1)
+    assert torch.equal(again.t_log_scale, m.t_log_scale)  # reproducible by seed
+    for fraction, width in ((1.5, 0.05), (0.3, 0.0)):
+        with pytest.raises(ValueError, match="start_time_local"):
+            m.start_time_local(fraction, width)
+
+
 def test_a_checkpoint_from_before_time_local_opacity_loads_as_static():
     m = GaussianModel.random_init(6, 1, [0, 0, 0], [1, 1, 1], seed=2)
     m.temporal = True

@@ -40,6 +40,8 @@ class ModelConfig:
     temporal_opacity: bool = True
     t_mean_lr: float = 1e-2  # documented choice: the time centre, in units of the sequence
     t_scale_lr: float = 2e-2  # documented choice: the log-width in time
+    # (fraction, width): Gaussians that start time-local, and their width in normalised time.
+    init_time_local: tuple[float, float] = (0.3, 0.05)  # documented choice
 
 
 @dataclass
@@ -64,6 +66,14 @@ class DensifyConfig:
     max_screen_radius: float = 20.0  # 3DGS: prune projections wider than 20 px (after a reset)
     max_world_scale: float = 0.1  # 3DGS: prune Gaussians larger than 0.1 x extent
     max_gaussians: int = 1_000_000  # documented choice: memory cap, least opaque pruned first
+    # At the cap, densification may remove up to this fraction of the budget per interval, the
+    # faintest first (peak opacity below recycle_opacity), to make room (3DGS-MCMC-like).
+    recycle_fraction: float = 0.05  # documented choice
+    recycle_opacity: float = 0.05  # documented choice
+    # With time-local opacity, split children of Gaussians narrower in time than
+    # time_local_width (normalised time) are also sampled in time (4D-GS).
+    split_in_time: bool = True
+    time_local_width: float = 0.25  # documented choice: shown in under about half the sequence
 
 
 @dataclass

@@ -9,7 +9,12 @@ import torch
 from torch import Tensor, nn
 
 from evsplat.config import DensifyConfig
-from evsplat.model.gaussians import PARAM_NAMES, GaussianModel, quat_to_rotmat
+from evsplat.model.gaussians import (
+    PARAM_NAMES,
+    T_LOG_SCALE_RANGE,
+    GaussianModel,
+    quat_to_rotmat,
+)
 
 RESET_OPACITY = 0.01  # 3DGS: opacities are capped to this at each reset
 
@@ -132,6 +137,8 @@ class Densifier:
         grads = self.grad_accum / self.denom.clamp_min(1)
         high = grads >= cfg.grad_threshold
         room = cfg.max_gaussians - n0  # a clone adds one Gaussian, a split into two one net
+        recycled = self._recycle(model, high, int(high.sum()) - room)
+        room += int(recycled.sum())
         if int(high.sum()) > max(room, 0):
             # Budget: densify only the strongest gradients that fit, rather than growing past
             # the cap and pruning what was just added.
@@ -161,6 +168,8 @@ class Densifier:
             new["means"] = torch.cat([means[clone], means[split].repeat(k, 1) + offset[..., 0]])
             child_log = torch.log(parent_scale / cfg.split_scale_divisor)
             new["log_scales"] = torch.cat([model.log_scales.detach()[clone], child_log])
+            if model.temporal and cfg.split_in_time:
+                self._split_in_time(new, n_clone)
 
         def append(name: str, old: Tensor, is_state: bool) -> Tensor:
             extra = torch.zeros_like(new[name]) if is_state else new[name]
@@ -172,7 +181,7 @@ class Densifier:
         parents = torch.nonzero(clone).reshape(-1), torch.nonzero(split).reshape(-1).repeat(k)
         self.origin = torch.cat([self.origin, *parents])
         opac = model.opacities().detach()
-        prune = torch.cat([split, torch.zeros(n_new, dtype=torch.bool)]) | (
+        prune = torch.cat([split | recycled, torch.zeros(n_new, dtype=torch.bool)]) | (
             opac < cfg.prune_opacity
         )
         # 3DGS: size pruning only once opacities were reset
@@ -182,10 +191,48 @@ class Densifier:
                 model.scales().detach().max(dim=-1).values > cfg.max_world_scale * self.extent
             )
             prune |= (radii > cfg.max_screen_radius) | big_world
-        n_pruned = int(prune.sum()) - n_split  # split parents are replaced, not pruned
+        # Split parents are replaced and recycled ones make room: neither counts as pruned.
+        n_recycled = int(recycled.sum())
+        n_pruned = int(prune.sum()) - n_split - n_recycled
         self._prune(model, optimizer, ~prune)
         self._reset_stats(model.num_gaussians)  # statistics restart after every density change
-        return {"cloned": n_clone, "split": n_split, "pruned": n_pruned}
+        return {"cloned": n_clone, "split": n_split, "pruned": n_pruned, "recycled": n_recycled}
+
+    def _split_in_time(self, new: dict[str, Tensor], n_clone: int) -> None:
+        """Sample the split children (rows after ``n_clone`` of ``new``, the new parameters) of
+        time-local Gaussians in time too (4D-GS style): each child's
+        time centre is drawn from its parent's temporal Gaussian and its width divided like its
+        scales, so a fast object's time slices are refined where its gradients are large.
+        Wide (static) parents keep their time: a static background must not become time-local.
+        """
+        cfg = self.cfg
+        t_mean, t_log = new["t_mean"][n_clone:], new["t_log_scale"][n_clone:]
+        width = torch.exp(t_log.clamp(*T_LOG_SCALE_RANGE))
+        local = width < cfg.time_local_width
+        jitter = torch.randn(t_mean.shape) * width
+        new["t_mean"][n_clone:] = torch.where(local, (t_mean + jitter).clamp(0.0, 1.0), t_mean)
+        shrunk = t_log - math.log(cfg.split_scale_divisor)
+        new["t_log_scale"][n_clone:] = torch.where(local, shrunk, t_log)
+
+    def _recycle(self, model: GaussianModel, high: Tensor, shortfall: int) -> Tensor:
+        """[N] bool: the faintest Gaussians to remove so that ``shortfall`` more high-gradient
+        ones can be densified under the budget.
+
+        Without this a run that fills its budget early (the tiny preset does within its warm-up)
+        never densifies again, so what only the motion stage fits (a fast object's later
+        positions) gets no new Gaussians. Faint ones (peak opacity below ``recycle_opacity``,
+        not themselves densified) go first, at most ``recycle_fraction`` of the budget per
+        densification: a bounded version of 3DGS-MCMC's relocation of dead Gaussians.
+        """
+        cfg = self.cfg
+        out = torch.zeros_like(high)
+        limit = min(shortfall, int(cfg.recycle_fraction * cfg.max_gaussians))
+        if limit <= 0:
+            return out
+        peak = torch.sigmoid(model.opacity_logits.detach())
+        faint = torch.nonzero(~high & (peak < cfg.recycle_opacity)).reshape(-1)
+        out[faint[torch.argsort(peak[faint])[:limit]]] = True
+        return out
 
     def _prune(self, model: GaussianModel, optimizer, keep: Tensor) -> None:
         _update_params(model, optimizer, lambda _n, old, _s: old[keep])

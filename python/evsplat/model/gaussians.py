@@ -162,6 +162,20 @@ class GaussianModel(nn.Module):
             model.t_mean.copy_(torch.rand(num, generator=gen))
         return model
 
+    def start_time_local(self, fraction: float, width: float, seed: int = 0) -> None:
+        """Give a random ``fraction`` of the Gaussians the time width ``width`` (normalised
+        time) around their time centres; the others keep theirs. With time-local opacity a fast
+        object is then drawn from the first iterations by Gaussians that need not first shrink
+        in time (from the initial width 1, they would be shown over most of the sequence)."""
+        if not 0.0 <= fraction <= 1.0 or not width > 0.0:
+            raise ValueError(
+                f"start_time_local: fraction {fraction} must be in [0, 1], width {width} positive"
+            )
+        gen = torch.Generator().manual_seed(seed)
+        local = torch.rand(self.num_gaussians, generator=gen) < fraction
+        with torch.no_grad():
+            self.t_log_scale[local] = math.log(width)
+
     def scales(self) -> Tensor:
         """Scales [N,3]: exp(log_scales) clamped to [1e-6, 1e3]."""
         return scale_activation(self.log_scales)

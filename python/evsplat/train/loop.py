@@ -127,6 +127,8 @@ class Trainer:
             cfg.num_gaussians, self.channels, lo, hi, sh_degree=cfg.model.sh_degree, seed=cfg.seed
         )
         self.model.temporal = cfg.deform and cfg.model.temporal_opacity
+        if self.model.temporal:
+            self.model.start_time_local(*cfg.model.init_time_local, seed=cfg.seed)
         focal = float(data.K[0, 0])
         with torch.no_grad():
             self.model.means.copy_(torch.from_numpy(points.astype(np.float32)))
