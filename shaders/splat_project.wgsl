@@ -47,6 +47,11 @@ fn project_gaussian(i: u32) -> Projected {
     if (!(p.z >= params.near && p.z <= params.far)) {
         return o;
     }
+    // Too faint to draw anywhere (alpha <= opacity < ALPHA_MIN): culled here, so it costs no
+    // tile work. With time-local opacity most Gaussians of a fast object are, at any one time.
+    if (!(inputs[params.off_opac + i] >= ALPHA_MIN)) {
+        return o;
+    }
     let qb = params.off_quats + 4u * i;
     let q = vec4<f32>(inputs[qb], inputs[qb + 1u], inputs[qb + 2u], inputs[qb + 3u]);
     o.qlen = sqrt(max(dot(q, q), QUAT_EPS2));

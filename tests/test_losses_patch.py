@@ -103,9 +103,6 @@ def test_select_visible_skips_occluded_offscreen_and_behind_camera_gaussians():
     gen = torch.Generator().manual_seed(0)
     idx = select_visible(means2d, depths, rendered, 10, 0.1, gen)
     assert idx.tolist() == [0, 2]
-    # A Gaussian transparent at the render's time (time-local opacity) qualifies no more.
-    drawn = torch.tensor([True, True, False, True, True, True, True])
-    assert select_visible(means2d, depths, rendered, 10, 0.1, gen, drawn).tolist() == [0]
 
 
 def test_select_visible_returns_a_random_sample_of_n_distinct_visible_gaussians():

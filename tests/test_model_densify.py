@@ -178,25 +178,6 @@ def test_accumulate_adds_ndc_gradient_norms_of_visible_gaussians_only():
     assert torch.equal(e.grad_accum, d.grad_accum) and torch.equal(e.max_radii, d.max_radii)
 
 
-def test_a_view_where_a_gaussian_is_too_faint_to_draw_does_not_dilute_its_mean_gradient():
-    # Two time-local Gaussians with the same gradient whenever shown; the second is drawn in
-    # one view of four (too faint in the others): both average the same gradient.
-    d = Densifier(DensifyConfig(), scene_extent=1.0)
-    grads = torch.tensor([[1e-4, 0.0], [1e-4, 0.0]])
-    for shown in (True, False, False, False):
-        d.accumulate(grads, torch.tensor([3, 3]), 2, 2, torch.tensor([True, shown]))
-    assert d.denom.tolist() == [4.0, 1.0]
-    mean = d.grad_accum / d.denom
-    assert mean[0] == pytest.approx(mean[1]) and mean[1] == pytest.approx(1e-4)
-    # Without `drawn` every in-view Gaussian counts (the static case): the second's mean
-    # would have been a quarter of what it is when shown.
-    e = Densifier(DensifyConfig(), scene_extent=1.0)
-    hidden = torch.tensor([[1e-4, 0.0], [0.0, 0.0]])  # the second gets no gradient unshown
-    for g in (grads, hidden, hidden, hidden):
-        e.accumulate(g, torch.tensor([3, 3]), 2, 2)
-    assert (e.grad_accum / e.denom)[1] == pytest.approx(1e-4 / 4)
-
-
 def clone_0_split_1(m: GaussianModel, opt: torch.optim.Optimizer) -> Densifier:
     """One densification step on ``four_gaussians`` that clones row 0, splits row 1 and keeps
     rows 2 and 3 (their gradients are below the threshold)."""

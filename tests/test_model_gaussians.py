@@ -203,16 +203,23 @@ def test_a_checkpoint_from_before_time_local_opacity_loads_as_static():
 
 
 @pytest.mark.parametrize("opacity", [0.0039, 0.0045])
-def test_a_render_reports_as_drawn_exactly_the_gaussians_the_rasterizer_draws(opacity):
+def test_a_gaussian_too_faint_to_draw_at_a_time_is_culled_there(opacity):
+    # Time-local opacity at the render's time below 1/255: the rasterizer draws nothing of it
+    # and culls it (radius 0, depth 0), so densification and L_m's sampling pass it over.
     m = GaussianModel(1, 1)
+    m.temporal = True
     with torch.no_grad():
         m.means.copy_(torch.tensor([[0.0, 0.0, 3.0]]))
         m.log_scales.fill_(math.log(0.3))  # 4 px at f = 40: the centre pixels see ~0.98 of it
-        m.opacity_logits.fill_(math.log(opacity / (1 - opacity)))
+        m.opacity_logits.fill_(math.log(0.5))  # peak 1/3
+        m.t_mean.fill_(0.0)
+        m.t_log_scale.fill_(math.log(0.2))
         m.sh.fill_(0.5 / SH_C0)  # white, against the grey background
+    # The time at which the temporal factor brings the peak 1/3 down to `opacity`.
+    t = 0.2 * math.sqrt(2 * math.log((1 / 3) / opacity))
     K = torch.tensor([[40.0, 0, 16], [0, 40, 16], [0, 0, 1]])
-    out = Renderer(m, None, K, 32, 32, 0, 1_000_000).render(0, np.eye(4))
-    # Below 1/255 the rasterizer skips every fragment (shaders: ALPHA_MIN): the image stays grey.
+    out = Renderer(m, None, K, 32, 32, 0, 1_000_000).render(round(t * 1e6), np.eye(4))
     touched = bool((out.image - 0.5).abs().max() > 0)
     assert touched == (opacity > 1 / 255)
-    assert out.drawn().tolist() == [touched]
+    assert (int(out.meta["radii"][0]) > 0) == touched
+    assert (float(out.meta["depths"][0]) > 0) == touched

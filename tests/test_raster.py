@@ -72,6 +72,25 @@ def test_forward_when_every_gaussian_is_culled_is_empty():
     assert_forward_matches((behind, *rest), 32, 32)
 
 
+def test_gaussians_too_faint_to_draw_are_culled_in_projection_and_get_no_gradient():
+    means, quats, scales, opacities, features, viewmat, K = make_scene(40, 3, 32, 32)
+    faint = torch.arange(40) % 3 == 0
+    opacities = torch.where(faint, torch.full_like(opacities, 0.9 / 255), opacities)
+    scene = [means, quats, scales, opacities, features, viewmat, K]
+    leaves = [p.clone().requires_grad_(True) for p in scene[:5]]
+    image, depth, alpha, meta = evsplat.rasterize(*leaves, viewmat, K, 32, 32)
+    assert not meta["visible"][faint].any() and not meta["radii"][faint].any()
+    assert meta["visible"][~faint].any()
+    assert_forward_matches(scene, 32, 32)
+    # The image is what the others alone give (a faint one never passed the alpha test).
+    kept = [p[~faint] for p in scene[:5]]
+    alone = evsplat.rasterize(*kept, viewmat, K, 32, 32)[0]
+    assert torch.allclose(image, alone, atol=1e-6)
+    (image.sum() + depth.sum()).backward()
+    for p in leaves:
+        assert torch.isfinite(p.grad).all() and not p.grad[faint].any()
+
+
 def test_intersection_capacity_follows_the_counts_without_losing_any():
     # The tile-key capacity grows on overflow (re-render) and shrinks after small renders; a
     # large render right after small ones must still composite every intersection.

@@ -18,9 +18,6 @@ from evsplat.model.gaussians import GaussianModel
 from evsplat.raster import rasterize
 
 ALPHA_EPS = 1e-4  # below this coverage, alpha-normalised extra channels are set to 0
-# The rasterizer skips fragments fainter than 1/255 (shaders/splat_common.wgsl, ALPHA_MIN): a
-# Gaussian whose opacity at a render's time is below it draws nothing there.
-ALPHA_MIN = 1.0 / 255.0
 
 
 @dataclass
@@ -32,13 +29,7 @@ class RenderOut:
     alpha: torch.Tensor  # [H,W]
     meta: dict
     means: torch.Tensor  # [N,3] the deformed means that were rendered
-    opacities: torch.Tensor  # [N] their opacities at the render's time
     extra: torch.Tensor | None = None  # [H,W,E]
-
-    def drawn(self) -> torch.Tensor:
-        """[N] bool: the Gaussians opaque enough to draw anything in this render (with
-        time-local opacity, those shown at its time)."""
-        return self.opacities.detach() >= ALPHA_MIN
 
 
 @dataclass
@@ -84,12 +75,11 @@ class Renderer:
         features = colors if extra is None else torch.cat([colors, extra], dim=1)
         background = torch.zeros(features.shape[1])
         background[:channels] = self.background
-        opacities = self.model.opacities(self.time(t_us))
         image, depth, alpha, meta = rasterize(
             means,
             rotations,
             scales,
-            opacities,
+            self.model.opacities(self.time(t_us)),
             features,
             w2c,
             self.K,
@@ -103,7 +93,7 @@ class Renderer:
             out_extra = torch.where(
                 cover > ALPHA_EPS, image[..., channels:] / cover.clamp(min=ALPHA_EPS), 0.0
             )
-        return RenderOut(image[..., :channels], depth, alpha, meta, means, opacities, out_extra)
+        return RenderOut(image[..., :channels], depth, alpha, meta, means, out_extra)
 
     @classmethod
     def from_state(cls, state: dict) -> Renderer:

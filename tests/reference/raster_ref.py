@@ -37,8 +37,11 @@ def quat_to_rot(q: torch.Tensor) -> torch.Tensor:
     )
 
 
-def project(means, quats, scales, viewmat, K, width: int, height: int, near: float, far: float):
-    """Per-Gaussian 2-D mean, conic (a, b, c), camera z, radius and visibility."""
+def project(
+    means, quats, scales, opacities, viewmat, K, width: int, height: int, near: float, far: float
+):
+    """Per-Gaussian 2-D mean, conic (a, b, c), camera z, radius and visibility. A Gaussian
+    fainter than ALPHA_MIN is not visible: no fragment of it could pass the alpha test."""
     rot_w, t_w = viewmat[:3, :3], viewmat[:3, 3]
     p = means @ rot_w.T + t_w
     z = p[:, 2]
@@ -65,7 +68,7 @@ def project(means, quats, scales, viewmat, K, width: int, height: int, near: flo
     a = cov2d[:, 0, 0] + LOW_PASS
     b = cov2d[:, 0, 1]
     c = cov2d[:, 1, 1] + LOW_PASS
-    ok = in_range & (a <= MAX_VAR_PX) & (c <= MAX_VAR_PX)
+    ok = in_range & (opacities.detach() >= ALPHA_MIN) & (a <= MAX_VAR_PX) & (c <= MAX_VAR_PX)
     det = a * c - b * b
     ok = ok & (det > 0)
     det_s = torch.where(ok, det, torch.ones_like(det))
@@ -105,7 +108,7 @@ def render(
     r0, r1 = rows if rows is not None else (0, height)
     dtype = means.dtype
     mean2d, conic, z, radius, ok = project(
-        means, quats, scales, viewmat, K, width, height, near, far
+        means, quats, scales, opacities, viewmat, K, width, height, near, far
     )
     d = features.shape[1]
     bg = torch.zeros(d, dtype=dtype) if background is None else background.to(dtype)

@@ -45,10 +45,21 @@ def _set(section: str | None, **values) -> Callable:
     return apply
 
 
+def _both(first: Callable, second: Callable) -> Callable:
+    def apply(cfg) -> None:
+        first(cfg)
+        second(cfg)
+
+    return apply
+
+
 VARIANTS: dict[str, Variant] = {
     "defaults": Variant(_defaults),
     "no-mlp": Variant(_set(None, deform=False)),
     "static-off": Variant(_set("skips", static=False)),
+    "static-off-paper-mlp": Variant(
+        _both(_set("skips", static=False), _set("model", mlp_width=256, mlp_depth=8, mlp_skip=4))
+    ),
     "coarse": Variant(_set("skips", coarse_fraction=0.3)),
     "early-stop-patience-2": Variant(_set("skips", early_stop_patience=2)),
     "budget-3000": Variant(_set("densify", max_gaussians=3000)),
@@ -61,6 +72,8 @@ VARIANTS: dict[str, Variant] = {
 # (patience 10) cannot trigger in a short run, so the defaults are its "without".
 PAIRS = [
     ("deformation MLP and motion losses, by flag (`deform=False`)", "no-mlp", "static-off"),
+    ("the same against the paper's 8x256 MLP (tiny preset's is 4x64)", "no-mlp",
+     "static-off-paper-mlp"),
     ("MLP for Gaussians found static; all of it once the scene is (`skips.static`)", "defaults",
      "static-off"),
     ("full resolution in the first 30% (`skips.coarse_fraction=0.3`)", "coarse", "defaults"),

@@ -54,16 +54,15 @@ def select_visible(
     n: int,
     rel_tol: float,
     generator: torch.Generator | None,
-    drawn: Tensor | None = None,
 ) -> Tensor:
     """Indices (sorted, at most ``n``) of a random sample of unoccluded Gaussians.
 
     A Gaussian qualifies when its projected centre ``means2d [N,2]`` (x, y pixels) lies on the
     sensor, its camera depth is positive, and it is not behind the rendered (expected) depth of
     its pixel by more than ``rel_tol`` of that depth; pixels where nothing was rendered
-    (depth <= 0) hide nothing and show nothing, so they qualify no one. ``drawn`` [N] bool, when
-    given, must also hold: with time-local opacity a Gaussian that is transparent at the
-    render's time is in front of nothing, and the events around it belong to something else.
+    (depth <= 0) hide nothing and show nothing, so they qualify no one. The rasterizer gives
+    culled Gaussians depth 0, so one too faint to draw at the render's time (time-local
+    opacity) does not qualify: it is in front of nothing, the events around it are another's.
     """
     h, w = rendered_depth.shape
     with torch.no_grad():
@@ -74,8 +73,6 @@ def select_visible(
         row = torch.where(inside, y, torch.zeros_like(y)).long().clamp(0, h - 1)
         surface = rendered_depth[row, col]
         visible = inside & (surface > 0) & (depths <= surface * (1.0 + rel_tol))
-        if drawn is not None:
-            visible &= drawn.reshape(-1)
         candidates = torch.nonzero(visible, as_tuple=False).reshape(-1)
         pick = torch.randperm(candidates.numel(), generator=generator)[: max(n, 0)]
         return candidates[pick].sort().values

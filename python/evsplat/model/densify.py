@@ -78,24 +78,21 @@ class Densifier:
         radii: Tensor,
         width: int,
         height: int,
-        drawn: Tensor | None = None,
     ) -> None:
-        """Add this view's screen-space gradient norms of the visible Gaussians: in the view
-        (radius > 0) and, given ``drawn`` [N] bool (``RenderOut.drawn``), not too faint to draw
-        at the view's time.
+        """Add this view's screen-space gradient norms of the visible Gaussians (radius > 0).
 
-        The opacity test matters with time-local opacity: a Gaussian shown only while a fast
-        object passes would otherwise count every view of other times as one without gradient,
-        and its mean gradient (accumulated / views) would fall below the threshold however
-        badly it fits when it is shown. Pixel gradients are converted to NDC units (x W/2,
-        x H/2) as in 3DGS, so its threshold 2e-4 keeps its meaning at any resolution.
+        The rasterizer gives a radius only to Gaussians in the view and opaque enough to draw
+        (opacity >= 1/255). The opacity test matters with time-local opacity: a Gaussian shown
+        only while a fast object passes would otherwise count every view of other times as one
+        without gradient, and its mean gradient (accumulated / views) would fall below the
+        threshold however badly it fits when it is shown. Pixel gradients are converted to NDC
+        units (x W/2, x H/2) as in 3DGS, so its threshold 2e-4 keeps its meaning at any
+        resolution.
         """
         if means2d_grad is None:
             return
         self._ensure_size(means2d_grad.shape[0])
         visible = radii.reshape(-1) > 0
-        if drawn is not None:
-            visible &= drawn.reshape(-1)
         g = means2d_grad.detach().reshape(-1, 2) * torch.tensor([width / 2.0, height / 2.0])
         norm = torch.nan_to_num(g.norm(dim=-1), nan=0.0, posinf=0.0)
         self.grad_accum[visible] += norm[visible]

@@ -282,7 +282,6 @@ class Trainer:
             out1.meta["radii"],
             view.width,
             view.height,
-            out1.drawn(),
         )
         self.optimizer.step()
         if moving:
@@ -349,7 +348,6 @@ class Trainer:
                 lc.patch_n,
                 lc.depth_tolerance,
                 gen,
-                out1.drawn(),
             )
             if idx.numel() > 0:
                 bounds = ev.split_equal_count(i0, i1, lc.patch_m)
