@@ -197,10 +197,10 @@ class Densifier:
 
     def _split_in_time(self, new: dict[str, Tensor], n_clone: int) -> None:
         """Sample the split children (rows after ``n_clone`` of ``new``, the new parameters) of
-        time-local Gaussians in time too (4D-GS style): each child's
-        time centre is drawn from its parent's temporal Gaussian and its width divided like its
-        scales, so a fast object's time slices are refined where its gradients are large.
-        Wide (static) parents keep their time: a static background must not become time-local.
+        time-local Gaussians in time too (4D-GS style): each child's time centre is drawn from
+        its parent's temporal Gaussian and its width divided like its scales, so a fast object's
+        time slices are refined where its gradients are large. Wide (static) parents keep their
+        time: a static background must not become time-local.
         """
         cfg = self.cfg
         t_mean, t_log = new["t_mean"][n_clone:], new["t_log_scale"][n_clone:]
