@@ -9,12 +9,7 @@ import torch
 from torch import Tensor, nn
 
 from evsplat.config import DensifyConfig
-from evsplat.model.gaussians import (
-    PARAM_NAMES,
-    T_LOG_SCALE_RANGE,
-    GaussianModel,
-    quat_to_rotmat,
-)
+from evsplat.model.gaussians import PARAM_NAMES, GaussianModel, quat_to_rotmat, time_width
 
 RESET_OPACITY = 0.01  # 3DGS: opacities are capped to this at each reset
 
@@ -204,7 +199,7 @@ class Densifier:
         """
         cfg = self.cfg
         t_mean, t_log = new["t_mean"][n_clone:], new["t_log_scale"][n_clone:]
-        width = torch.exp(t_log.clamp(*T_LOG_SCALE_RANGE))
+        width = time_width(t_log)
         local = width < cfg.time_local_width
         jitter = torch.randn(t_mean.shape) * width
         new["t_mean"][n_clone:] = torch.where(local, (t_mean + jitter).clamp(0.0, 1.0), t_mean)

@@ -32,6 +32,11 @@ def scale_activation(log_scales: Tensor) -> Tensor:
     return torch.exp(log_scales.clamp(math.log(SCALE_MIN), math.log(SCALE_MAX)))
 
 
+def time_width(t_log_scale: Tensor) -> Tensor:
+    """Time widths (normalised time) of time-local opacity: exp of the clamped log-widths."""
+    return torch.exp(t_log_scale.clamp(*T_LOG_SCALE_RANGE))
+
+
 def normalize_quats(q: Tensor) -> Tensor:
     """Unit quaternions (w, x, y, z); a (near) zero quaternion becomes the identity, never NaN."""
     # Divide by the largest |component| (a constant) when it exceeds 1: |q|^2 of a quaternion
@@ -186,7 +191,7 @@ class GaussianModel(nn.Module):
         peak = torch.sigmoid(self.opacity_logits)
         if t is None or not self.temporal:
             return peak
-        width = torch.exp(self.t_log_scale.clamp(*T_LOG_SCALE_RANGE))
+        width = time_width(self.t_log_scale)
         return peak * torch.exp(-0.5 * ((t - self.t_mean) / width) ** 2)
 
     def rotations(self) -> Tensor:
