@@ -278,10 +278,7 @@ class Trainer:
             return StepResult(values, stage, skipped=f"non-finite {bad}")
 
         self.densifier.accumulate(
-            out1.meta["means2d_grad"],
-            out1.meta["radii"],
-            view.width,
-            view.height,
+            out1.meta["means2d_grad"], out1.meta["radii"], view.width, view.height
         )
         self.optimizer.step()
         if moving:
