@@ -29,13 +29,15 @@ PX_PER_UNIT = 100.0  # a Gaussian moving 0.01 moves one pixel
 
 class CodedMLP(nn.Module):
     """Deforms each Gaussian by the code in its canonical y (0: not at all, 1: Δx, 2: Δq,
-    3: Δs, 4: Δx below the pixel threshold) by sin(πt), zero at both ends of the sequence;
-    code 5 is a constant offset in all three (Δx, Δq, Δs), which is no motion."""
+    3: Δs, 4: Δx below the pixel threshold, 6: Δx between the Gaussian's and the scene's pixel
+    thresholds) by sin(πt), zero at both ends of the sequence; code 5 is a constant offset in
+    all three (Δx, Δq, Δs), which is no motion."""
 
     def forward(self, x: torch.Tensor, t: float):
         code, amp = x[:, 1].round(), math.sin(math.pi * t)
         dx, dq, ds = torch.zeros(len(x), 3), torch.zeros(len(x), 4), torch.zeros(len(x), 3)
-        dx[:, 0] = amp * (0.5 * (code == 1) + 1e-5 * (code == 4)) + 0.3 * (code == 5)
+        dx[:, 0] = amp * (0.5 * (code == 1) + 1e-5 * (code == 4) + 0.025 * (code == 6))
+        dx[:, 0] += 0.3 * (code == 5)
         dq[:, 1] = amp * 0.5 * (code == 2) + 0.2 * (code == 5)
         ds[:, 2] = amp * 0.5 * (code == 3) - 0.4 * (code == 5)
         return dx, dq, ds
@@ -51,9 +53,11 @@ def coded_means(codes: list[int]) -> torch.Tensor:
 
 
 def test_classification_marks_exactly_the_gaussians_the_mlp_leaves_still():
-    codes = [0, 1, 2, 3, 4, 5, 0, 1]
-    static, mean = classify_static(CodedMLP(), coded_means(codes), scale(8), SkipConfig())
+    codes = [0, 1, 2, 3, 4, 5, 0, 1, 6]
+    static, scene, mean = classify_static(CodedMLP(), coded_means(codes), scale(9), SkipConfig())
     assert static.tolist() == [c in (0, 4, 5) for c in codes]
+    # Code 6 strays 0.025 x max|sin(πt) - its mean| = 1.6 px: above 1 px, within the scene's 2.
+    assert scene.tolist() == [c in (0, 4, 5, 6) for c in codes]
     # The time mean of the offset-only Gaussian is the offset itself.
     assert mean.dx[5].tolist() == pytest.approx([0.3, 0, 0])
     assert mean.ds[5].tolist() == pytest.approx([0, 0, -0.4])
@@ -75,7 +79,7 @@ def test_render_with_the_mask_equals_render_without_it_when_static_ones_truly_do
     renderer = Renderer(model, CodedMLP(), torch.tensor([[40.0, 0, 32], [0, 40, 32], [0, 0, 1]]),
                         64, 64, 0, 1_000_000)  # fmt: skip
     t = 500_000  # mid-sequence: the coded Gaussians are at their largest displacement
-    static, _ = classify_static(CodedMLP(), model.means, scale(len(codes)), SkipConfig())
+    static, _, _ = classify_static(CodedMLP(), model.means, scale(len(codes)), SkipConfig())
     assert static.tolist() == [c == 0 for c in codes]
     with torch.no_grad():
         full = renderer.render(t, c2w).image
@@ -102,7 +106,7 @@ def test_baking_a_constant_deformation_keeps_the_render_without_the_mlp():
     renderer = Renderer(model, CodedMLP(), K, 64, 64, 0, 1_000_000)
     with torch.no_grad():
         before = renderer.render(300_000, c2w).image
-        static, mean = classify_static(CodedMLP(), model.means, scale(4), SkipConfig())
+        static, _, mean = classify_static(CodedMLP(), model.means, scale(4), SkipConfig())
         assert bool(static.all())
         bake(model, torch.nonzero(static).reshape(-1), mean.select(static))
         renderer.static_mask = static

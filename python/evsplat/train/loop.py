@@ -307,8 +307,8 @@ class Trainer:
         centre = torch.from_numpy(self.pose_samples[1][:, :3, 3].mean(0).astype(np.float32))
         scale = pixels_per_unit(means, centre, float(self.data.K[0, 0]), 1e-2)
         sk = self.cfg.skips
-        static, mean = classify_static(self.mlp, means, scale, sk)
-        if first and float(static.float().mean()) >= sk.static_scene_fraction:
+        static, scene_static, mean = classify_static(self.mlp, means, scale, sk)
+        if first and float(scene_static.float().mean()) >= sk.static_scene_fraction:
             # A static scene: nothing left for the MLP or the motion losses to explain.
             static[:] = True
             self.static_scene = True

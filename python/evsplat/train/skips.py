@@ -43,8 +43,9 @@ class Deformation:
 @torch.no_grad()
 def classify_static(
     mlp: DeformationMLP, means: Tensor, pixels_per_unit: Tensor, cfg: SkipConfig
-) -> tuple[Tensor, Deformation]:
-    """([N] bool static, the time-averaged deformation) from ``cfg.static_times`` times in [0, 1].
+) -> tuple[Tensor, Tensor, Deformation]:
+    """([N] bool static, [N] bool still within the looser ``cfg.static_scene_px``, the
+    time-averaged deformation) from ``cfg.static_times`` times in [0, 1].
 
     A Gaussian is static when its deformation hardly *changes* with time: Δx stays within
     ``cfg.static_px`` pixels of its mean (``pixels_per_unit`` [N] converts world units to
@@ -55,6 +56,7 @@ def classify_static(
     times = torch.linspace(0.0, 1.0, cfg.static_times).tolist()
     n = means.shape[0]
     static = torch.zeros(n, dtype=torch.bool)
+    scene_static = torch.zeros(n, dtype=torch.bool)
     mean = Deformation(torch.zeros(n, 3), torch.zeros(n, 4), torch.zeros(n, 3))
     for a in range(0, n, CHUNK):
         x = means[a : a + CHUNK].detach()
@@ -62,12 +64,12 @@ def classify_static(
         mean.dx[a : a + CHUNK], mean.dq[a : a + CHUNK] = dx.mean(0), dq.mean(0)
         mean.ds[a : a + CHUNK] = ds.mean(0)
         moved_px = (dx - dx.mean(0)).norm(dim=-1).amax(0) * pixels_per_unit[a : a + CHUNK]
-        static[a : a + CHUNK] = (
-            (moved_px <= cfg.static_px)
-            & ((dq - dq.mean(0)).norm(dim=-1).amax(0) <= cfg.static_dq)
-            & ((ds - ds.mean(0)).abs().amax(-1).amax(0) <= cfg.static_ds)
+        turned = ((dq - dq.mean(0)).norm(dim=-1).amax(0) <= cfg.static_dq) & (
+            (ds - ds.mean(0)).abs().amax(-1).amax(0) <= cfg.static_ds
         )
-    return static, mean
+        static[a : a + CHUNK] = (moved_px <= cfg.static_px) & turned
+        scene_static[a : a + CHUNK] = (moved_px <= cfg.static_scene_px) & turned
+    return static, scene_static, mean
 
 
 @torch.no_grad()
