@@ -125,8 +125,8 @@ def test_param_groups_cover_every_parameter_with_3dgs_rates_scaled_by_extent():
         "quats": 1e-3,
         "opacity_logits": 5e-2,
         "sh": 2.5e-3,
-        "t_mean": 1e-2,
-        "t_log_scale": 2e-2,
+        "t_mean": cfg.t_mean_lr,  # documented choices, not 3DGS rates
+        "t_log_scale": cfg.t_scale_lr,
     }
     grouped = {id(p) for g in groups for p in g["params"]}
     assert grouped == {id(p) for p in m.parameters()}
