@@ -57,11 +57,15 @@ def train(
         if iterations < 1:
             raise EvsplatError(f"--iters {iterations}: must be at least 1")
         cfg.schedule.iterations = iterations
-    if cfg.threads:
-        import torch
+    import torch
 
+    callers_threads = torch.get_num_threads()
+    if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    trainer = Trainer(data, cfg, out, make_depth_prior(depth_prior, data))
-    if latest is not None:
-        trainer.resume()
-    return trainer.run(progress=progress)
+    try:
+        trainer = Trainer(data, cfg, out, make_depth_prior(depth_prior, data))
+        if latest is not None:
+            trainer.resume()
+        return trainer.run(progress=progress)
+    finally:
+        torch.set_num_threads(callers_threads)  # a preset's setting ends with its run

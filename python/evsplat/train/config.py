@@ -77,12 +77,15 @@ def _skips(d: dict) -> SkipConfig:
 
 
 def _tiny() -> TrainConfig:
-    """Small enough to train the tiny built-in scene in about 6.5 minutes on 2 CPU cores with
-    lavapipe (0.05 s per iteration at 1500 Gaussians in the warm-up, 0.18 s at the 6000 budget
-    with the motion losses); early stop ends it sooner if the held-out loss plateaus. A
+    """Small enough to train the tiny built-in scene in about 3.5 minutes on 2 CPU cores with
+    lavapipe (2000 iterations, densified to the 6000 budget; 214 s in session 10's demo run);
+    early stop ends it sooner if the held-out loss plateaus. A
     short schedule needs larger colour and scale learning rates than 3DGS's 30k-iteration ones
-    (documented choice: 10x and 2x)."""
-    cfg = TrainConfig(preset="tiny", num_gaussians=1500)
+    (documented choice: 10x and 2x). One torch thread: at 96x96 torch's ops are too small to
+    gain from more, and on a CPU adapter its idle workers spin on the cores lavapipe's
+    rasterizer needs (2 cores: 13.2 -> 17.3 it/s; at 400x400 one thread is 23% slower, so the
+    other presets keep torch's default; docs/benchmarks.md)."""
+    cfg = TrainConfig(preset="tiny", num_gaussians=1500, threads=1)
     cfg.schedule = ScheduleConfig(iterations=2000, checkpoint_every=500, log_every=10)
     cfg.model = dataclasses.replace(
         cfg.model, mlp_width=64, mlp_depth=4, mlp_skip=2, colors_lr=0.025, scales_lr=0.01
