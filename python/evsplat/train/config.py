@@ -78,13 +78,14 @@ def _skips(d: dict) -> SkipConfig:
 
 def _tiny() -> TrainConfig:
     """Small enough to train the tiny built-in scene in about 3.5 minutes on 2 CPU cores with
-    lavapipe (2000 iterations, densified to the 6000 budget; 214 s in session 10's demo run);
-    early stop ends it sooner if the held-out loss plateaus. A
-    short schedule needs larger colour and scale learning rates than 3DGS's 30k-iteration ones
-    (documented choice: 10x and 2x). One torch thread: at 96x96 torch's ops are too small to
-    gain from more, and on a CPU adapter its idle workers spin on the cores lavapipe's
-    rasterizer needs (2 cores: 13.2 -> 17.3 it/s; at 400x400 one thread is 23% slower, so the
-    other presets keep torch's default; docs/benchmarks.md)."""
+    lavapipe (2000 iterations, densified to the 6000 budget: 214 s); early stop ends it sooner
+    if the held-out loss plateaus. A short schedule needs larger colour and scale learning
+    rates than 3DGS's 30k-iteration ones (documented choice: 10x and 2x).
+
+    One torch thread: at 96x96 torch's ops are too small to gain from more, and on a CPU
+    adapter its idle workers spin on the cores lavapipe's rasterizer needs (2 cores: 13.2 ->
+    17.3 it/s; at 400x400 one thread is 23% slower, so the other presets keep torch's default;
+    docs/benchmarks.md)."""
     cfg = TrainConfig(preset="tiny", num_gaussians=1500, threads=1)
     cfg.schedule = ScheduleConfig(iterations=2000, checkpoint_every=500, log_every=10)
     cfg.model = dataclasses.replace(
