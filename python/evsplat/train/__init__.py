@@ -35,6 +35,8 @@ def train(
     a finished run is never overwritten by accident.
     """
     # Imported here so `evsplat.train.checkpoint` & co. load without the data/model stack.
+    import torch
+
     from evsplat.data.dataset import load_dataset
     from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint
     from evsplat.train.config import TrainConfig, preset
@@ -57,8 +59,6 @@ def train(
         if iterations < 1:
             raise EvsplatError(f"--iters {iterations}: must be at least 1")
         cfg.schedule.iterations = iterations
-    import torch
-
     callers_threads = torch.get_num_threads()
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
