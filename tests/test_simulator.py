@@ -1,5 +1,8 @@
 """ESIM-style simulator against analytic cases: ramps, sums of C·p, Bayer channels, seeds."""
 
+import json
+import shutil
+
 import numpy as np
 import pytest
 
@@ -118,3 +121,102 @@ def test_bad_simulator_inputs_are_one_line_errors():
         simulate_events((times, np.full((2, 4, 4), np.nan, np.float32)), bayer="mono")
     with pytest.raises(EvsplatError, match="thresholds must be positive"):
         simulate_events((times, np.zeros((2, 4, 4), np.float32)), c_pos=0.0, bayer="mono")
+
+
+# ----------------------------------------------------------------- tracked-object ground truth
+
+
+@pytest.fixture(scope="module")
+def tiny_ball_with_track(tmp_path_factory):
+    from evsplat.data.simulator import simulate_dataset
+
+    out = tmp_path_factory.mktemp("track") / "ball"
+    return simulate_dataset("ball", out, tiny=True, seed=0, progress=False)
+
+
+def ball_centre(t_s: float) -> np.ndarray:
+    """The ball scene's ball centre, written out from its description (independent of Scene)."""
+    radius, floor_y = 0.38, 1.0
+    height = 1.1 * abs(np.sin(np.pi * 2.5 * t_s))
+    return np.array([0.9 * np.sin(2 * np.pi * 0.6 * t_s), floor_y - radius - height, 3.0])
+
+
+def test_test_frames_carry_the_ball_centre_which_projects_onto_its_mask(tiny_ball_with_track):
+    from evsplat.data.images import read_exr, read_png
+
+    root = tiny_ball_with_track
+    intr = json.loads((root / "intrinsics.json").read_text())
+    K = np.array(intr["K"])
+    seen = 0
+    for f in json.loads((root / "test" / "frames.json").read_text()):
+        centre = np.array(f["object_centre"])
+        np.testing.assert_allclose(centre, ball_centre(f["time_us"] * 1e-6), atol=1e-12)
+        c2w = np.array(f["c2w"])
+        cam = c2w[:3, :3].T @ (centre - c2w[:3, 3])
+        u, v = (K @ cam)[:2] / cam[2]
+        row, col = int(v), int(u)
+        if not (0 <= row < intr["height"] and 0 <= col < intr["width"]):
+            continue  # the zoomed-in tiny view loses the ball at some test times
+        seen += 1
+        assert read_png(root / "test" / f["mask"])[row, col] > 0.5
+        # The ray through the centre's pixel hits the sphere's front, one radius nearer.
+        depth = read_exr(root / "test" / f["depth"])[row, col]
+        assert cam[2] - 0.38 - 0.02 < depth < cam[2] - 0.38 + 0.05
+    assert seen >= 3
+
+
+def test_track_json_samples_the_centre_at_1khz_over_the_sequence(tiny_ball_with_track):
+    from evsplat.data.dataset import load_dataset
+
+    data = load_dataset(tiny_ball_with_track)
+    track = data.track
+    assert track.radius == 0.38
+    np.testing.assert_array_equal(track.times_us, np.arange(0, 600_001, 1000))
+    want = np.stack([ball_centre(t * 1e-6) for t in track.times_us])
+    np.testing.assert_allclose(track.centres, want, atol=1e-12)
+    for f in data.test_frames:
+        np.testing.assert_allclose(f.object_centre, ball_centre(f.time_us * 1e-6), atol=1e-12)
+
+
+def test_a_static_scene_has_no_tracked_object(tmp_path):
+    from evsplat.data.dataset import load_dataset
+    from evsplat.data.simulator import simulate_dataset
+
+    root = simulate_dataset("still", tmp_path / "still", tiny=True, progress=False)
+    assert not (root / "test" / "track.json").exists()
+    data = load_dataset(root)
+    assert data.track is None and all(f.object_centre is None for f in data.test_frames)
+
+
+def test_a_scene_track_callable_overrides_the_first_moving_primitive():
+    from evsplat.scenes import get_scene
+
+    scene = get_scene("duck", tiny=True)
+    body = scene.object_centre(250_000)
+    assert scene.object_radius() == 0.42
+    scene.track = lambda t: np.array([t, 2 * t, 3.0])
+    np.testing.assert_allclose(scene.object_centre(250_000), [0.25, 0.5, 3.0])
+    assert scene.object_radius() is None and not np.allclose(body, [0.25, 0.5, 3.0])
+
+
+def test_datasets_without_tracking_load_and_a_broken_track_is_reported(
+    tiny_ball_with_track, tmp_path
+):
+    from evsplat.data.dataset import check_dataset, load_dataset
+
+    old = tmp_path / "old"
+    shutil.copytree(tiny_ball_with_track, old)
+    (old / "test" / "track.json").unlink()
+    frames = json.loads((old / "test" / "frames.json").read_text())
+    for f in frames:
+        del f["object_centre"]
+    (old / "test" / "frames.json").write_text(json.dumps(frames))
+    data = load_dataset(old)
+    assert data.track is None and data.test_frames[0].object_centre is None
+
+    (old / "test" / "track.json").write_text('{"times_us": [0, 0], "centres": [[0, 0, 1]]}')
+    frames[0]["object_centre"] = [0, "x", 1]
+    (old / "test" / "frames.json").write_text(json.dumps(frames))
+    problems = check_dataset(old)
+    assert any("track.json: needs increasing" in p for p in problems)
+    assert any("frame 0 object_centre must be [x, y, z]" in p for p in problems)

@@ -7,7 +7,9 @@ Layout (docs/dataset.md describes every field):
     intrinsics.json      {"K": 3x3, "width", "height", "distortion": null or a lens model
                          (evsplat.data.distortion: radtan / equidistant, OpenCV order)}
     meta.json            sensor and scene metadata (c_pos, c_neg, bayer, t_start_us, t_end_us, ...)
-    test/frames.json     optional [{"time_us", "c2w", "rgb", "depth", "mask"}], files in test/
+    test/frames.json     optional [{"time_us", "c2w", "rgb", "depth", "mask", "object_centre"}],
+                         files in test/
+    test/track.json      optional dense path of the tracked moving object (for path plots)
     depth_prior/         optional precomputed depth priors
 """
 
@@ -40,6 +42,16 @@ class TestFrame:
     rgb_path: Path
     depth_path: Path
     mask_path: Path | None
+    object_centre: np.ndarray | None = None  # [3] world position of the tracked moving object
+
+
+@dataclass
+class ObjectTrack:
+    """The tracked moving object's centre over the sequence (test/track.json)."""
+
+    times_us: np.ndarray  # [T] int64, increasing
+    centres: np.ndarray  # [T,3] float64 world positions (metres)
+    radius: float | None  # bounds the object around its centre (metres), if known
 
 
 @dataclass
@@ -62,6 +74,7 @@ class Dataset:
     meta: dict
     depth_prior_dir: Path | None = None
     distortion: LensDistortion | None = None  # of the raw events; ``events`` are undistorted
+    track: ObjectTrack | None = None  # dense ground-truth path of the tracked moving object
 
 
 @dataclass
@@ -214,8 +227,55 @@ def _test_frames(
                         f"{p}: image is {img.shape[1]}x{img.shape[0]} "
                         f"but the sensor is {size[0]}x{size[1]}"
                     )
-        frames.append(TestFrame(int(t), m, paths[0], paths[1], paths[2] if mask else None))
+        centre = _centre(c, f.get("object_centre"), f"{path}: frame {i} object_centre")
+        frames.append(TestFrame(int(t), m, paths[0], paths[1], paths[2] if mask else None, centre))
     return frames
+
+
+def _centre(c: _Checker, value, where: str) -> np.ndarray | None:
+    """An optional world point: None when absent, else 3 finite numbers (a problem otherwise)."""
+    if value is None:
+        return None
+    try:
+        p = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        p = np.zeros(0)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        c.fail(f"{where} must be [x, y, z] (finite metres), got {value!r}")
+        return None
+    return p
+
+
+def _track(c: _Checker) -> ObjectTrack | None:
+    path = c.root / "test" / "track.json"
+    if not path.exists():
+        return None
+    doc = c.json("test/track.json")
+    if doc is None:
+        return None
+    try:
+        times = np.array(doc["times_us"], dtype=np.int64)
+        centres = np.array(doc["centres"], dtype=np.float64)
+        radius = doc.get("radius")
+    except (KeyError, TypeError, ValueError, OverflowError):
+        c.fail(f"{path}: needs 'times_us' (integers), 'centres' ([x, y, z] each) and 'radius'")
+        return None
+    radius_ok = radius is None or (
+        isinstance(radius, (int, float)) and not isinstance(radius, bool) and radius > 0
+    )
+    if (
+        times.ndim != 1
+        or centres.shape != (len(times), 3)
+        or not np.all(np.isfinite(centres))
+        or np.any(np.diff(times) <= 0)
+        or not radius_ok
+    ):
+        c.fail(
+            f"{path}: needs increasing 'times_us', one finite [x, y, z] in 'centres' per time "
+            "and a positive 'radius' or null"
+        )
+        return None
+    return ObjectTrack(times, centres, None if radius is None else float(radius))
 
 
 def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
@@ -251,6 +311,7 @@ def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
     gt = _trajectory(c, "poses_gt.txt", t0, t1) if (root / "poses_gt.txt").is_file() else None
     # With two different sensor sizes on record, image sizes cannot be judged (one line above).
     frames = _test_frames(c, None if sizes_disagree else size, t0, t1)
+    track = _track(c)
     if c.problems:
         return c.problems, None
     prior = root / "depth_prior"
@@ -271,6 +332,7 @@ def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
         meta=meta,
         depth_prior_dir=prior if prior.is_dir() else None,
         distortion=intr[3],
+        track=track,
     )
 
 

@@ -17,6 +17,7 @@ import shutil
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -26,6 +27,9 @@ from evsplat.data.atomic import write_text_atomic
 from evsplat.data.events import EventStream
 from evsplat.errors import EvsplatError
 from evsplat.intensity import LOG_EPS, LUMA
+
+if TYPE_CHECKING:
+    from evsplat.scenes import Scene
 
 BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG", "mono")
 
@@ -125,7 +129,7 @@ def simulate_events(
 
 # ----------------------------------------------------------------- dataset generation
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: test frames carry the tracked object's centre, test/track.json
 MEASURED_POSE_HZ = 100  # "measured" poses, as from a motion-capture system
 GT_POSE_HZ = 1000  # dense ground-truth poses
 TEST_FRAMES_FULL = 12
@@ -137,6 +141,17 @@ def _times(duration_us: int, step_us: float) -> np.ndarray:
     n = int(np.floor(duration_us / step_us + 1e-9))
     t = np.round(np.arange(n + 1) * step_us).astype(np.int64)
     return t if t[-1] == duration_us else np.append(t, duration_us)
+
+
+def _write_track(path: Path, scene: Scene, times_us: np.ndarray) -> None:
+    """The tracked object's centre at `times_us` (the dense ground-truth pose times), for path
+    plots; `radius` bounds the object around its centre (null when unknown)."""
+    doc = {
+        "times_us": [int(t) for t in times_us],
+        "centres": [scene.object_centre(int(t)).tolist() for t in times_us],
+        "radius": scene.object_radius(),
+    }
+    write_text_atomic(path, json.dumps(doc) + "\n")
 
 
 def simulate_dataset(
@@ -231,16 +246,20 @@ def simulate_dataset(
             write_exr(tmp / "test" / names[1], depth)
             write_png(tmp / "test" / names[2], mask.astype(np.float32))
             c2w = scene.c2w(int(t)).tolist()
-            test.append(
-                {
-                    "time_us": int(t),
-                    "c2w": c2w,
-                    "rgb": names[0],
-                    "depth": names[1],
-                    "mask": names[2],
-                }
-            )
+            frame = {
+                "time_us": int(t),
+                "c2w": c2w,
+                "rgb": names[0],
+                "depth": names[1],
+                "mask": names[2],
+            }
+            centre = scene.object_centre(int(t))
+            if centre is not None:
+                frame["object_centre"] = centre.tolist()
+            test.append(frame)
         write_text_atomic(tmp / "test" / "frames.json", json.dumps(test, indent=1) + "\n")
+        if scene.object_centre(0) is not None:
+            _write_track(tmp / "test" / "track.json", scene, gt_t)
         meta = {
             "generator": "evsplat simulate",
             "generator_version": GENERATOR_VERSION,

@@ -39,6 +39,9 @@ class Scene:
     fps: float  # render rate at speed 1
     primitives: list[Primitive]
     camera: Callable[[float], np.ndarray]  # seconds -> camera-to-world 4x4
+    # The moving object whose path evaluation tracks: seconds -> object-to-world 4x4 or xyz.
+    # None: the translation of the first moving primitive's pose (none if nothing moves).
+    track: Callable[[float], np.ndarray] | None = None
     _renderer: _core.SceneRenderer = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -51,6 +54,33 @@ class Scene:
         t = np.asarray(t_us, dtype=np.float64)
         out = np.stack([self.camera(float(s) * 1e-6) for s in t.reshape(-1)])
         return out.reshape(*t.shape, 4, 4)
+
+    def _tracked(self) -> tuple[Callable[[float], np.ndarray] | None, Primitive | None]:
+        """The tracking callable and the primitive it comes from (None for a given ``track``)."""
+        if self.track is not None:
+            return self.track, None
+        moving = next((p for p in self.primitives if p.moving), None)
+        return (None, None) if moving is None else (moving.pose, moving)
+
+    def object_centre(self, t_us: int | float) -> np.ndarray | None:
+        """World position float64[3] (metres) of the tracked moving object at `t_us`, or None
+        for a scene where nothing moves."""
+        fn, _ = self._tracked()
+        if fn is None:
+            return None
+        m = np.asarray(fn(float(t_us) * 1e-6), dtype=np.float64)
+        return m[:3, 3].copy() if m.shape == (4, 4) else m.reshape(3).copy()
+
+    def object_radius(self) -> float | None:
+        """Radius (metres) of a sphere around the tracked object's centre that holds the tracked
+        primitive (a sphere's radius, a box's or quad's half diagonal); None when the scene gives
+        its own ``track`` or nothing moves."""
+        _, prim = self._tracked()
+        if prim is None:
+            return None
+        if prim.kind == "sphere":
+            return float(prim.size[0])
+        return float(np.linalg.norm(prim.size[: 3 if prim.kind == "box" else 2]))
 
     def render(self, t_us: int | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(rgb float32[H,W,3] linear in [0,1], depth float32[H,W] camera z (0 = nothing hit),
@@ -95,4 +125,5 @@ def get_scene(name: str, size: tuple[int, int] | None = None, tiny: bool = False
         fps=BASE_FPS * h / BASE_HEIGHT,
         primitives=spec["primitives"],
         camera=spec["camera"],
+        track=spec.get("track"),
     )
