@@ -3,7 +3,11 @@ PSNR / SSIM / LPIPS in linear space on [0, 1].
 
 Events carry no absolute brightness, so before comparing, each channel of a render is mapped
 by ``log(y) = a·log(x) + b`` fitted by least squares to the ground truth (as EventNeRF does).
-LPIPS needs network weights; they are used only when present locally, never downloaded.
+Fitted to a stack of images ``[N,H,W,C]`` the same function gives one fit per channel for the
+whole sequence (EventNeRF's stricter protocol, which then compares display-gamma images, see
+``to_display``); fitted to a constant image it gives the best flat image, the floor any render
+must beat. LPIPS needs network weights; they are used only when present locally, never
+downloaded.
 """
 
 from __future__ import annotations
@@ -18,10 +22,12 @@ from evsplat.intensity import LOG_EPS
 from evsplat.losses.ssim import ssim as ssim_torch
 
 MSE_FLOOR = 1e-10  # PSNR of identical images is reported as 100 dB rather than infinity
+DISPLAY_GAMMA = 2.2  # linear intensity -> display value x^(1/2.2), as EventNeRF compares
 
 
 def fit_log_linear(pred: np.ndarray, gt: np.ndarray, eps: float = LOG_EPS) -> np.ndarray:
-    """``pred`` ``[H,W,C]`` mapped per channel by the least-squares fit of log(gt) on log(pred).
+    """``pred`` ``[..., C]`` mapped per channel by the least-squares fit of log(gt) on log(pred)
+    over all its pixels: ``[H,W,C]`` is one image, ``[N,H,W,C]`` a sequence fitted jointly.
 
     A constant channel (no variance to fit a slope to) gets slope 0 and the mean log level.
     """
@@ -32,8 +38,19 @@ def fit_log_linear(pred: np.ndarray, gt: np.ndarray, eps: float = LOG_EPS) -> np
         var = x.var()
         a = float(((x - x.mean()) * (y - y.mean())).mean() / var) if var > 1e-12 else 0.0
         b = float(y.mean() - a * x.mean())
-        out[..., c] = (np.exp(a * x + b) - eps).reshape(pred.shape[:2])
+        out[..., c] = (np.exp(a * x + b) - eps).reshape(pred.shape[:-1])
     return np.clip(out, 0.0, 1.0).astype(np.float32)
+
+
+def flat_fit(gt: np.ndarray, eps: float = LOG_EPS) -> np.ndarray:
+    """The best flat grey image under the colour fit: a constant render through
+    ``fit_log_linear`` is each channel's mean log level of ``gt`` (one image or a stack)."""
+    return fit_log_linear(np.full(gt.shape, 0.5, np.float32), gt, eps)
+
+
+def to_display(img: np.ndarray) -> np.ndarray:
+    """Linear intensity in [0, 1] as display values ``x^(1/DISPLAY_GAMMA)``."""
+    return np.clip(img, 0.0, 1.0) ** (1.0 / DISPLAY_GAMMA)
 
 
 def psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:

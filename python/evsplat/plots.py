@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from evsplat.data.atomic import write_atomic
+
+if TYPE_CHECKING:
+    from evsplat.data.dataset import ObjectTrack
 
 
 def _pyplot():
@@ -71,3 +75,80 @@ def side_by_side(frames: list[dict], out: Path, title: str = "") -> None:
     fig.tight_layout()
     write_atomic(out, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     plt.close(fig)
+
+
+TRACK_FIGURE_INCHES = 6.5  # a 96 px image is drawn about 8x larger, so the paths are readable
+TRACK_MAX_OVERHANG = 0.5  # the view extends at most this fraction of the image beyond its edges
+
+
+def plot_track(
+    image: np.ndarray,
+    c2w: np.ndarray,
+    K: np.ndarray,
+    tracking: dict,
+    track: ObjectTrack | None,
+    out: Path,
+    title: str = "",
+) -> None:
+    """The true object path (dense ``track`` if given, else through the test times) and each
+    reference frame's predicted path (``evsplat.motion_metrics``), projected with one camera
+    ``c2w`` over ``image`` (linear, shown at display gamma). Paths may leave the image: the view
+    extends past its edges up to ``TRACK_MAX_OVERHANG``."""
+    from evsplat.metrics import to_display
+    from evsplat.motion_metrics import project
+
+    plt = _pyplot()
+    h, w = image.shape[:2]
+    fig, ax = plt.subplots(figsize=(TRACK_FIGURE_INCHES, TRACK_FIGURE_INCHES * h / w + 0.6))
+    shown = to_display(image)
+    ax.imshow(shown, cmap="gray", extent=(0, w, h, 0), interpolation="nearest", vmin=0, vmax=1)
+    times = [p["time_us"] for p in tracking["per_time"]]
+    refs = [p for p in tracking["paths"] if p["centres"] is not None]
+    gt_px = project(_true_path(tracking, track, times), c2w, K)
+    ax.plot(*gt_px.T, color="lime", lw=2.0, label="true path")
+    at_tests = np.asarray([p["centre"] for p in tracking["per_time"]])
+    ax.plot(*project(at_tests, c2w, K).T, "o", color="lime", ms=5, label="true, at test times")
+    drawn = [gt_px]
+    for i, ref in enumerate(refs):
+        px = project(np.asarray(ref["centres"]), c2w, K)
+        k = times.index(ref["reference_us"])
+        label = "predicted paths (one per reference frame; ring = reference)" if i == 0 else None
+        ax.plot(*px.T, "o-", color="magenta", lw=1.2, ms=3, alpha=0.8, label=label)
+        ax.plot(*px[k], "o", mfc="none", mec="magenta", ms=9, mew=1.5)
+        drawn.append(px)
+    _frame_view(ax, np.concatenate(drawn), w, h)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, 0.0), frameon=False)
+    err, ratio = tracking["error_px_median"], tracking["path_ratio"]
+    summary = (
+        "no reference frame shows the object's Gaussians"
+        if err is None or ratio is None
+        else f"median tracking error {err:.1f} px, path ratio {ratio:.2f}"
+    )
+    ax.set_title(f"{title}\n{summary}" if title else summary, fontsize=9)
+    fig.tight_layout()
+    write_atomic(out, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    plt.close(fig)
+
+
+def _true_path(tracking: dict, track: ObjectTrack | None, times: list[int]) -> np.ndarray:
+    """World points of the true path over the test times' span: dense when ``track`` is known,
+    else through the test frames' centres."""
+    if track is None:
+        return np.asarray([p["centre"] for p in tracking["per_time"]])
+    keep = (track.times_us >= times[0]) & (track.times_us <= times[-1])
+    return track.centres[keep]
+
+
+def _frame_view(ax, px: np.ndarray, w: int, h: int) -> None:
+    """Axis limits holding the image and the drawn points, at most ``TRACK_MAX_OVERHANG`` of
+    the image beyond each edge (a wild prediction must not shrink the picture to a dot)."""
+    finite = px[np.all(np.isfinite(px), axis=1)]
+    lo = np.minimum(finite.min(axis=0, initial=0.0), 0.0) - 2.0
+    hi = np.maximum(finite.max(axis=0, initial=0.0), (w, h)) + 2.0
+    lo = np.maximum(lo, (-TRACK_MAX_OVERHANG * w, -TRACK_MAX_OVERHANG * h))
+    hi = np.minimum(hi, ((1 + TRACK_MAX_OVERHANG) * w, (1 + TRACK_MAX_OVERHANG) * h))
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(hi[1], lo[1])  # image rows grow downwards
+    ax.set_facecolor("0.85")

@@ -22,7 +22,14 @@ def run(args: argparse.Namespace) -> int:
 
     from evsplat.data.dataset import load_dataset
     from evsplat.data.simulator import simulate_dataset
-    from evsplat.eval import evaluate, format_table, render_test_frames, to_sensor_channels
+    from evsplat.eval import (
+        evaluate,
+        format_table,
+        headline,
+        render_test_frames,
+        to_sensor_channels,
+        write_track_plot,
+    )
     from evsplat.metrics import fit_log_linear
     from evsplat.plots import plot_losses, side_by_side
     from evsplat.render import Renderer
@@ -59,11 +66,15 @@ def run(args: argparse.Namespace) -> int:
         title=f"{args.scene} (tiny): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}",
     )
     plot_losses(state["history"], args.out / "losses.png")
+    tracked = write_track_plot(result, data, args.out / "track.png")
     lpips = "missing" if m["lpips"] is None else f"{m['lpips']:.3f}"
     print(
         f"PSNR {m['psnr']:.2f} dB  SSIM {m['ssim']:.3f}  LPIPS {lpips}  "
         f"({time.perf_counter() - start:.0f} s in all)"
     )
+    print(headline(result))
     print(f"side-by-side picture: {args.out / 'side_by_side.png'}")
     print(f"loss curves:          {args.out / 'losses.png'}")
+    if tracked:
+        print(f"object path:          {args.out / 'track.png'}")
     return 0

@@ -1,11 +1,15 @@
-"""`evsplat eval RUN DATA`: PSNR/SSIM/LPIPS on the held-out intermediate frames."""
+"""`evsplat eval RUN DATA`: PSNR/SSIM/LPIPS on the held-out intermediate frames, next to a
+flat image's, under two colour-fit protocols, and the moving object's tracking error."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-HELP = "score a trained run on a dataset's held-out test frames (table + JSON)"
+HELP = (
+    "score a trained run on a dataset's held-out test frames (table, JSON and, with a tracked "
+    "object, track.png)"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -15,9 +19,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from evsplat.eval import evaluate_run, format_table
+    from evsplat.eval import evaluate_run, format_table, headline
 
     result = evaluate_run(args.run, args.data, args.out)
     print(format_table(result), end="")
-    print(f"written: {(args.out or args.run) / 'eval.json'}")
+    print(headline(result))
+    out = args.out or args.run
+    written = ["eval.json", "eval.md"] + (["track.png"] if result["tracking"] is not None else [])
+    print("written: " + ", ".join(str(out / name) for name in written))
     return 0

@@ -1,0 +1,220 @@
+"""Does the model move its Gaussians with the moving object? Tracking error in pixels.
+
+Image metrics cannot tell a model that moves its Gaussians along with the object from one that
+draws the object with different Gaussians at different times (time-local opacity makes that
+easy). This module follows the Gaussians themselves, using the simulator's ground-truth object
+centre g(t) (``object_centre`` in test/frames.json, docs/dataset.md).
+
+**The object's Gaussians.** Each test frame k in turn is the reference. The object set of k are
+the Gaussians whose deformed centre at t_k
+
+- projects (GT pose and intrinsics of frame k) into a pixel of the GT moving-object mask,
+- lies in front of or at the object there: camera depth z <= GT depth at that pixel + the
+  object's radius (test/track.json; ``DEPTH_TOLERANCE`` x GT depth when the radius is unknown),
+  which drops the background seen through the mask's pixels,
+- and has opacity >= ``OPACITY_MIN`` at t_k (time-local factor included: drawn at t_k).
+
+**Error.** That same set is followed over every test time t_j. Its centre c(t_j) is the mean of
+its deformed 3-D centres weighted by peak opacity (not the time-local one, so a set whose
+members fade in and out does not jump). Its offset from the object at the reference,
+c(t_k) - g(t_k), is removed, so a set that covers only the visible surface is not biased:
+p_k(t_j) = c(t_j) - (c(t_k) - g(t_k)). The error is the pixel distance between p_k(t_j) and
+g(t_j), both projected with frame j's GT pose and K (off the image too: a test time where the
+object has left the view still counts). The pair j = k is 0 by construction and left out. Per
+test time: the median over references; overall: median and mean over all pairs.
+
+**Path ratio.** The length of p_k's path through the test times over the length of g's path,
+both projected with one fixed camera (the mean test pose: mean position, rotation the nearest
+rotation to the mean matrix), so camera motion adds nothing; the median over references. A model
+whose object Gaussians stay put scores 0 and an error equal to the object's own displacement;
+one that moves them exactly with the object scores 1 and error 0.
+
+**|Δx|.** Each Gaussian's largest displacement from its time-mean position over the test times,
+projected to pixels with the mean camera: percentiles inside the object set (union over
+references) and outside it (Gaussians in front of the mean camera with peak opacity
+>= ``OPACITY_MIN``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+from evsplat.camera import world_to_camera
+
+if TYPE_CHECKING:
+    from evsplat.render import Renderer
+
+OPACITY_MIN = 0.05  # a Gaussian fainter than this at t_k does not draw the object there
+DEPTH_TOLERANCE = 0.1  # behind-the-surface tolerance as a fraction of depth, radius unknown
+MIN_DEPTH = 1e-6  # camera z floor, so points behind a camera project finitely
+PERCENTILES = (50, 90, 99)
+
+
+@dataclass
+class TrackView:
+    """A ground-truth test view of the tracked object."""
+
+    time_us: int
+    c2w: np.ndarray  # [4,4] camera-to-world
+    mask: np.ndarray  # [H,W] bool, moving-object pixels
+    depth: np.ndarray  # [H,W] camera z of the first hit (0 = nothing)
+    centre: np.ndarray  # [3] world position of the object
+
+
+def to_camera(points: np.ndarray, c2w: np.ndarray) -> np.ndarray:
+    """World points ``[...,3]`` in the camera frame of ``c2w``."""
+    w2c = world_to_camera(c2w)
+    return points @ w2c[:3, :3].T + w2c[:3, 3]
+
+
+def to_pixels(cam: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Pixel coordinates ``[...,2]`` (x, y; pixel centres at +0.5) of camera points."""
+    z = np.maximum(cam[..., 2:3], MIN_DEPTH)
+    return cam[..., :2] / z * K[[0, 1], [0, 1]] + K[[0, 1], [2, 2]]
+
+
+def project(points: np.ndarray, c2w: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Pixel coordinates of world points seen from ``c2w``."""
+    return to_pixels(to_camera(points, c2w), K)
+
+
+def mean_pose(c2ws: Sequence[np.ndarray]) -> np.ndarray:
+    """Mean camera: mean position, and the rotation nearest (Frobenius) to the mean matrix."""
+    stack = np.asarray(c2ws, dtype=np.float64)
+    u, _, vt = np.linalg.svd(stack[:, :3, :3].mean(axis=0))
+    fix = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])  # a rotation, not a reflection
+    out = np.eye(4)
+    out[:3, :3] = u @ fix @ vt
+    out[:3, 3] = stack[:, :3, 3].mean(axis=0)
+    return out
+
+
+@torch.no_grad()
+def deformed_centres(
+    renderer: Renderer, times_us: Sequence[int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(means [J,N,3], opacities at each time [J,N], peak opacities [N]) at ``times_us``."""
+    means = np.stack([renderer.gaussians_at(t)[0].double().numpy() for t in times_us])
+    opac = np.stack([renderer.model.opacities(renderer.time(t)).double().numpy() for t in times_us])
+    return means, opac, renderer.model.opacities().double().numpy()
+
+
+def object_set(
+    means: np.ndarray, opacity: np.ndarray, view: TrackView, K: np.ndarray, radius: float | None
+) -> np.ndarray:
+    """Bool [N]: the Gaussians that draw the object in ``view`` (module docstring)."""
+    cam = to_camera(means, view.c2w)
+    px = np.floor(to_pixels(cam, K)).astype(np.int64)
+    h, w = view.mask.shape
+    inside = (cam[:, 2] > MIN_DEPTH) & (px[:, 0] >= 0) & (px[:, 0] < w)
+    inside &= (px[:, 1] >= 0) & (px[:, 1] < h)
+    rows, cols = np.where(inside, px[:, 1], 0), np.where(inside, px[:, 0], 0)
+    gt_depth = view.depth[rows, cols]
+    tolerance = radius if radius is not None else DEPTH_TOLERANCE * gt_depth
+    on_object = view.mask[rows, cols] & (gt_depth > 0) & (cam[:, 2] <= gt_depth + tolerance)
+    return inside & on_object & (opacity >= OPACITY_MIN)
+
+
+def path_length(px: np.ndarray) -> float:
+    """Length in pixels of a polyline ``[J,2]``."""
+    return float(np.linalg.norm(np.diff(px, axis=0), axis=-1).sum())
+
+
+def percentiles(values: np.ndarray) -> dict:
+    """{"n", "p50", "p90", "p99"} of ``values`` (None for each when empty)."""
+    out: dict = {"n": int(values.size)}
+    for q in PERCENTILES:
+        out[f"p{q}"] = float(np.percentile(values, q)) if values.size else None
+    return out
+
+
+def max_displacement_px(means: np.ndarray, camera: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Per Gaussian [N]: the largest pixel distance, seen from ``camera``, between its centre at
+    a test time and its time-mean centre."""
+    centre = means.mean(axis=0)
+    offsets = project(means, camera, K) - project(centre, camera, K)[None]
+    return np.linalg.norm(offsets, axis=-1).max(axis=0)
+
+
+def follow(
+    k: int,
+    means: np.ndarray,
+    opac: np.ndarray,
+    peak: np.ndarray,
+    views: Sequence[TrackView],
+    K: np.ndarray,
+    radius: float | None,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """(object set of reference ``k`` [N] bool, its predicted object path p_k [J,3]), or None
+    when the set is empty or weightless."""
+    chosen = object_set(means[k], opac[k], views[k], K, radius)
+    weights = peak[chosen]
+    total = float(weights.sum())
+    if total <= 0.0:
+        return None
+    centres = (means[:, chosen] * weights[None, :, None]).sum(axis=1) / total
+    return chosen, centres - (centres[k] - views[k].centre)
+
+
+def track_object(renderer: Renderer, views: Sequence[TrackView], radius: float | None) -> dict:
+    """Tracking error, path ratio and |Δx| distribution (module docstring) as a JSON-able dict.
+
+    ``paths`` holds each reference's predicted object path p_k(t_j) (world, metres) for plots;
+    a reference whose object set is empty (object out of view, nothing drawn there) has n = 0
+    and takes no part.
+    """
+    K = renderer.K.double().numpy()
+    times = [v.time_us for v in views]
+    gt = np.stack([v.centre for v in views])
+    means, opac, peak = deformed_centres(renderer, times)
+    camera = mean_pose([v.c2w for v in views])
+    gt_path = path_length(project(gt, camera, K))
+    errors = np.full((len(views), len(views)), np.nan)  # [reference k, time j]
+    paths, pred_paths, in_object = [], [], np.zeros(peak.shape, bool)
+    for k, view in enumerate(views):
+        found = follow(k, means, opac, peak, views, K, radius)
+        if found is None:
+            paths.append({"reference_us": view.time_us, "n": 0, "centres": None})
+            continue
+        chosen, pred = found
+        in_object |= chosen
+        for j, other in enumerate(views):
+            if j != k:
+                diff = project(pred[j], other.c2w, K) - project(gt[j], other.c2w, K)
+                errors[k, j] = float(np.linalg.norm(diff))
+        pred_paths.append(path_length(project(pred, camera, K)))
+        paths.append(
+            {"reference_us": view.time_us, "n": int(chosen.sum()), "centres": pred.tolist()}
+        )
+    moves = max_displacement_px(means, camera, K)
+    visible = (to_camera(means.mean(axis=0), camera)[:, 2] > MIN_DEPTH) & (peak >= OPACITY_MIN)
+    pairs = errors[np.isfinite(errors)]
+    pred_path = float(np.median(pred_paths)) if pred_paths else None
+    return {
+        "per_time": [
+            {"time_us": t, "error_px": _nan_median(errors[:, j]), "centre": gt[j].tolist()}
+            for j, t in enumerate(times)
+        ],
+        "error_px_median": float(np.median(pairs)) if pairs.size else None,
+        "error_px_mean": float(np.mean(pairs)) if pairs.size else None,
+        "gt_path_px": gt_path,
+        "pred_path_px": pred_path,
+        "path_ratio": pred_path / gt_path if pred_path is not None and gt_path > 0 else None,
+        "dx_px": {
+            "object": percentiles(moves[in_object]),
+            "other": percentiles(moves[visible & ~in_object]),
+        },
+        "radius": radius,
+        "paths": paths,
+    }
+
+
+def _nan_median(values: np.ndarray) -> float | None:
+    """Median of the finite entries, None when there is none."""
+    finite = values[np.isfinite(values)]
+    return float(np.median(finite)) if finite.size else None
