@@ -23,6 +23,9 @@ class ScheduleConfig:
     checkpoint_every: int = 1000  # iterations between atomic checkpoints
     log_every: int = 10  # iterations between loss-log lines
     keep_checkpoints: int = 2  # older complete checkpoints are deleted
+    # Iterations between logs of each loss's gradient norm on the MLP (0 = never): one extra
+    # backward pass per loss, ~1% of a tiny run at 100.
+    grad_norms_every: int = 100
 
     @property
     def warmup_end(self) -> int:

@@ -182,6 +182,17 @@ class Trainer:
             return log_intensity(img).permute(2, 0, 1)
         return log_intensity(bayer_select(img, self.channel_map))
 
+    def _linearized_change(self, out: RenderOut, flow: torch.Tensor, coarse: bool) -> torch.Tensor:
+        """-∇L·F (eq. 13) in the sensor's channels. A colour render is differentiated per
+        channel before each pixel keeps its Bayer channel: differences across a mosaic mix
+        colours, and drove the MLP's motion backwards in the oracle test (docs/results.md)."""
+        if self.channel_map is None:
+            return linearized_brightness_change(log_intensity(out.image[..., 0]), flow)
+        change = linearized_brightness_change(log_intensity(out.image).permute(2, 0, 1), flow)
+        if coarse:
+            return change
+        return bayer_select(change.permute(1, 2, 0), self.channel_map)
+
     def _esi(
         self, t0: int, t1: int, coarse: bool = False
     ) -> tuple[torch.Tensor, torch.Tensor, int]:
@@ -242,6 +253,8 @@ class Trainer:
             # Gaussian flow: 2-D motion of each Gaussian over [t1, t1 + dtau] at the pose of t1.
             means_later = view.gaussians_at(t1 + dtau)[0]
             extra = gaussian_flow_features(g1[0], means_later, viewmat(pose1), view.K)
+            if not lc.flow_moves_gaussians:
+                extra = extra.detach()
         out1 = view.render(t1, pose1, extra=extra, gaussians=g1)
         logs = [self._log_image_at(t, view) for t in times[:-1]]
         log1 = self._log_image(out1, coarse)
@@ -253,7 +266,7 @@ class Trainer:
         ]
         losses: dict[str, torch.Tensor] = {"e": torch.stack(terms).mean()}
         if moving:
-            losses.update(self._motion_losses(view, t1, dtau, pose1, out1, log1, rng))
+            losses.update(self._motion_losses(view, t1, dtau, pose1, out1, rng))
         if stage is Stage.REFINE:
             # The refinement losses see the last window (pairs end with (views-2, views-1)).
             losses.update(self._refine_losses(t1, out1, logs[-1] - logs[-2], windows[-1][1]))
@@ -270,6 +283,8 @@ class Trainer:
         values = {k: float(v.detach()) for k, v in losses.items()}
         values["total"] = float(total.detach())
         bad = next((k for k, v in values.items() if not math.isfinite(v)), None)
+        if bad is None and moving and self._grad_norms_due(iteration):
+            values.update(self._mlp_grad_norms({k: weights[k] * v for k, v in losses.items()}))
         if bad is None:
             total.backward()
             bad = self._first_nonfinite_grad()
@@ -309,15 +324,42 @@ class Trainer:
         sk = self.cfg.skips
         static, scene_static, mean = classify_static(self.mlp, means, scale, sk)
         if first and float(scene_static.float().mean()) >= sk.static_scene_fraction:
-            # A static scene: nothing left for the MLP or the motion losses to explain.
-            static[:] = True
-            self.static_scene = True
+            # The MLP learned no motion, which does not show that nothing moves (time-local
+            # opacity may carry the moving object): the scene is static, with nothing left for
+            # the MLP or the motion losses to explain, only when its events agree.
+            if sk.static_scene_unexplained >= 1 or (
+                self._unexplained_events() <= sk.static_scene_unexplained
+            ):
+                static[:] = True
+                self.static_scene = True
         bake(self.model, dynamic[static], mean.select(static))
         new = old.clone()
         new[dynamic[static]] = True
         self.renderer.static_mask = new
 
-    def _motion_losses(self, view, t1, dtau, pose1, out1, log1, rng) -> dict[str, torch.Tensor]:
+    def _unexplained_events(self) -> float:
+        """The largest share of one region's events that the scene frozen at each evidence
+        window's middle time (deformation and time-local opacity evaluated there) leaves
+        unexplained, seen from the poses at the window's ends (skips.unexplained_events); 0 when
+        no window has events."""
+        from evsplat.train.skips import evidence_windows, unexplained_events
+
+        data, sk = self.data, self.cfg.skips
+        windows = evidence_windows(
+            self._esi, data.t_start_us, data.t_end_us, self.cfg.loss, sk, self.cfg.seed
+        )
+
+        def log_image_at(t_scene: int, t_pose: int) -> torch.Tensor:
+            return self._log_image(self.renderer.render(t_scene, self._pose(t_pose)))
+
+        mlp, self.renderer.mlp = self.renderer.mlp, self.mlp
+        try:
+            share = unexplained_events(windows, log_image_at, sk)
+        finally:
+            self.renderer.mlp = mlp
+        return float(share.max()) if share.numel() else 0.0
+
+    def _motion_losses(self, view, t1, dtau, pose1, out1, rng) -> dict[str, torch.Tensor]:
         """L_ef and L_m for the render ``out1`` that ``view`` (full or coarse) made at ``t1``."""
         lc, data = self.cfg.loss, self.data
         coarse = view is not self.renderer
@@ -329,8 +371,7 @@ class Trainer:
             flow_cam = camera_flow(
                 out1.depth, view.K, viewmat(pose1), viewmat(self._pose(t1 + dtau))
             )
-            flow = flow_cam + out1.extra
-            pred = linearized_brightness_change(log1, flow)
+            pred = self._linearized_change(out1, flow_cam + out1.extra, coarse)
             out["ef"] = event_flow_loss(short, pred)
         # L_m (eq. 15): patches of m equal-count sub-windows around the moving centres.
         ev = data.events
@@ -379,6 +420,24 @@ class Trainer:
                     out["d"] = silog(out1.depth, prior, valid)
         return out
 
+    def _grad_norms_due(self, iteration: int) -> bool:
+        every = self.cfg.schedule.grad_norms_every
+        return every > 0 and iteration % every == 0
+
+    def _mlp_grad_norms(self, weighted: dict[str, torch.Tensor]) -> dict[str, float]:
+        """L2 norm of each weighted loss's gradient on the MLP's parameters (``g_<loss>``):
+        which loss teaches the deformation, measured without changing the step (each loss gets
+        its own backward pass through the retained graph)."""
+        params = [p for p in self.mlp.parameters() if p.requires_grad]
+        norms = {}
+        for name, value in weighted.items():
+            if not value.requires_grad:
+                continue
+            grads = torch.autograd.grad(value, params, retain_graph=True, allow_unused=True)
+            sq = sum(float((g.detach() ** 2).sum()) for g in grads if g is not None)
+            norms[f"g_{name}"] = math.sqrt(sq)
+        return norms
+
     def _first_nonfinite_grad(self) -> str | None:
         for name, p in [*self.model.named_parameters(), *self.mlp.named_parameters()]:
             if p.grad is not None and not bool(torch.isfinite(p.grad).all()):
@@ -392,9 +451,9 @@ class Trainer:
     def _schedule_learning_rates(self, iteration: int) -> None:
         """Exponential decay of the position and MLP learning rates (3DGS / Deformable-3DGS).
 
-        The MLP's decay runs from the end of the warm-up, when it starts training, to the end of
-        the run: decaying from iteration 0 would leave a short run's MLP almost no learning rate
-        by the time the motion stage is under way.
+        The MLP's rate decays from iteration 0 over ``mlp_lr_horizon`` iterations, a fixed
+        horizon as in the authors' code (40k), not the run's length: shrunk to a short run the
+        decay left the MLP too small a rate to learn any motion (docs/results.md, session 11).
         """
         mc, sc = self.cfg.model, self.cfg.schedule
         frac = min(iteration / max(sc.iterations, 1), 1.0)
@@ -402,8 +461,7 @@ class Trainer:
             if group.get("name") == "means":
                 start = mc.means_lr * self.extent
                 group["lr"] = start * (mc.means_lr_final / mc.means_lr) ** frac
-        moving = (iteration - sc.warmup_end) / max(sc.iterations - sc.warmup_end, 1)
-        frac_mlp = min(max(moving, 0.0), 1.0)
+        frac_mlp = min(iteration / max(mc.mlp_lr_horizon, 1), 1.0)
         for group in self.mlp_optimizer.param_groups:
             group["lr"] = mc.mlp_lr * (mc.mlp_lr_final / mc.mlp_lr) ** frac_mlp
 
