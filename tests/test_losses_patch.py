@@ -83,7 +83,23 @@ def test_patch_motion_loss_is_finite_with_finite_gradient_on_empty_frames_and_of
     centres = torch.tensor([[[-50.0, 4.0], [4.0, 4.0], [1e4, -1e4]]], requires_grad=True)
     loss = patch_motion_loss(frames, centres, 5)
     loss.backward()
-    assert float(loss.detach()) == 0.0 and torch.isfinite(centres.grad).all()
+    assert float(loss.detach()) == 1.0 and torch.isfinite(centres.grad).all()
+
+
+def test_patch_motion_loss_does_not_reward_leaving_the_events():
+    """A centre that follows the moving blob scores 0; one that jumps to an event-free corner
+    scores the worst value, 1 (the plain L1 of eq. 15 gave it 0, like perfect agreement); one
+    that stays put scores in between (its patches share part of the blob)."""
+    path = np.array([[10.0, 12.0], [11.0, 13.0], [12.0, 14.0], [13.0, 15.0]])
+    frames = torch.tensor(blob_frames(path))
+    follow = torch.tensor(path)[None]
+    still = torch.tensor(path[:1]).expand(4, 2)[None]
+    away = torch.tensor([[10.0, 12.0], [-40.0, -40.0], [-40.0, -40.0], [-40.0, -40.0]])
+    away = away.double()[None]
+    losses = [float(patch_motion_loss(frames, c, 7)) for c in (follow, still, away)]
+    assert losses[0] == pytest.approx(0.0, abs=1e-9)
+    assert 0.05 < losses[1] < 0.9
+    assert losses[2] == pytest.approx(1.0, abs=1e-6)
 
 
 def test_patch_motion_loss_rejects_centres_that_do_not_match_the_frames():

@@ -6,6 +6,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+PATCH_EPS = 1e-12  # total event magnitude below which a Gaussian's patches count as empty
+
 
 def extract_patches(frames: Tensor, centres: Tensor, side: int) -> Tensor:
     """Bilinear ``side``x``side`` patches ``[n,m,side,side]`` of ``frames [m,H,W]``: patch (i, j)
@@ -29,12 +31,16 @@ def extract_patches(frames: Tensor, centres: Tensor, side: int) -> Tensor:
 
 
 def patch_motion_loss(esi_frames: Tensor, centres: Tensor, side: int) -> Tensor:
-    """L_m (eq. 15): mean L1 between consecutive event patches that follow each Gaussian.
+    """L_m (eq. 15): how much consecutive event patches that follow each Gaussian disagree.
 
     ``esi_frames [m,H,W]`` are the ESIs of m equal-count sub-windows, ``centres [n,m,2]`` the
     projected deformed centre of each sampled Gaussian at each sub-window's time. Patch j of
-    Gaussian i is cut from frame j around centre (i, j); the loss averages |P_ij - P_i,j+1|
-    (eq. 15 sums; the mean keeps the weight independent of n, m and the patch size).
+    Gaussian i is cut from frame j around centre (i, j). Per Gaussian, eq. 15's L1 between
+    consecutive patches is divided by the patches' total event magnitude, and the loss is the
+    mean over Gaussians: 0 when each patch repeats the last (the Gaussian moves with its
+    edge), 1 when they share nothing. A Gaussian whose patches hold no events scores 1: an
+    empty neighbourhood is not agreement (with the plain L1 it scored a perfect 0, so drifting
+    into an event-free region was rewarded).
     """
     m = esi_frames.shape[0]
     if centres.dim() != 3 or centres.shape[1] != m or centres.shape[2] != 2:
@@ -44,7 +50,12 @@ def patch_motion_loss(esi_frames: Tensor, centres: Tensor, side: int) -> Tensor:
     if m < 2 or centres.shape[0] == 0:
         return (esi_frames.sum() + centres.sum()) * 0.0
     patches = extract_patches(esi_frames, centres, side)
-    return (patches[:, 1:] - patches[:, :-1]).abs().mean()
+    a, b = patches[:, 1:], patches[:, :-1]
+    diff = (a - b).abs().sum((1, 2, 3))
+    energy = (a.abs() + b.abs()).sum((1, 2, 3))
+    empty = energy <= PATCH_EPS
+    ratio = diff / torch.where(empty, torch.ones_like(energy), energy)
+    return torch.where(empty, torch.ones_like(ratio), ratio).mean()
 
 
 def select_visible(

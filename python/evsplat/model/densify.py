@@ -14,7 +14,7 @@ from evsplat.model.gaussians import PARAM_NAMES, GaussianModel, quat_to_rotmat, 
 RESET_OPACITY = 0.01  # 3DGS: opacities are capped to this at each reset
 
 
-def _update_params(
+def update_params(
     model: GaussianModel,
     optimizer: torch.optim.Optimizer,
     transform: Callable[[str, Tensor, bool], Tensor],
@@ -167,7 +167,7 @@ class Densifier:
             extra = torch.zeros_like(new[name]) if is_state else new[name]
             return torch.cat([old, extra])
 
-        _update_params(model, optimizer, append)
+        update_params(model, optimizer, append)
         n_new = model.num_gaussians - n0
         # Children remember their parent, so per-Gaussian flags (static) carry over to them.
         parents = torch.nonzero(clone).reshape(-1), torch.nonzero(split).reshape(-1).repeat(k)
@@ -227,7 +227,7 @@ class Densifier:
         return out
 
     def _prune(self, model: GaussianModel, optimizer, keep: Tensor) -> None:
-        _update_params(model, optimizer, lambda _n, old, _s: old[keep])
+        update_params(model, optimizer, lambda _n, old, _s: old[keep])
         self.origin = self.origin[keep]
         if self.grad_accum.shape[0] == keep.shape[0]:
             self.grad_accum = self.grad_accum[keep]
@@ -242,7 +242,7 @@ class Densifier:
                 return old
             return torch.zeros_like(old) if is_state else old.clamp_max(cap)
 
-        _update_params(model, optimizer, reset)
+        update_params(model, optimizer, reset)
 
     def state_dict(self) -> dict:
         """Gradient statistics, for checkpoints."""

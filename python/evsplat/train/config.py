@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
-from evsplat.config import DensifyConfig, LossConfig, ModelConfig, SkipConfig
+from evsplat.config import DensifyConfig, LossConfig, ModelConfig, MoverConfig, SkipConfig
 from evsplat.errors import EvsplatError
 
 
@@ -51,6 +51,7 @@ class TrainConfig:
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     skips: SkipConfig = field(default_factory=SkipConfig)
+    mover: MoverConfig = field(default_factory=MoverConfig)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -69,6 +70,8 @@ class TrainConfig:
             densify=DensifyConfig(**d["densify"]),
             loss=LossConfig(**d["loss"]),
             skips=_skips(d.get("skips", {})),
+            # Runs saved before the mover initialisation existed trained without it.
+            mover=MoverConfig(**d["mover"]) if "mover" in d else MoverConfig(enabled=False),
         )
 
 

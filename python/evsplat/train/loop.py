@@ -225,6 +225,10 @@ class Trainer:
         if motion_stage and not self.static_scene:
             if static_due(cfg.skips, iteration, cfg.schedule.iterations):
                 self._classify_static()  # may find the whole scene static
+        seeded = {}
+        # Right after the warm-up (none: no static model to find a mover against).
+        if motion_stage and cfg.mover.enabled and iteration == cfg.schedule.warmup_end > 0:
+            seeded = self._seed_mover()
         moving = motion_stage and not self.static_scene
         self.renderer.mlp = self.mlp if moving else None
         coarse = coarse_due(cfg, iteration, stage)
@@ -280,7 +284,7 @@ class Trainer:
             "sp": lc.w_spatial,
         }
         total = sum(weights[k] * v for k, v in losses.items())
-        values = {k: float(v.detach()) for k, v in losses.items()}
+        values = {k: float(v.detach()) for k, v in losses.items()} | seeded
         values["total"] = float(total.detach())
         bad = next((k for k, v in values.items() if not math.isfinite(v)), None)
         if bad is None and moving and self._grad_norms_due(iteration):
@@ -310,6 +314,77 @@ class Trainer:
             values["static_frac"] = self._static_fraction()
         values["gaussians"] = float(self.model.means.shape[0])
         return StepResult(values, stage)
+
+    def _seed_mover(self) -> dict[str, float]:
+        """After the warm-up: find a fast mover from the events the static model leaves
+        unexplained, re-place the faintest Gaussians on it at the time it is seen best, fit the
+        MLP to carry them along its path, and mark every other Gaussian static (the background's
+        gradients drowned the mover's in a shared MLP: docs/results.md, session 11). Returns
+        numbers for the log; nothing changes when no mover is found."""
+        from evsplat.train.mover import (
+            find_path,
+            fit_mlp_to_path,
+            lift,
+            place_on_mover,
+            unexplained,
+        )
+
+        mc, data, cfg = self.cfg.mover, self.data, self.cfg
+        self.renderer.mlp = None  # the warm-up's static model
+
+        def residual_of(t0: int, t1: int) -> torch.Tensor:
+            esi = self._esi(t0, t1)[0]
+            return unexplained(esi, self._log_image_at(t1) - self._log_image_at(t0), mc.pool)
+
+        with torch.no_grad():
+            path = find_path(residual_of, data.t_start_us, data.t_end_us, mc)
+        found = float(path.found.mean())
+        if found < mc.min_found:
+            return {"mover_found": found}
+        # The reference time: the found window farthest inside the image (a mover cut by the
+        # border looks smaller and off-centre); its size: the median over the found windows.
+        (u, v), found_rows = path.uv.T, np.nonzero(path.found)[0]
+        margin = np.minimum.reduce([u, v, data.width - u, data.height - v])
+        k = int(found_rows[np.argmax(margin[found_rows])])
+        radius_px = float(np.median(path.radius_px[found_rows]))
+        t_ref = int(path.times_us[k])
+        with torch.no_grad():
+            out = self.renderer.render(t_ref, self._pose(t_ref))
+        ys, xs = np.mgrid[0 : data.height, 0 : data.width] + 0.5
+        disc = torch.from_numpy((xs - u[k]) ** 2 + (ys - v[k]) ** 2 <= radius_px**2)
+        seen = disc & (out.alpha > 0.5) & (out.depth > 0)
+        depths = out.depth[seen] if bool(seen.any()) else out.depth[out.depth > 0]
+        depth = float(depths.median()) if depths.numel() else float(np.mean(self.depth_range))
+
+        times = path.times_us[path.found]
+        points = lift(path.uv[path.found], np.full(len(times), depth), self._poses(times), data.K)
+        ref = lift(
+            path.uv[k : k + 1], np.array([depth]), self._poses(path.times_us[k : k + 1]), data.K
+        )[0]
+        n = self.model.num_gaussians
+        m = max(1, int(mc.fraction * n))
+        rows = torch.argsort(self.model.opacities().detach())[:m]
+        radius = radius_px * depth / float(data.K[0, 0])
+        place_on_mover(self.model, self.optimizer, rows, ref, radius, mc.opacity, cfg.seed)
+        t_norm = torch.tensor([self.renderer.time(int(t)) for t in times], dtype=torch.float32)
+        offsets = torch.from_numpy((points - ref).astype(np.float32))
+        rms = fit_mlp_to_path(
+            self.mlp, self.model.means[rows], t_norm, offsets, mc.fit_steps, mc.fit_lr, cfg.seed
+        )
+        self.mlp_optimizer = torch.optim.Adam(self.mlp.parameters(), lr=cfg.model.mlp_lr)
+        static = torch.ones(n, dtype=torch.bool)
+        static[rows] = False
+        self.renderer.static_mask = static
+        return {
+            "mover_found": found,
+            "mover_depth": depth,
+            "mover_radius_px": radius_px,
+            "mover_fit_rms": rms,
+            "mover_gaussians": float(m),
+        }
+
+    def _poses(self, times_us: np.ndarray) -> np.ndarray:
+        return np.stack([self._pose(float(t)) for t in times_us])
 
     def _classify_static(self) -> None:
         """Mark the dynamic Gaussians that stopped moving static and bake their deformation;
@@ -397,6 +472,8 @@ class Trainer:
                     means = self.model.means[idx]
                     # The MLP sees detached canonical means, as in `deformed` (Deformable-3DGS).
                     dx = self.mlp(means.detach(), self.renderer.time(t_mid))[0]
+                    if self.renderer.static_mask is not None:  # static ones skip the MLP
+                        dx = dx * (~self.renderer.static_mask[idx]).unsqueeze(-1).to(dx.dtype)
                     centres.append(
                         project_points(means + dx, viewmat(self._pose(t_mid)), self.renderer.K)
                     )
