@@ -87,7 +87,7 @@ def test_eval_reports_finite_metrics_for_every_test_frame(tiny_run, tiny_data):
 def test_time_local_opacity_is_trained_checkpointed_and_exported_at_its_time(tiny_data, tmp_path):
     run = tmp_path / "run"
     args = ["train", str(tiny_data), "--out", str(run), "--preset", "tiny", "--iters", "8"]
-    assert main([*args, "--no-progress"]) == 0  # on by default
+    assert main([*args, "--temporal-opacity", "--no-progress"]) == 0  # off by default
     renderer, _ = Renderer.from_run(run)
     model = renderer.model
     assert model.temporal and float(model.t_mean.detach().std()) > 0.1  # random centres in [0, 1]
@@ -103,10 +103,9 @@ def test_time_local_opacity_is_trained_checkpointed_and_exported_at_its_time(tin
     cfg.model.temporal_opacity, cfg.deform, cfg.schedule.iterations = True, False, 8
     train(tiny_data, tmp_path / "static", config=cfg, progress=False)
     assert not Renderer.from_run(tmp_path / "static")[0].model.temporal
-    # ... and the flag turns it off.
+    # ... and by default it is off.
     off = tmp_path / "off"
-    assert main([*args[:2], "--out", str(off), *args[4:], "--no-temporal-opacity",
-                 "--no-progress"]) == 0  # fmt: skip
+    assert main([*args[:2], "--out", str(off), *args[4:], "--no-progress"]) == 0
     assert not Renderer.from_run(off)[0].model.temporal
 
 

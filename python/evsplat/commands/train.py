@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--temporal-opacity",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="time-local opacity for fast objects (default on; not in the paper, see "
+        help="time-local opacity for fast objects (default off; not in the paper, see "
         "docs/results.md)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

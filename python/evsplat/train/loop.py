@@ -341,12 +341,14 @@ class Trainer:
         found = float(path.found.mean())
         if found < mc.min_found:
             return {"mover_found": found}
-        # The reference time: the found window farthest inside the image (a mover cut by the
-        # border looks smaller and off-centre); its size: the median over the found windows.
-        (u, v), found_rows = path.uv.T, np.nonzero(path.found)[0]
-        margin = np.minimum.reduce([u, v, data.width - u, data.height - v])
-        k = int(found_rows[np.argmax(margin[found_rows])])
-        radius_px = float(np.median(path.radius_px[found_rows]))
+        # The reference time: the clearest window whose disc lies inside the image, with its
+        # own radius (measured against the farthest-inside window with the median radius, which
+        # placed a mover twice as large that the model then did not move: docs/results.md).
+        r, (u, v) = path.radius_px, path.uv.T
+        inside = (u - r >= 0) & (v - r >= 0) & (u + r <= data.width) & (v + r <= data.height)
+        pick = path.found & inside if bool((path.found & inside).any()) else path.found
+        k = int(np.argmax(np.where(pick, path.contrast, -np.inf)))
+        radius_px = float(r[k])
         t_ref = int(path.times_us[k])
         with torch.no_grad():
             out = self.renderer.render(t_ref, self._pose(t_ref))
