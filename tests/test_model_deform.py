@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from evsplat.config import ModelConfig
-from evsplat.model.deform import DeformationMLP, deformed, positional_encoding
+from evsplat.model.deform import DeformationMLP, deformed, deformed_means, positional_encoding
 from evsplat.model.gaussians import GaussianModel
 
 
@@ -111,3 +111,20 @@ def test_deformed_is_canonical_without_mlp_and_gradients_reach_mlp_and_gaussians
     sum(o.sum() for o in out).backward()
     assert torch.isfinite(model.means.grad).all() and torch.isfinite(model.log_scales.grad).all()
     assert all(p.grad is not None and torch.isfinite(p.grad).all() for p in mlp.parameters())
+
+
+def test_deformed_means_of_some_rows_match_the_full_deformation_with_a_static_mask():
+    torch.manual_seed(0)
+    model = GaussianModel.random_init(40, 3, [0, 0, 0], [1, 1, 1], seed=0)
+    mlp = DeformationMLP(ModelConfig(mlp_width=16, mlp_depth=3, mlp_skip=1, pe_x=2, pe_t=2))
+    for head in (mlp.head_dx, mlp.head_dq, mlp.head_ds):
+        torch.nn.init.normal_(head.weight, std=0.3)
+    static = torch.rand(40, generator=torch.Generator().manual_seed(1)) < 0.5
+    rows = torch.tensor([0, 3, 4, 17, 39, 22])
+    full = deformed(model, mlp, 0.3, mask=~static)[0][rows]
+    got = deformed_means(model, mlp, 0.3, rows, static)
+    torch.testing.assert_close(got, full)
+    assert bool(static[rows].any()) and bool((~static[rows]).any())
+    torch.testing.assert_close(got[static[rows]], model.means[rows][static[rows]])
+    all_moving = deformed(model, mlp, 0.3)[0][rows]
+    torch.testing.assert_close(deformed_means(model, mlp, 0.3, rows), all_moving)

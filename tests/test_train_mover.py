@@ -11,7 +11,6 @@ import torch
 from evsplat.camera import project_points, viewmat
 from evsplat.config import ModelConfig, MoverConfig
 from evsplat.data.dataset import load_dataset
-from evsplat.data.simulator import simulate_dataset
 from evsplat.model.deform import DeformationMLP, deformed
 from evsplat.model.gaussians import GaussianModel
 from evsplat.train.config import preset
@@ -135,21 +134,20 @@ def test_place_on_mover_moves_rows_and_clears_their_optimizer_state():
 WARMUP = 200  # the tiny preset's warm-up (10% of 2000 iterations)
 
 
-def _warmed_up(scene: str, root) -> Trainer:
-    simulate_dataset(scene, root, tiny=True, seed=0, progress=False)
+def _warmed_up(data_dir, run_dir) -> Trainer:
     cfg = preset("tiny")
     cfg.skips.early_stop = False
     cfg.schedule.grad_norms_every = 0
-    trainer = Trainer(load_dataset(root), cfg, root.parent / f"{scene}-run")
+    trainer = Trainer(load_dataset(data_dir), cfg, run_dir)
     for it in range(WARMUP):
         trainer.step(it)
     return trainer
 
 
-def test_seeded_gaussians_follow_the_balls_true_path(tmp_path):
+def test_seeded_gaussians_follow_the_balls_true_path(tiny_scene, tmp_path):
     """After the warm-up the seeded Gaussians, moved by the fitted MLP alone, stay near the
     simulator's ball centre over the whole sequence while the ball crosses the image."""
-    trainer = _warmed_up("ball", tmp_path / "ball")
+    trainer = _warmed_up(tiny_scene("ball"), tmp_path / "run")
     data = trainer.data
     logged = trainer._seed_mover()
     assert logged["mover_found"] >= trainer.cfg.mover.min_found
@@ -176,8 +174,8 @@ def test_seeded_gaussians_follow_the_balls_true_path(tmp_path):
     assert float(np.median(errors)) < 12.0, errors
 
 
-def test_no_mover_is_found_in_a_static_scene(tmp_path):
-    trainer = _warmed_up("still", tmp_path / "still")
+def test_no_mover_is_found_in_a_static_scene(tiny_scene, tmp_path):
+    trainer = _warmed_up(tiny_scene("still"), tmp_path / "run")
     logged = trainer._seed_mover()
     assert logged == {"mover_found": pytest.approx(logged["mover_found"])}
     assert logged["mover_found"] < trainer.cfg.mover.min_found

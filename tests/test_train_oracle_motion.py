@@ -20,7 +20,6 @@ import torch
 
 from evsplat.camera import project_points, viewmat
 from evsplat.data.dataset import load_dataset
-from evsplat.data.simulator import simulate_dataset
 from evsplat.model.deform import deformed
 from evsplat.model.gaussians import SH_C0
 from evsplat.scenes import get_scene
@@ -44,11 +43,9 @@ def _back_project(scene, t_us: int, K: np.ndarray, moving: bool):
     return points, rgb[ys, xs], z
 
 
-@pytest.fixture(scope="module")
-def ball(tmp_path_factory):
-    root = tmp_path_factory.mktemp("oracle") / "ball"
-    simulate_dataset("ball", root, tiny=True, seed=0, progress=False)
-    return load_dataset(root), get_scene("ball", tiny=True)
+@pytest.fixture
+def ball(tiny_scene):
+    return load_dataset(tiny_scene("ball")), get_scene("ball", tiny=True)
 
 
 def _tracking_error(trainer: Trainer, scene, n_ball: int, times: np.ndarray) -> float:

@@ -16,7 +16,6 @@ from torch import nn
 from evsplat.config import LossConfig, SkipConfig
 from evsplat.data.dataset import load_dataset
 from evsplat.data.events import bayer_channel_map
-from evsplat.data.simulator import simulate_dataset
 from evsplat.losses.event import bayer_select, log_intensity
 from evsplat.model.gaussians import GaussianModel
 from evsplat.render import Renderer
@@ -153,10 +152,8 @@ def test_configs_saved_before_skips_existed_load_with_the_defaults():
 
 
 @pytest.fixture(scope="module")
-def tiny_data(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("data") / "ball"
-    simulate_dataset("ball", out, tiny=True, seed=0, progress=False)
-    return out
+def tiny_data(tiny_scene) -> Path:
+    return tiny_scene("ball")
 
 
 def small_config(iterations: int) -> TrainConfig:
@@ -286,10 +283,8 @@ def test_a_scene_found_static_drops_the_mlp_and_motion_losses_for_good(tiny_data
 
 
 @pytest.fixture(scope="module")
-def tiny_still(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("data") / "still"
-    simulate_dataset("still", out, tiny=True, seed=0, progress=False)
-    return out
+def tiny_still(tiny_scene) -> Path:
+    return tiny_scene("still")
 
 
 def moves(name: str) -> bool:

@@ -95,3 +95,19 @@ def deformed(
         dx, dq, ds = (torch.zeros(n, d.shape[1], dtype=d.dtype).index_copy(0, idx, d) for d in sub)
     rotations = normalize_quats(model.rotations() + dq)
     return means + dx, rotations, scale_activation(model.log_scales + ds)
+
+
+def deformed_means(
+    model: GaussianModel,
+    mlp: DeformationMLP,
+    t: float,
+    rows: Tensor,
+    static: Tensor | None = None,
+) -> Tensor:
+    """Deformed means ``[len(rows),3]`` of the Gaussians ``rows`` at time ``t``, as ``deformed``
+    places them: the ones marked in ``static`` [N] stay canonical and skip the MLP."""
+    means = model.means[rows]
+    moving = torch.arange(rows.numel()) if static is None else torch.nonzero(~static[rows])
+    moving = moving.reshape(-1)
+    dx = mlp(means.detach()[moving], t)[0]
+    return means.index_add(0, moving, dx)

@@ -32,7 +32,7 @@ from evsplat.losses.flow import (
 )
 from evsplat.losses.patch import patch_motion_loss, select_visible
 from evsplat.losses.reg import non_event_loss, spatial_gradient_loss
-from evsplat.model.deform import DeformationMLP
+from evsplat.model.deform import DeformationMLP, deformed_means
 from evsplat.model.densify import Densifier
 from evsplat.model.gaussians import GaussianModel
 from evsplat.render import Renderer, RenderOut
@@ -40,16 +40,26 @@ from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint, save_ch
 from evsplat.train.coarse import bin_events, coarse_due, half_renderer
 from evsplat.train.config import TrainConfig
 from evsplat.train.depth_prior import DepthPrior
+from evsplat.train.mover import (
+    disc_depth,
+    find_path,
+    fit_mlp_to_path,
+    lift,
+    place_on_mover,
+    unexplained,
+)
 from evsplat.train.skips import (
     Plateau,
     Window,
     bake,
     classify_static,
+    evidence_windows,
     follow_rows,
     holdout_loss,
     holdout_windows,
     pixels_per_unit,
     static_due,
+    unexplained_events,
 )
 from evsplat.train.stages import Stage, stage_at
 
@@ -139,7 +149,7 @@ class Trainer:
         self.optimizer = torch.optim.Adam(
             self.model.param_groups(cfg.model, self.extent), eps=1e-15
         )
-        self.mlp_optimizer = torch.optim.Adam(self.mlp.parameters(), lr=cfg.model.mlp_lr)
+        self.mlp_optimizer = self._mlp_adam()
         self.densifier = Densifier(cfg.densify, self.extent, cfg.schedule.iterations)
         self.renderer = Renderer(
             model=self.model,
@@ -321,14 +331,6 @@ class Trainer:
         MLP to carry them along its path, and mark every other Gaussian static (the background's
         gradients drowned the mover's in a shared MLP: docs/results.md, session 11). Returns
         numbers for the log; nothing changes when no mover is found."""
-        from evsplat.train.mover import (
-            find_path,
-            fit_mlp_to_path,
-            lift,
-            place_on_mover,
-            unexplained,
-        )
-
         mc, data, cfg = self.cfg.mover, self.data, self.cfg
         self.renderer.mlp = None  # the warm-up's static model
 
@@ -339,30 +341,20 @@ class Trainer:
         with torch.no_grad():
             path = find_path(residual_of, data.t_start_us, data.t_end_us, mc)
         found = float(path.found.mean())
-        if found < mc.min_found:
+        if found < mc.min_found or not path.found.any():
             return {"mover_found": found}
-        # The reference time: the clearest window whose disc lies inside the image, with its
-        # own radius (measured against the farthest-inside window with the median radius, which
-        # placed a mover twice as large that the model then did not move: docs/results.md).
-        r, (u, v) = path.radius_px, path.uv.T
-        inside = (u - r >= 0) & (v - r >= 0) & (u + r <= data.width) & (v + r <= data.height)
-        pick = path.found & inside if bool((path.found & inside).any()) else path.found
-        k = int(np.argmax(np.where(pick, path.contrast, -np.inf)))
-        radius_px = float(r[k])
-        t_ref = int(path.times_us[k])
+        # The reference: measured against the window farthest inside with the median radius,
+        # which placed a mover twice as large that the model then did not move (docs/results.md).
+        k = path.reference(data.width, data.height)
+        radius_px, t_ref = float(path.radius_px[k]), int(path.times_us[k])
         with torch.no_grad():
             out = self.renderer.render(t_ref, self._pose(t_ref))
-        ys, xs = np.mgrid[0 : data.height, 0 : data.width] + 0.5
-        disc = torch.from_numpy((xs - u[k]) ** 2 + (ys - v[k]) ** 2 <= radius_px**2)
-        seen = disc & (out.alpha > 0.5) & (out.depth > 0)
-        depths = out.depth[seen] if bool(seen.any()) else out.depth[out.depth > 0]
-        depth = float(depths.median()) if depths.numel() else float(np.mean(self.depth_range))
-
+        fallback = float(np.mean(self.depth_range))
+        depth = disc_depth(out.depth, out.alpha, path.uv[k], radius_px, fallback)
         times = path.times_us[path.found]
-        points = lift(path.uv[path.found], np.full(len(times), depth), self._poses(times), data.K)
-        ref = lift(
-            path.uv[k : k + 1], np.array([depth]), self._poses(path.times_us[k : k + 1]), data.K
-        )[0]
+        poses = self.data.trajectory.pose(times.astype(np.float64))
+        points = lift(path.uv[path.found], np.full(len(times), depth), poses, data.K)
+        ref = points[int(np.count_nonzero(path.found[:k]))]  # k is a found window
         n = self.model.num_gaussians
         m = max(1, int(mc.fraction * n))
         rows = torch.argsort(self.model.opacities().detach())[:m]
@@ -373,7 +365,7 @@ class Trainer:
         rms = fit_mlp_to_path(
             self.mlp, self.model.means[rows], t_norm, offsets, mc.fit_steps, mc.fit_lr, cfg.seed
         )
-        self.mlp_optimizer = torch.optim.Adam(self.mlp.parameters(), lr=cfg.model.mlp_lr)
+        self.mlp_optimizer = self._mlp_adam()  # the fit's moments are not training's
         static = torch.ones(n, dtype=torch.bool)
         static[rows] = False
         self.renderer.static_mask = static
@@ -385,8 +377,8 @@ class Trainer:
             "mover_gaussians": float(m),
         }
 
-    def _poses(self, times_us: np.ndarray) -> np.ndarray:
-        return np.stack([self._pose(float(t)) for t in times_us])
+    def _mlp_adam(self) -> torch.optim.Adam:
+        return torch.optim.Adam(self.mlp.parameters(), lr=self.cfg.model.mlp_lr)
 
     def _classify_static(self) -> None:
         """Mark the dynamic Gaussians that stopped moving static and bake their deformation;
@@ -419,8 +411,6 @@ class Trainer:
         window's middle time (deformation and time-local opacity evaluated there) leaves
         unexplained, seen from the poses at the window's ends (skips.unexplained_events); 0 when
         no window has events."""
-        from evsplat.train.skips import evidence_windows, unexplained_events
-
         data, sk = self.data, self.cfg.skips
         windows = evidence_windows(
             self._esi, data.t_start_us, data.t_end_us, self.cfg.loss, sk, self.cfg.seed
@@ -471,13 +461,15 @@ class Trainer:
                     a, b = int(bounds[j]), int(bounds[j + 1])
                     frames.append(torch.from_numpy(ev.esi(a, b, data.c_pos, data.c_neg)))
                     t_mid = 0.5 * (int(ev.t[a]) + int(ev.t[max(b - 1, a)]))
-                    means = self.model.means[idx]
-                    # The MLP sees detached canonical means, as in `deformed` (Deformable-3DGS).
-                    dx = self.mlp(means.detach(), self.renderer.time(t_mid))[0]
-                    if self.renderer.static_mask is not None:  # static ones skip the MLP
-                        dx = dx * (~self.renderer.static_mask[idx]).unsqueeze(-1).to(dx.dtype)
+                    means = deformed_means(
+                        self.model,
+                        self.mlp,
+                        self.renderer.time(t_mid),
+                        idx,
+                        self.renderer.static_mask,
+                    )
                     centres.append(
-                        project_points(means + dx, viewmat(self._pose(t_mid)), self.renderer.K)
+                        project_points(means, viewmat(self._pose(t_mid)), self.renderer.K)
                     )
                 out["m"] = patch_motion_loss(
                     torch.stack(frames), torch.stack(centres, dim=1), lc.patch_side

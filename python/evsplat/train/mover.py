@@ -30,6 +30,7 @@ from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
 
 EPS = 1e-12  # guards divisions by energies and weights
 CAP_QUANTILE = 0.95  # see locate
+FIT_TIMES = 8  # times per step of fit_mlp_to_path
 
 
 @dataclass
@@ -44,10 +45,36 @@ class MoverPath:
 
     def at(self, t_us: np.ndarray) -> np.ndarray:
         """[T,2] pixel centres at ``t_us``, linear between the found windows (held at ends)."""
-        t = self.times_us[self.found].astype(np.float64)
-        uv = self.uv[self.found]
-        q = np.asarray(t_us, dtype=np.float64).reshape(-1)
-        return np.stack([np.interp(q, t, uv[:, k]) for k in range(2)], axis=1)
+        return interp_rows(t_us, self.times_us[self.found], self.uv[self.found])
+
+    def reference(self, width: int, height: int) -> int:
+        """The window to place the mover at: the clearest found one whose disc lies inside the
+        image (a mover cut by the border looks smaller and off-centre), else the clearest."""
+        r, (u, v) = self.radius_px, self.uv.T
+        inside = (u - r >= 0) & (v - r >= 0) & (u + r <= width) & (v + r <= height)
+        pick = self.found & inside if bool((self.found & inside).any()) else self.found
+        return int(np.argmax(np.where(pick, self.contrast, -np.inf)))
+
+
+def interp_rows(q: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values`` [T,D] linear in sorted ``t`` [T] at ``q`` -> [Q,D], held beyond the ends."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1)
+    t = np.asarray(t, dtype=np.float64)
+    return np.stack([np.interp(q, t, values[:, k]) for k in range(values.shape[1])], axis=1)
+
+
+def disc_depth(
+    depth: Tensor, alpha: Tensor, centre: np.ndarray, radius: float, fallback: float
+) -> float:
+    """Median rendered ``depth`` [H,W] over the opaque pixels (alpha > 0.5) of the disc around
+    ``centre`` (x, y); over all rendered pixels when the disc has none; ``fallback`` when
+    nothing was rendered."""
+    h, w = depth.shape
+    ys, xs = np.mgrid[0:h, 0:w] + 0.5
+    disc = torch.from_numpy((xs - centre[0]) ** 2 + (ys - centre[1]) ** 2 <= radius**2)
+    seen = disc & (alpha > 0.5) & (depth > 0)
+    depths = depth[seen] if bool(seen.any()) else depth[depth > 0]
+    return float(depths.median()) if depths.numel() else fallback
 
 
 def unexplained(esi: Tensor, pred: Tensor, pool: int) -> Tensor:
@@ -154,33 +181,21 @@ def fit_mlp_to_path(
     gen = torch.Generator().manual_seed(seed)
     opt = torch.optim.Adam(mlp.parameters(), lr=lr)
     x = means.detach()
+    batch = min(256, x.shape[0])
     err = torch.zeros(())
     for _ in range(steps):
-        t = torch.rand(8, generator=gen)
-        rows = torch.randint(0, x.shape[0], (min(256, x.shape[0]),), generator=gen)
-        target = torch.stack([_interp(times, offsets, float(s)) for s in t])
-        loss = torch.zeros(())
-        for s, goal in zip(t.tolist(), target):
-            dx, dq, ds = mlp(x[rows], s)
-            loss = loss + ((dx - goal) ** 2).sum(-1).mean() + (dq**2).sum(-1).mean()
-            loss = loss + (ds**2).sum(-1).mean()
+        t = torch.rand(FIT_TIMES, generator=gen)
+        rows = torch.randint(0, x.shape[0], (batch,), generator=gen)
+        goal = torch.from_numpy(interp_rows(t.numpy(), times.numpy(), offsets.numpy()))
+        # One pass over every (time, Gaussian) pair; the MLP takes a time per row.
+        dx, dq, ds = mlp(x[rows].repeat(FIT_TIMES, 1), t.repeat_interleave(batch))
+        goal = goal.to(dx.dtype).repeat_interleave(batch, dim=0)
+        loss = ((dx - goal) ** 2).sum(-1).mean() + (dq**2).sum(-1).mean() + (ds**2).sum(-1).mean()
         opt.zero_grad(set_to_none=True)
-        (loss / len(t)).backward()
+        loss.backward()
         opt.step()
-        err = loss.detach() / len(t)
+        err = loss.detach()
     return float(err.sqrt())
-
-
-def _interp(times: Tensor, values: Tensor, t: float) -> Tensor:
-    """``values`` [T,D] linear in ``times`` [T] (sorted) at ``t``, held beyond the ends."""
-    i = int(torch.searchsorted(times, torch.tensor([t], dtype=times.dtype)).item())
-    if i <= 0:
-        return values[0]
-    if i >= len(times):
-        return values[-1]
-    a, b = float(times[i - 1]), float(times[i])
-    w = (t - a) / max(b - a, EPS)
-    return values[i - 1] * (1.0 - w) + values[i] * w
 
 
 def place_on_mover(
