@@ -1,6 +1,7 @@
 """Tracking metrics against scenes whose answer is known by construction: Gaussians that move
-exactly with the object (error 0, path ratio 1) and a time-local 'smear' of static Gaussians,
-one cluster per test time (error = the object's own displacement, ratio 0)."""
+exactly with the object (error 0, path ratio 1), the same with a minority of static Gaussians
+left on the object (still 0), and a time-local 'smear' of static Gaussians, one cluster per test
+time (error = the object's own displacement, ratio 0)."""
 
 from dataclasses import dataclass
 
@@ -149,6 +150,28 @@ def test_a_time_local_smear_of_static_gaussians_scores_the_objects_own_displacem
         np.linalg.norm(np.diff(gt_px, axis=0), axis=1).sum()
     )
     assert result["dx_px"]["object"]["p99"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_minority_of_static_gaussians_left_on_the_object_does_not_drag_its_centre():
+    # 40 Gaussians move rigidly with the object (one tight spot on its front); 30 static ones
+    # stay where the object was at the first test time, with 3/7 of the set's weight there.
+    spot = np.array([0.0, 0.0, -0.2])
+    strays = centre(TIMES[0]) + front_cap(30, seed=3)
+    means = {t: np.concatenate([np.tile(centre(t) + spot, (40, 1)), strays]) for t in TIMES}
+    peak = np.full(70, 0.6)
+    at_time = {t / 400_000: peak for t in TIMES}
+    result = track_object(
+        StubRenderer(StubModel(peak, at_time), means), [view(t) for t in TIMES], RADIUS
+    )
+    # The weighted median of each coordinate is the spot's as long as it holds over half the
+    # weight, so the error is 0 exactly; the mean would sit 3/7 of the way back to the start.
+    assert result["paths"][0]["n"] == 70
+    assert result["error_px_median"] < 1e-6 and result["error_px_mean"] < 1e-6
+    assert result["path_ratio"] == pytest.approx(1.0, abs=1e-9)
+    last = means[TIMES[-1]]
+    dragged = last.mean(0) - (means[TIMES[0]].mean(0) - centre(TIMES[0]))
+    offset = pixel(dragged, camera(TIMES[-1])) - pixel(centre(TIMES[-1]), camera(TIMES[-1]))
+    assert np.linalg.norm(offset) > 10.0
 
 
 def test_a_reference_without_the_object_in_view_takes_no_part():

@@ -14,14 +14,17 @@ the Gaussians whose deformed centre at t_k
   which drops the background seen through the mask's pixels,
 - and has opacity >= ``OPACITY_MIN`` at t_k (time-local factor included: drawn at t_k).
 
-**Error.** That same set is followed over every test time t_j. Its centre c(t_j) is the mean of
-its deformed 3-D centres weighted by peak opacity (not the time-local one, so a set whose
-members fade in and out does not jump). Its offset from the object at the reference,
-c(t_k) - g(t_k), is removed, so a set that covers only the visible surface is not biased:
-p_k(t_j) = c(t_j) - (c(t_k) - g(t_k)). The error is the pixel distance between p_k(t_j) and
-g(t_j), both projected with frame j's GT pose and K (off the image too: a test time where the
-object has left the view still counts). The pair j = k is 0 by construction and left out. Per
-test time: the median over references; overall: median and mean over all pairs.
+**Error.** That same set is followed over every test time t_j. Its centre c(t_j) is the
+per-coordinate median of its deformed 3-D centres weighted by peak opacity (not the time-local
+one, so a set whose members fade in and out does not jump). The median, not the mean: it says
+where most of the set's weight goes, and a minority of members that do not move with the object
+(static Gaussians left over the object's place, floaters in front of it) cannot drag it; a set
+drawn mostly by such Gaussians still scores their standstill. Its offset from the object at
+the reference, c(t_k) - g(t_k), is removed, so a set that covers only the visible surface is
+not biased: p_k(t_j) = c(t_j) - (c(t_k) - g(t_k)). The error is the pixel distance between
+p_k(t_j) and g(t_j), both projected with frame j's GT pose and K (off the image too: a test
+time where the object has left the view still counts). The pair j = k is 0 by construction and
+left out. Per test time: the median over references; overall: median and mean over all pairs.
 
 **Path ratio.** The length of p_k's path through the test times over the length of g's path,
 both projected with one fixed camera (the mean test pose: mean position, rotation the nearest
@@ -154,11 +157,20 @@ def follow(
     when the set is empty or weightless."""
     chosen = object_set(means[k], opac[k], views[k], K, radius)
     weights = peak[chosen]
-    total = float(weights.sum())
-    if total <= 0.0:
+    if float(weights.sum()) <= 0.0:
         return None
-    centres = (means[:, chosen] * weights[None, :, None]).sum(axis=1) / total
+    centres = weighted_median(means[:, chosen], weights)
     return chosen, centres - (centres[k] - views[k].centre)
+
+
+def weighted_median(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Per-coordinate weighted median ``[J,3]`` of ``points`` ``[J,M,3]`` with ``weights``
+    ``[M]`` (positive total): the smallest value whose cumulative weight reaches half."""
+    order = np.argsort(points, axis=1, kind="stable")
+    cumulative = np.cumsum(weights[order], axis=1)
+    half = 0.5 * cumulative[:, -1:, :]
+    first = np.argmax(cumulative >= half, axis=1)[:, None, :]
+    return np.take_along_axis(np.take_along_axis(points, order, axis=1), first, axis=1)[:, 0]
 
 
 def track_object(renderer: Renderer, views: Sequence[TrackView], radius: float | None) -> dict:
