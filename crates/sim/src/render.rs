@@ -9,7 +9,8 @@ pub enum RenderError {
     #[error("shape '{0}' is unknown; use sphere, box, quad or wing")]
     UnknownShape(String),
     #[error(
-        "texture '{0}' is unknown; use solid, checker, wall, segments, wing, clock or feathers"
+        "texture '{0}' is unknown; use solid, checker, wall, segments, wing, clock, feathers, \
+         noise or blobs"
     )]
     UnknownTexture(String),
     #[error("{what} '{name}' needs {need} parameters, got {got}")]
@@ -100,6 +101,26 @@ enum Texture {
         half: [f64; 2],
     },
     Feathers,
+    /// Value noise per colour channel, mapped to base ± amp (see `value_noise`).
+    Noise {
+        seed: u64,
+        freq: f64,
+        octaves: u32,
+        base: [f64; 3],
+        amp: [f64; 3],
+    },
+    /// Gaussian colour blobs in the object x-y plane, blended in order over a base colour.
+    Blobs {
+        base: [f64; 3],
+        blobs: Vec<Blob>,
+    },
+}
+
+#[derive(Clone, Debug)]
+struct Blob {
+    centre: [f64; 2],
+    sigma: f64,
+    colour: [f64; 3],
 }
 
 #[derive(Clone, Debug)]
@@ -127,6 +148,63 @@ fn rgb(p: &[f64]) -> Rgb {
 
 fn palette(p: &[f64]) -> Vec<Rgb> {
     p.chunks_exact(3).map(rgb).collect()
+}
+
+fn rgb64(p: &[f64]) -> [f64; 3] {
+    [p[0], p[1], p[2]]
+}
+
+/// More octaves than this add detail far below a pixel and only cost time.
+const MAX_OCTAVES: u32 = 8;
+/// Keyed random stream of the noise lattice (octave o uses NOISE_STREAM + o).
+const NOISE_STREAM: u64 = 1000;
+/// Blob widths below this are treated as this (a zero width would divide by zero).
+const MIN_BLOB_SIGMA: f64 = 1e-9;
+
+/// Lattice values in [0, 1) of the three colour channels at integer point (ix, iy, iz):
+/// one 64-bit hash split into three 21-bit fractions, so the channels are independent.
+fn lattice(seed: u64, octave: u32, ix: i64, iy: i64, iz: i64) -> [f64; 3] {
+    // Wrapping casts: coordinates beyond ±2^31 cells alias, far outside any scene.
+    let yz = ((iy as u32 as u64) << 32) | iz as u32 as u64;
+    let h = crate::rng::bits(seed, NOISE_STREAM + octave as u64, ix as u64, yz);
+    let unit = 1.0 / (1u64 << 21) as f64;
+    [0, 1, 2].map(|c| ((h >> (21 * c)) & 0x1F_FFFF) as f64 * unit)
+}
+
+fn smoothstep(t: f64) -> f64 {
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// Fractal value noise at object-frame point p, per colour channel, in [0, 1]: octave o has
+/// lattice spacing 1 / (freq 2^o) and weight 2^-o; values at lattice points are hashed from
+/// (seed, o, cell) and blended with smoothstep weights (continuous, with continuous slope).
+/// The sum is divided by the total weight, so each channel's mean is 1/2 for any parameters.
+fn value_noise(seed: u64, freq: f64, octaves: u32, p: V3) -> [f64; 3] {
+    let (mut acc, mut total) = ([0.0; 3], 0.0);
+    for o in 0..octaves {
+        let f = freq * (1u64 << o) as f64;
+        let weight = 0.5f64.powi(o as i32);
+        let q = [p[0] * f, p[1] * f, p[2] * f];
+        let cell = q.map(f64::floor);
+        let t = [0, 1, 2].map(|k| smoothstep(q[k] - cell[k]));
+        for corner in 0..8 {
+            let pick = |k: usize| (corner >> k) & 1 == 1;
+            let w = (0..3)
+                .map(|k| if pick(k) { t[k] } else { 1.0 - t[k] })
+                .product::<f64>();
+            // On a plane through lattice points (a quad's z = 0) half the corners weigh 0.
+            if w == 0.0 {
+                continue;
+            }
+            let at = |k: usize| cell[k] as i64 + pick(k) as i64;
+            let h = lattice(seed, o, at(0), at(1), at(2));
+            for (a, v) in acc.iter_mut().zip(h) {
+                *a += weight * w * v;
+            }
+        }
+        total += weight;
+    }
+    acc.map(|a| a / total)
 }
 
 /// Tile colour table of the wall texture: a fixed 64x64 pseudo-random pattern per seed.
@@ -191,6 +269,24 @@ impl Primitive {
                 need("texture", texture, p, 2).map(|_| Texture::Clock { half: [p[0], p[1]] })?
             }
             "feathers" => Texture::Feathers,
+            "noise" => need("texture", texture, p, 9).map(|_| Texture::Noise {
+                seed: p[0] as u64,
+                freq: p[1],
+                octaves: (p[2] as u32).clamp(1, MAX_OCTAVES),
+                base: rgb64(&p[3..6]),
+                amp: rgb64(&p[6..9]),
+            })?,
+            "blobs" => need("texture", texture, p, 9).map(|_| Texture::Blobs {
+                base: rgb64(p),
+                blobs: p[3..]
+                    .chunks_exact(6)
+                    .map(|b| Blob {
+                        centre: [b[0], b[1]],
+                        sigma: b[2].max(MIN_BLOB_SIGMA),
+                        colour: rgb64(&b[3..6]),
+                    })
+                    .collect(),
+            })?,
             other => return Err(RenderError::UnknownTexture(other.into())),
         };
         Ok(Primitive {
@@ -381,6 +477,28 @@ impl Texture {
                     [0.8, 0.55, 0.04]
                 }
             }
+            Texture::Noise {
+                seed,
+                freq,
+                octaves,
+                base,
+                amp,
+            } => {
+                let v = value_noise(*seed, *freq, *octaves, p);
+                [0, 1, 2].map(|c| (base[c] + amp[c] * (2.0 * v[c] - 1.0)).clamp(0.0, 1.0) as f32)
+            }
+            Texture::Blobs { base, blobs } => {
+                let mut c = *base;
+                for b in blobs {
+                    let r2 = (p[0] - b.centre[0]).powi(2) + (p[1] - b.centre[1]).powi(2);
+                    let w = (-r2 / (2.0 * b.sigma * b.sigma)).exp();
+                    // A convex blend per blob: the result stays within the given colours.
+                    for (v, target) in c.iter_mut().zip(b.colour) {
+                        *v += w * (target - *v);
+                    }
+                }
+                c.map(|v| v as f32)
+            }
         }
     }
 }
@@ -509,5 +627,135 @@ mod tests {
         assert!((f.depth[4 * 8 + 4] - 1.5).abs() < 1e-6); // front face of the cube
         assert!((f.depth[0] - 4.0).abs() < 1e-6); // wall at the corner
         assert!(f.mask[4 * 8 + 4] && !f.mask[0]);
+    }
+
+    fn texture(name: &str, params: &[f64]) -> Texture {
+        Primitive::new("quad", &[1.0, 1.0], name, params, false)
+            .unwrap()
+            .texture
+    }
+
+    fn colour64(t: &Texture, p: V3) -> [f64; 3] {
+        t.colour(p, [0.0, 0.0, -1.0]).map(|c| c as f64)
+    }
+
+    /// seed 7, 4 cells per metre, `octaves`, base 0.5 grey, amplitude 0.4.
+    fn grey_noise(seed: f64, octaves: f64) -> Texture {
+        texture("noise", &[seed, 4.0, octaves, 0.5, 0.5, 0.5, 0.4, 0.4, 0.4])
+    }
+
+    /// base + amp (2 v - 1) for lattice value v, as the texture maps it.
+    fn mapped(v: f64) -> f64 {
+        0.5 + 0.4 * (2.0 * v - 1.0)
+    }
+
+    #[test]
+    fn noise_is_the_hashed_lattice_value_at_lattice_points_and_their_mean_halfway() {
+        let t = grey_noise(7.0, 1.0);
+        // Lattice points (spacing 1/4 m) hold their hashed values exactly.
+        let corner = |i: i64, j: i64, k: i64| lattice(7, 0, i, j, k).map(mapped);
+        for (i, j, k) in [(0, 0, 0), (3, -2, 0), (-5, 4, 1)] {
+            let p = [i as f64 / 4.0, j as f64 / 4.0, k as f64 / 4.0];
+            let (got, want) = (colour64(&t, p), corner(i, j, k));
+            for c in 0..3 {
+                assert!((got[c] - want[c]).abs() < 1e-6, "{got:?} vs {want:?}");
+            }
+        }
+        // Halfway along a lattice edge smoothstep(1/2) = 1/2: the mean of the two ends.
+        let (got, a, b) = (
+            colour64(&t, [2.5 / 4.0, 1.0 / 4.0, 0.0]),
+            corner(2, 1, 0),
+            corner(3, 1, 0),
+        );
+        for c in 0..3 {
+            assert!((got[c] - (a[c] + b[c]) / 2.0).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn noise_is_centred_on_its_base_within_its_amplitude_and_slope_bound() {
+        let octaves = 3;
+        let t = grey_noise(7.0, octaves as f64);
+        // |d noise / dx| <= 1.5 f sum_o 2^o 2^-o / sum_o 2^-o (smoothstep slope <= 1.5).
+        let weights: f64 = (0..octaves).map(|o| 0.5f64.powi(o)).sum();
+        let slope = 2.0 * 0.4 * 1.5 * 4.0 * octaves as f64 / weights;
+        let (n, h) = (20_000u64, 1e-5);
+        let (mut sum, mut lo, mut hi, mut steepest) = ([0.0; 3], 1.0f64, 0.0f64, 0.0f64);
+        for i in 0..n {
+            let u = |s: u64| (crate::rng::uniform(3, s, i, 0) - 0.5) * 20.0;
+            let p = [u(1), u(2), u(3)];
+            let c = colour64(&t, p);
+            let dx = colour64(&t, [p[0] + h, p[1], p[2]]);
+            for ch in 0..3 {
+                sum[ch] += c[ch];
+                (lo, hi) = (lo.min(c[ch]), hi.max(c[ch]));
+                steepest = steepest.max((dx[ch] - c[ch]).abs() / h);
+            }
+        }
+        for s in sum {
+            assert!((s / n as f64 - 0.5).abs() < 0.01, "mean {}", s / n as f64);
+        }
+        assert!(lo >= 0.1 - 1e-6 && hi <= 0.9 + 1e-6, "range {lo}..{hi}");
+        assert!(
+            hi - lo > 0.4,
+            "range {lo}..{hi} is too narrow to be a texture"
+        );
+        assert!(
+            steepest <= slope * 1.001,
+            "slope {steepest} > bound {slope}"
+        );
+    }
+
+    #[test]
+    fn noise_is_fixed_by_its_seed() {
+        let p = [0.37, -1.21, 0.05];
+        let (a, b, c) = (
+            grey_noise(7.0, 2.0),
+            grey_noise(7.0, 2.0),
+            grey_noise(8.0, 2.0),
+        );
+        assert_eq!(colour64(&a, p), colour64(&b, p));
+        assert_ne!(colour64(&a, p), colour64(&c, p));
+    }
+
+    #[test]
+    fn blobs_blend_gaussians_over_the_base_in_order() {
+        // Black base; a white blob (sigma 1) at the origin, then a red one (sigma 0.5) at x = 3.
+        let t = texture(
+            "blobs",
+            &[
+                0.0, 0.0, 0.0, //
+                0.0, 0.0, 1.0, 1.0, 1.0, 1.0, //
+                3.0, 0.0, 0.5, 1.0, 0.0, 0.0,
+            ],
+        );
+        let white = |r2: f64| (-r2 / 2.0).exp();
+        let red = |r2: f64| (-r2 / 0.5).exp();
+        for (x, y) in [(0.0, 0.0), (1.0, 0.0), (0.6, -0.8), (2.0, 1.0), (3.0, 0.0)] {
+            let (w1, w2) = (white(x * x + y * y), red((x - 3.0) * (x - 3.0) + y * y));
+            let want = [w1 + w2 * (1.0 - w1), w1 * (1.0 - w2), w1 * (1.0 - w2)];
+            let got = colour64(&t, [x, y, 0.0]);
+            for c in 0..3 {
+                assert!(
+                    (got[c] - want[c]).abs() < 1e-6,
+                    "({x}, {y}): {got:?} vs {want:?}"
+                );
+            }
+        }
+        // One sigma from the white blob's centre: exp(-1/2) of the way from black to white.
+        assert!((colour64(&t, [0.0, 1.0, 0.0])[1] - 0.606_530_66).abs() < 1e-6);
+    }
+
+    #[test]
+    fn noise_and_blobs_with_too_few_parameters_are_one_line_errors() {
+        for (name, got) in [("noise", 8), ("blobs", 4)] {
+            let err = Primitive::new("quad", &[1.0, 1.0], name, &vec![0.5; got], false)
+                .unwrap_err()
+                .to_string();
+            assert_eq!(
+                err,
+                format!("texture '{name}' needs 9 parameters, got {got}")
+            );
+        }
     }
 }

@@ -9,10 +9,14 @@ fn mix(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// 64 well-mixed bits from the key.
+pub fn bits(seed: u64, stream: u64, a: u64, b: u64) -> u64 {
+    mix(mix(mix(seed ^ mix(stream)) ^ a) ^ b)
+}
+
 /// Uniform in [0, 1) from the key (53 random bits).
 pub fn uniform(seed: u64, stream: u64, a: u64, b: u64) -> f64 {
-    let h = mix(mix(mix(seed ^ mix(stream)) ^ a) ^ b);
-    (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    (bits(seed, stream, a, b) >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
 }
 
 /// Standard normal via Box-Muller on two keyed uniforms.

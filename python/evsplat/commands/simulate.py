@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import textwrap
 import time
 
 HELP = "render a built-in synthetic scene and simulate an event camera; writes a dataset folder"
@@ -17,9 +18,23 @@ def _size(text: str) -> tuple[int, int]:
     return int(m.group(1)), int(m.group(2))
 
 
+def _scene_list(width: int = 78) -> str:
+    """The built-in scenes with their descriptions, for the help's epilog."""
+    from evsplat.scenes import scene_descriptions
+
+    rows = [
+        textwrap.fill(text, width, initial_indent=f"  {name:<10} ", subsequent_indent=" " * 13)
+        for name, text in scene_descriptions().items()
+    ]
+    return "built-in scenes:\n" + "\n".join(rows)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from evsplat.scenes import scene_names
 
+    # Raw epilog: keep one scene per entry instead of argparse's single re-wrapped paragraph.
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = _scene_list()
     parser.add_argument("--scene", required=True, help=f"scene name: {', '.join(scene_names())}")
     parser.add_argument(
         "--out", required=True, help="output dataset folder (must not exist or be empty)"

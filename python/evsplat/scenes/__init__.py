@@ -95,6 +95,11 @@ def scene_names() -> list[str]:
     return list(SCENES)
 
 
+def scene_descriptions() -> dict[str, str]:
+    """One-line description of each built-in scene, by name (nothing is rendered)."""
+    return {name: make()["description"] for name, make in SCENES.items()}
+
+
 def get_scene(name: str, size: tuple[int, int] | None = None, tiny: bool = False) -> Scene:
     """The built-in scene `name` at its full size (400x400; duck 600x400), at `size` = (W, H),
     or as the tiny variant (longer side 96 px, zoomed in 1.6x, 0.6 s) for tests and the demo."""

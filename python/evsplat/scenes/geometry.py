@@ -103,3 +103,26 @@ def clock_face(half: tuple[float, float]) -> Texture:
 def feathers() -> Texture:
     """Yellow toy body with darker feather patches (a lon/lat checker)."""
     return "feathers", []
+
+
+def noise(seed: int, freq: float, octaves: int, base: Rgb, amp: Rgb) -> Texture:
+    """Dense multi-colour value noise: each channel is base ± amp times its own smooth random
+    field (hashed lattice values every 1/`freq` metres in the object frame, `octaves` finer
+    octaves at 2x the frequency and half the weight, clamped to [0, 1]); fixed by `seed`."""
+    return "noise", [seed, freq, octaves, *base, *amp]
+
+
+@dataclass
+class Blob:
+    """A round Gaussian blob of `colour` at (x, y) in the object frame, width `sigma` metres."""
+
+    x: float
+    y: float
+    sigma: float
+    colour: Rgb
+
+
+def colour_blobs(base: Rgb, spots: Sequence[Blob]) -> Texture:
+    """Broad smooth colour blobs over `base` in the object x-y plane: each blob in turn blends
+    towards its colour by exp(-r² / 2σ²), so there are no edges anywhere."""
+    return "blobs", [*base, *(v for b in spots for v in (b.x, b.y, b.sigma, *b.colour))]

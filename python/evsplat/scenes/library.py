@@ -10,10 +10,13 @@ from __future__ import annotations
 import numpy as np
 
 from evsplat.scenes.geometry import (
+    Blob,
     Primitive,
     checker,
     clock_face,
+    colour_blobs,
     feathers,
+    noise,
     rot,
     solid,
     sphere_segments,
@@ -270,4 +273,108 @@ def still() -> dict:
     return spec
 
 
-SCENES = {"butterfly": butterfly, "duck": duck, "clock": clock, "ball": ball, "still": still}
+# ---------------------------------------------------------------- camouflage
+
+
+def orbit(centre: tuple[float, float, float], radius: float, azimuth: float, f: float):
+    """A camera on a small orbit around `centre`, always looking at it: ±`azimuth` radians about
+    the vertical at `f` Hz, a little elevation, and a slight hand-held jitter on top.
+
+    Unlike `camera_path` it turns around the scene rather than about itself, so near and far
+    surfaces shift against each other (parallax) by more than the jitter alone gives.
+    """
+    hand = camera_path(0.03, 0.02, 0.01, 0.01, 1.7)
+
+    def c2w(t: float) -> np.ndarray:
+        turn = rot("y", azimuth * np.sin(TAU * f * t))
+        tilt = rot("x", 0.05 * np.sin(TAU * f * t + 1.2))
+        return trans(*centre) @ turn @ tilt @ trans(0, 0, -radius) @ hand(t)
+
+    return c2w
+
+
+def camo() -> dict:
+    """A sphere painted with the same dense noise as the wall behind it: in a single frame it is
+    hard to see; only its motion (and shading) gives it away."""
+    r, depth = 0.38, 3.0
+    base, amp = (0.5, 0.45, 0.38), (0.95, 0.9, 0.8)  # clamped to [0, 1]: strong contrast
+    wall_freq = 12.0  # lattice cells per metre on the wall: ~3 px at tiny size, 7 px at full
+    # The sphere is nearer (3 m vs 5 m): a finer lattice gives the same cells in pixels.
+    sphere_freq = wall_freq * BACK_WALL_Z / depth
+
+    def pose(t: float) -> np.ndarray:
+        return (
+            trans(
+                0.7 * np.sin(TAU * 1.1 * t),  # up to 4.8 m/s sideways
+                0.32 * np.sin(TAU * 1.7 * t + 0.6),
+                depth + 0.25 * np.sin(TAU * 0.8 * t),
+            )
+            @ rot("z", 6.0 * t)
+            @ rot("x", 4.0 * t)
+        )
+
+    back = Primitive(
+        "quad",
+        (6.0, 6.0),
+        static(trans(0, 0, BACK_WALL_Z)),
+        noise(11, wall_freq, 2, base, amp),
+        False,
+    )
+    # Lambert shading darkens the sphere on average (0.71 of full light vs the wall's 0.77):
+    # a slightly brighter base keeps the two mean colours alike (1.05, not 0.77 / 0.71, as
+    # clamping to [0, 1] already shifts the means; measured on the tiny frames).
+    sphere_base = tuple(1.05 * c for c in base)
+    ball_prim = Primitive("sphere", (r,), pose, noise(12, sphere_freq, 2, sphere_base, amp), True)
+    return dict(
+        description=(
+            "camouflaged sphere: dense multi-colour noise on the sphere and on the wall behind "
+            "it, the sphere flying a Lissajous path (up to 5 m/s) and spinning, the camera "
+            "orbiting ±13° around it"
+        ),
+        primitives=[back, ball_prim],
+        camera=orbit((0.0, 0.0, depth), depth, 0.22, 1.0),
+        base_size=(400, 400),
+    )
+
+
+# ---------------------------------------------------------------- smooth wall
+
+
+def blobs() -> dict:
+    """The ball scene with a back wall of broad smooth colour blobs instead of tiles: under the
+    small camera motion the wall makes few events, so the background is weakly observed."""
+    spec = ball()
+    spots = [
+        Blob(-2.2, -1.6, 0.8, (0.7, 0.35, 0.55)),
+        Blob(-0.6, -2.0, 0.7, (0.3, 0.35, 0.65)),
+        Blob(1.2, -1.3, 0.9, (0.65, 0.55, 0.3)),
+        Blob(2.6, -0.2, 0.7, (0.35, 0.6, 0.55)),
+        Blob(-1.5, 0.2, 0.75, (0.25, 0.15, 0.35)),
+        Blob(0.4, 0.0, 0.8, (0.6, 0.45, 0.65)),
+        Blob(-3.0, 1.0, 0.8, (0.55, 0.5, 0.3)),
+        Blob(1.8, 1.2, 0.8, (0.3, 0.2, 0.45)),
+    ]
+    wall_prim = spec["primitives"][0]
+    spec["primitives"][0] = Primitive(
+        wall_prim.kind,
+        wall_prim.size,
+        wall_prim.pose,
+        colour_blobs((0.45, 0.3, 0.45), spots),
+        False,
+    )
+    spec["description"] = (
+        "the ball scene (beach ball bouncing 2.5 times a second, same camera) in front of a "
+        "wall of broad, smooth colour blobs with no edges"
+    )
+    return spec
+
+
+SCENES = {
+    "butterfly": butterfly,
+    "duck": duck,
+    "clock": clock,
+    "ball": ball,
+    "still": still,
+    "camo": camo,
+    "blobs": blobs,
+}
