@@ -20,6 +20,7 @@ from evsplat.train.mover import (
     fit_mlp_to_path,
     lift,
     locate,
+    near_path,
     place_on_mover,
     unexplained,
 )
@@ -91,6 +92,24 @@ def test_lift_back_projects_onto_the_pixel():
     assert np.abs(back.numpy() - uv).max() < 1e-3
     cam_z = (pts - c2w[:3, 3]) @ c2w[:3, 2]
     assert np.allclose(cam_z, [2.0, 3.5], atol=1e-6)
+
+
+def test_near_path_measures_distance_to_the_polyline_not_to_its_vertices():
+    # An L-shaped path (0,0,0) -> (2,0,0) -> (2,2,0), radius 0.5.
+    path = np.array([[0.0, 0, 0], [2, 0, 0], [2, 2, 0]])
+    points = torch.tensor(
+        [
+            [1.0, 0.4, 0.0],  # 0.4 from the first segment's middle, 1 from both its vertices
+            [1.0, 0.0, 0.6],  # 0.6 above it
+            [2.3, 1.0, 0.0],  # 0.3 beside the second segment
+            [-0.45, 0.0, 0.0],  # 0.45 before the start: segments end at their vertices
+            [-0.55, 0.0, 0.0],
+            [1.4, 1.4, 0.0],  # inside the L, 0.6 from the second segment (1.4 from the first)
+        ]
+    )
+    assert near_path(points, path, 0.5).tolist() == [True, False, True, True, False, False]
+    single = near_path(points, path[:1], 0.5)  # one window found: a ball around it
+    assert single.tolist() == [False, False, False, True, False, False]
 
 
 def test_fit_mlp_to_path_carries_gaussians_along_it():

@@ -45,6 +45,7 @@ from evsplat.train.mover import (
     find_path,
     fit_mlp_to_path,
     lift,
+    near_path,
     place_on_mover,
     unexplained,
 )
@@ -355,10 +356,14 @@ class Trainer:
         poses = self.data.trajectory.pose(times.astype(np.float64))
         points = lift(path.uv[path.found], np.full(len(times), depth), poses, data.K)
         ref = points[int(np.count_nonzero(path.found[:k]))]  # k is a found window
-        n = self.model.num_gaussians
-        m = max(1, int(mc.fraction * n))
-        rows = torch.argsort(self.model.opacities().detach())[:m]
         radius = radius_px * depth / float(data.K[0, 0])
+        n = self.model.num_gaussians
+        # The warm-up drew the mover as a static smear along its path: those Gaussians go on
+        # the mover first (they would keep drawing it where it is not), then the faintest.
+        swept = near_path(self.model.means.detach(), points, radius)
+        m = max(1, int(mc.fraction * n), int(swept.sum()))
+        fill = torch.argsort(self.model.opacities().detach() + 2.0 * swept.float())
+        rows = torch.cat([torch.nonzero(swept)[:, 0], fill[: m - int(swept.sum())]])
         place_on_mover(self.model, self.optimizer, rows, ref, radius, mc.opacity, cfg.seed)
         t_norm = torch.tensor([self.renderer.time(int(t)) for t in times], dtype=torch.float32)
         offsets = torch.from_numpy((points - ref).astype(np.float32))
@@ -375,6 +380,7 @@ class Trainer:
             "mover_radius_px": radius_px,
             "mover_fit_rms": rms,
             "mover_gaussians": float(m),
+            "mover_swept": float(swept.sum()),
         }
 
     def _mlp_adam(self) -> torch.optim.Adam:

@@ -166,6 +166,18 @@ def lift(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray, K: np.ndarray) -> n
     return np.einsum("tij,tj->ti", c2w[:, :3, :3], cam) + c2w[:, :3, 3]
 
 
+def near_path(points: Tensor, path: np.ndarray, radius: float) -> Tensor:
+    """Bool [N]: ``points`` [N,3] within ``radius`` of the polyline through ``path`` [T,3] (a
+    single point when T = 1): the volume the mover sweeps."""
+    a = torch.as_tensor(path[:-1] if len(path) > 1 else path, dtype=points.dtype)
+    b = torch.as_tensor(path[1:] if len(path) > 1 else path, dtype=points.dtype)
+    seg = b - a  # [S,3]
+    rel = points[:, None, :] - a[None]  # [N,S,3]
+    u = (rel * seg).sum(-1) / (seg * seg).sum(-1).clamp_min(EPS)
+    closest = a[None] + u.clamp(0.0, 1.0)[..., None] * seg[None]
+    return (points[:, None, :] - closest).norm(dim=-1).min(dim=1).values <= radius
+
+
 def fit_mlp_to_path(
     mlp: DeformationMLP,
     means: Tensor,
