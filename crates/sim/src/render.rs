@@ -143,7 +143,7 @@ fn need(what: &'static str, name: &str, p: &[f64], n: usize) -> Result<(), Rende
 }
 
 fn rgb(p: &[f64]) -> Rgb {
-    [p[0] as f32, p[1] as f32, p[2] as f32]
+    rgb64(p).map(|v| v as f32)
 }
 
 fn palette(p: &[f64]) -> Vec<Rgb> {

@@ -328,10 +328,11 @@ class Trainer:
 
     def _seed_mover(self) -> dict[str, float]:
         """After the warm-up: find a fast mover from the events the static model leaves
-        unexplained, re-place the faintest Gaussians on it at the time it is seen best, fit the
-        MLP to carry them along its path, and mark every other Gaussian static (the background's
-        gradients drowned the mover's in a shared MLP: docs/results.md, session 11). Returns
-        numbers for the log; nothing changes when no mover is found."""
+        unexplained, re-place on it (at the time it is seen best) the Gaussians that smear it
+        along its path and then the faintest, fit the MLP to carry them along its path, and mark
+        every other Gaussian static (the background's gradients drowned the mover's in a shared
+        MLP: docs/results.md, session 11). Returns numbers for the log; nothing changes when no
+        mover is found."""
         mc, data, cfg = self.cfg.mover, self.data, self.cfg
         self.renderer.mlp = None  # the warm-up's static model
 
@@ -361,9 +362,10 @@ class Trainer:
         # The warm-up drew the mover as a static smear along its path: those Gaussians go on
         # the mover first (they would keep drawing it where it is not), then the faintest.
         swept = near_path(self.model.means.detach(), points, radius)
+        faintest = torch.argsort(self.model.opacities().detach())
+        faintest = faintest[~swept[faintest]]
         m = max(1, int(mc.fraction * n), int(swept.sum()))
-        fill = torch.argsort(self.model.opacities().detach() + 2.0 * swept.float())
-        rows = torch.cat([torch.nonzero(swept)[:, 0], fill[: m - int(swept.sum())]])
+        rows = torch.cat([torch.nonzero(swept).reshape(-1), faintest[: m - int(swept.sum())]])
         place_on_mover(self.model, self.optimizer, rows, ref, radius, mc.opacity, cfg.seed)
         t_norm = torch.tensor([self.renderer.time(int(t)) for t in times], dtype=torch.float32)
         offsets = torch.from_numpy((points - ref).astype(np.float32))

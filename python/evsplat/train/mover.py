@@ -169,8 +169,8 @@ def lift(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray, K: np.ndarray) -> n
 def near_path(points: Tensor, path: np.ndarray, radius: float) -> Tensor:
     """Bool [N]: ``points`` [N,3] within ``radius`` of the polyline through ``path`` [T,3] (a
     single point when T = 1): the volume the mover sweeps."""
-    a = torch.as_tensor(path[:-1] if len(path) > 1 else path, dtype=points.dtype)
-    b = torch.as_tensor(path[1:] if len(path) > 1 else path, dtype=points.dtype)
+    ends = torch.as_tensor(np.concatenate([path[:1], path]), dtype=points.dtype)
+    a, b = ends[:-1], ends[1:]  # the first segment is the first point alone
     seg = b - a  # [S,3]
     rel = points[:, None, :] - a[None]  # [N,S,3]
     u = (rel * seg).sum(-1) / (seg * seg).sum(-1).clamp_min(EPS)
