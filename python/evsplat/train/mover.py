@@ -31,6 +31,12 @@ from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
 EPS = 1e-12  # guards divisions by energies and weights
 CAP_QUANTILE = 0.95  # see locate
 FIT_TIMES = 8  # times per step of fit_mlp_to_path
+RING_WIDTH = 1.0  # px, half-width of the rings of fit_rings
+RING_COVER = 0.4  # least share of a ring inside the image (a mover cut by the border)
+RING_RADII = 25  # radii tried by fit_rings
+# Adjacent windows agree when their centres lie within this many mover radii: the tiny ball
+# moves up to 0.4 radii per window, and the fits that miss it land 0.7-2 radii off.
+AGREE = 0.5
 
 
 @dataclass
@@ -41,16 +47,19 @@ class MoverPath:
     uv: np.ndarray  # [K,2] float64, pixel centres (x, y)
     radius_px: np.ndarray  # [K]
     contrast: np.ndarray  # [K] unexplained energy inside the disc over the image's mean
-    found: np.ndarray  # [K] bool: contrast >= min_contrast
+    found: np.ndarray  # [K] bool: contrast >= min_contrast and a neighbour agrees (connected)
 
     def at(self, t_us: np.ndarray) -> np.ndarray:
         """[T,2] pixel centres at ``t_us``, linear between the found windows (held at ends)."""
         return interp_rows(t_us, self.times_us[self.found], self.uv[self.found])
 
     def reference(self, width: int, height: int) -> int:
-        """The window to place the mover at: the clearest found one whose disc lies inside the
-        image (a mover cut by the border looks smaller and off-centre), else the clearest."""
-        r, (u, v) = self.radius_px, self.uv.T
+        """The window to place the mover at: the clearest found one whose disc, at the found
+        windows' median radius, lies inside the image, else the clearest. A mover cut by the
+        border looks smaller and off-centre, so its own shrunken radius would pass the test
+        (the corner window of the demo did: a mover of 13 px for a 20-px ball)."""
+        r = float(np.median(self.radius_px[self.found])) if self.found.any() else 0.0
+        u, v = self.uv.T
         inside = (u - r >= 0) & (v - r >= 0) & (u + r <= width) & (v + r <= height)
         pick = self.found & inside if bool((self.found & inside).any()) else self.found
         return int(np.argmax(np.where(pick, self.contrast, -np.inf)))
@@ -64,17 +73,17 @@ def interp_rows(q: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 
 def disc_depth(
-    depth: Tensor, alpha: Tensor, centre: np.ndarray, radius: float, fallback: float
-) -> float:
-    """Median rendered ``depth`` [H,W] over the opaque pixels (alpha > 0.5) of the disc around
-    ``centre`` (x, y); over all rendered pixels when the disc has none; ``fallback`` when
-    nothing was rendered."""
+    depth: Tensor, alpha: Tensor, centre: np.ndarray, radius: float, quantile: float
+) -> float | None:
+    """The ``quantile`` of the rendered ``depth`` [H,W] over the opaque pixels (alpha > 0.5)
+    of the disc around ``centre`` (x, y); None when the disc has none."""
     h, w = depth.shape
     ys, xs = np.mgrid[0:h, 0:w] + 0.5
     disc = torch.from_numpy((xs - centre[0]) ** 2 + (ys - centre[1]) ** 2 <= radius**2)
     seen = disc & (alpha > 0.5) & (depth > 0)
-    depths = depth[seen] if bool(seen.any()) else depth[depth > 0]
-    return float(depths.median()) if depths.numel() else fallback
+    if not bool(seen.any()):
+        return None
+    return float(torch.quantile(depth[seen].float(), quantile))
 
 
 def unexplained(esi: Tensor, pred: Tensor, pool: int) -> Tensor:
@@ -132,7 +141,13 @@ def find_path(
     cfg: MoverConfig,
 ) -> MoverPath:
     """The mover's path from ``cfg.windows`` evenly spread windows of ``cfg.window`` of the
-    sequence; ``residual_of(t0, t1)`` is the unexplained event energy [H,W] of [t0, t1)."""
+    sequence; ``residual_of(t0, t1)`` is the unexplained event energy [H,W] of [t0, t1).
+
+    Each window's blob (``locate``) says whether the mover is there (its contrast); its place
+    and size come from the circle its outline draws (``fit_rings``), with one radius for the
+    whole sequence: the blob's centre of energy is pulled off the mover by its strongest
+    seams and by the background's leftovers, and a mover cut by the border has its visible
+    part's centre (docs/results.md, session 15)."""
     duration = t_end_us - t_start_us
     length = max(int(cfg.window * duration), 1)
     starts = np.linspace(t_start_us, t_end_us - length, cfg.windows).astype(np.int64)
@@ -140,20 +155,85 @@ def find_path(
     # What the static model misses at a pixel in most windows is the model's own error, not a
     # mover (a mover passes by): the per-pixel median over the windows is taken away.
     maps = (maps - maps.median(dim=0).values).clamp_min(0.0)
-    uv, radius, contrast = [], [], []
-    for energy in maps:
-        centre, r, c = locate(energy)
-        uv.append(centre)
-        radius.append(r)
-        contrast.append(c)
-    contrast_arr = np.array(contrast)
+    blobs = [locate(energy) for energy in maps]
+    contrast = np.array([c for _, _, c in blobs])
+    seen = contrast >= cfg.min_contrast
+    sizes = np.array([r for _, r, _ in blobs])
+    blob_radius = float(np.median(sizes[seen] if seen.any() else sizes))
+    uv, radius = fit_rings(maps, blob_radius, seen)
+    radius_arr = np.full(len(starts), radius)
     return MoverPath(
         times_us=starts + length // 2,
-        uv=np.stack(uv),
-        radius_px=np.array(radius),
-        contrast=contrast_arr,
-        found=contrast_arr >= cfg.min_contrast,
+        uv=uv,
+        radius_px=radius_arr,
+        contrast=contrast,
+        found=connected(uv, seen, AGREE * radius),
     )
+
+
+def ring_scores(energy: Tensor, radius: float) -> tuple[Tensor, np.ndarray]:
+    """Circle-Hough scores of ``energy`` [N,H,W] for one ``radius``: per window, the best
+    score and its centre [N,2] (x, y), centres searched up to one radius outside the image.
+    A circle's score is its ring's mean energy over the ring's part inside the image, times
+    the square root of the ring's length (the mean alone prefers small circles hugging one
+    strong seam, the sum large ones collecting background); a circle with less than
+    ``RING_COVER`` of its ring inside the image scores 0."""
+    n, h, w = energy.shape
+    pad = int(math.ceil(radius)) + 2
+    side = 2 * pad + 1
+    ys, xs = np.mgrid[0:side, 0:side] - pad
+    ring = torch.from_numpy((np.abs(np.hypot(xs, ys) - radius) <= RING_WIDTH).astype(np.float64))
+    size = (h + 2 * side, w + 2 * side)  # no wrap-around of the circular convolution
+
+    def convolve(img: Tensor) -> Tensor:
+        a = img.new_zeros(img.shape[0], *size)
+        a[:, side : side + h, side : side + w] = img
+        k = ring.new_zeros(size)
+        k[:side, :side] = ring
+        out = torch.fft.irfft2(torch.fft.rfft2(a) * torch.fft.rfft2(k), s=size)
+        # out[side + pad + y] sums the ring around image row y (pad: the kernel's centre).
+        return out[:, side : side + h + 2 * pad, side : side + w + 2 * pad]
+
+    total = convolve(energy.double())
+    cover = convolve(torch.ones(1, h, w, dtype=torch.float64))
+    length = float(ring.sum())
+    score = torch.where(
+        cover >= RING_COVER * length,
+        total / cover.clamp_min(EPS) * math.sqrt(length),
+        torch.zeros_like(total),
+    )
+    best, k = score.reshape(n, -1).max(dim=1)
+    cols = score.shape[-1]
+    k = k.numpy()
+    centre = np.stack([k % cols - pad + 0.5, k // cols - pad + 0.5], axis=1)
+    return best, centre
+
+
+def fit_rings(maps: Tensor, blob_radius: float, seen: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centres [N,2], radius px) of the mover's outline in each of ``maps`` [N,H,W]: the
+    radius best over the windows ``seen`` (median of each one's best, radii from 0.3 to 1.5 x
+    the blobs' ``blob_radius``), then each window's best centre at that radius."""
+    h, w = maps.shape[-2:]
+    hi = min(1.5 * blob_radius, 0.5 * max(h, w))
+    radii = np.linspace(max(0.3 * blob_radius, 2.0), max(hi, 2.0), RING_RADII)
+    fits = [ring_scores(maps, float(r)) for r in radii]
+    scores = torch.stack([s for s, _ in fits], dim=1)  # [N,R]
+    rows = seen if seen.any() else np.ones(len(maps), dtype=bool)
+    radius = float(np.median(radii[scores.argmax(dim=1).numpy()[rows]]))
+    return ring_scores(maps, radius)[1], radius
+
+
+def connected(uv: np.ndarray, found: np.ndarray, step: float) -> np.ndarray:
+    """``found`` [K] less the windows whose centre ``uv`` no adjacent found window's agrees
+    with (within ``step`` px): a mover moves continuously, and a lone fit to the background's
+    leftovers (or to a blob of unexplained events while the mover is out of view) would drag
+    the fitted path across the image."""
+    near = np.hypot(*(uv[1:] - uv[:-1]).T) <= step
+    linked = found[1:] & found[:-1] & near
+    keep = np.zeros_like(found)
+    keep[:-1] |= linked
+    keep[1:] |= linked
+    return keep
 
 
 def lift(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray, K: np.ndarray) -> np.ndarray:
