@@ -34,6 +34,7 @@ FIT_TIMES = 8  # times per step of fit_mlp_to_path
 RING_WIDTH = 1.0  # px, half-width of the rings of fit_rings
 RING_COVER = 0.4  # least share of a ring inside the image (a mover cut by the border)
 RING_RADII = 25  # radii tried by fit_rings
+RING_CAP = 0.98  # measured: 0.9 and 0.95 let the radius run away in some seeds (results.md)
 # Adjacent windows agree when their centres lie within this many mover radii: the tiny ball
 # moves up to 0.4 radii per window, and the fits that miss it land 0.7-2 radii off.
 AGREE = 0.5
@@ -210,10 +211,15 @@ def ring_scores(energy: Tensor, radius: float) -> tuple[Tensor, np.ndarray]:
 
 
 def fit_rings(maps: Tensor, blob_radius: float, seen: np.ndarray) -> tuple[np.ndarray, float]:
-    """(centres [N,2], radius px) of the mover's outline in each of ``maps`` [N,H,W]: the
-    radius best over the windows ``seen`` (median of each one's best, radii from 0.3 to 1.5 x
-    the blobs' ``blob_radius``), then each window's best centre at that radius."""
+    """(centres [N,2], radius px) of the mover's outline in each of ``maps`` [N,H,W], each
+    capped at its ``RING_CAP`` quantile (a seam's few brightest pixels would outweigh the
+    outline): the radius best over the windows ``seen`` (median of each one's best, radii
+    from 0.3 to 1.5 x the blobs' ``blob_radius``), then each window's best centre at that
+    radius."""
     h, w = maps.shape[-2:]
+    flat = maps.reshape(len(maps), -1).float()
+    cap = torch.quantile(flat, RING_CAP, dim=1).to(maps.dtype)[:, None, None]
+    maps = torch.minimum(maps, cap)
     hi = min(1.5 * blob_radius, 0.5 * max(h, w))
     radii = np.linspace(max(0.3 * blob_radius, 2.0), max(hi, 2.0), RING_RADII)
     fits = [ring_scores(maps, float(r)) for r in radii]
