@@ -244,8 +244,9 @@ def test_seeded_gaussians_follow_the_balls_true_path(tiny_scene, tmp_path):
     assert span > 60.0
     assert float(np.median(errors)) < 12.0, errors
     # At the ball's depth, not behind it: one window's median disc depth put the mover 0.4-1.1 m
-    # deep at 3 m (behind the wall's rendered surface; docs/results.md, session 14).
-    assert 0.9 < float(np.median(depth_ratio)) < 1.1, depth_ratio
+    # deep at 3 m (behind the wall's rendered surface; docs/results.md, session 14). The near
+    # quantile reads the ball's front surface, (3 - 0.38) / 3 = 0.87 of its centre's depth.
+    assert 0.8 < float(np.median(depth_ratio)) < 1.1, depth_ratio
 
 
 def test_no_mover_is_found_in_a_static_scene(tiny_scene, tmp_path):

@@ -387,13 +387,13 @@ class Trainer:
 
     @torch.no_grad()
     def _mover_depth(self, path: MoverPath) -> float:
-        """The camera depth of the mover's centre: per found window, a near quantile of the
-        static model's rendered depth in the mover's disc (the warm-up drew the mover there
-        as a smear, partly in front of the background it passes: its front surface), the
-        median over the windows, then one mover radius further (a radius of r px at depth z
-        spans r z / f). One window's median depth lay up to 1.1 m behind the ball and put the
-        mover behind the wall (docs/results.md, sessions 14, 15). The depth range's middle
-        when no disc was drawn."""
+        """The mover's camera depth: per found window, a near quantile of the static model's
+        rendered depth in the mover's disc (the warm-up drew the mover there as a smear, partly
+        in front of the background it passes), then the median over the windows. One window's
+        median depth lay up to 1.1 m behind the ball and put the mover behind the wall
+        (docs/results.md, session 14). It reads the mover's front surface, not its centre;
+        placing the centre one radius further made training drift the mover deeper still
+        (session 15). The depth range's middle when no disc was drawn."""
         found = []
         for k in np.flatnonzero(path.found):
             t = int(path.times_us[k])
@@ -407,10 +407,7 @@ class Trainer:
             )
             if d is not None:
                 found.append(d)
-        if not found:
-            return float(np.mean(self.depth_range))
-        surface = float(np.median(found))
-        return surface * (1.0 + float(np.median(path.radius_px[path.found])) / self.data.K[0, 0])
+        return float(np.median(found)) if found else float(np.mean(self.depth_range))
 
     def _mlp_adam(self) -> torch.optim.Adam:
         return torch.optim.Adam(self.mlp.parameters(), lr=self.cfg.model.mlp_lr)
