@@ -25,6 +25,7 @@ from evsplat.train.mover import (
     locate,
     near_path,
     place_on_mover,
+    prefer_ring,
     unexplained,
 )
 
@@ -109,6 +110,16 @@ def test_fit_rings_finds_a_seamed_mover_cut_by_the_border():
     assert abs(radius - 18.0) < 1.0
     assert np.abs(uv - np.array(centres)).max() < 1.0
     assert np.hypot(*(locate(maps[0])[0] - centres[0])) > 3.0  # what the blob alone gives
+
+
+def test_prefer_ring_keeps_the_blob_where_the_circle_strays():
+    """Circle centres within 0.75 blob radii of the blob's replace them, with the circle's
+    radius; one 16 px off a 20-px blob does not."""
+    blob = np.array([[30.0, 30.0], [40.0, 30.0], [50.0, 30.0]])
+    ring = blob + np.array([[3.0, 4.0], [0.0, 14.9], [16.0, 0.0]])
+    uv, radius = prefer_ring(ring, 18.0, blob, 20.0)
+    assert np.array_equal(uv, np.stack([ring[0], ring[1], blob[2]]))
+    assert radius.tolist() == [18.0, 18.0, 20.0]
 
 
 def test_reference_skips_a_mover_cut_by_the_border():

@@ -166,13 +166,8 @@ def find_path(
     sizes = np.array([r for _, r, _ in blobs])
     blob_radius = float(np.median(sizes[seen] if seen.any() else sizes))
     ring_uv, ring_radius = fit_rings(maps, blob_radius, seen)
-    # The circle where the blob agrees with it; elsewhere the mover is no circle (the duck's
-    # and the butterfly's fits land 13-25 px off, twice the blob's error) or the fit took a
-    # seam: the blob's centre and radius there.
     blob_uv = np.stack([c for c, _, _ in blobs])
-    ring = np.hypot(*(ring_uv - blob_uv).T) <= RING_AGREE * blob_radius
-    uv = np.where(ring[:, None], ring_uv, blob_uv)
-    radius = np.where(ring, ring_radius, blob_radius)
+    uv, radius = prefer_ring(ring_uv, ring_radius, blob_uv, blob_radius)
     step = AGREE * float(np.median(radius[seen] if seen.any() else radius))
     return MoverPath(
         times_us=starts + length // 2,
@@ -181,6 +176,17 @@ def find_path(
         contrast=contrast,
         found=connected(uv, seen, step),
     )
+
+
+def prefer_ring(
+    ring_uv: np.ndarray, ring_radius: float, blob_uv: np.ndarray, blob_radius: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(centres [N,2], radii [N]): the circle's where it lies within ``RING_AGREE`` blob radii
+    of the blob's centre, else the blob's. Where they disagree the mover is no circle (the
+    duck's and the butterfly's fits land 13-25 px off, twice the blob's error) or the fit took
+    a seam."""
+    ring = np.hypot(*(ring_uv - blob_uv).T) <= RING_AGREE * blob_radius
+    return np.where(ring[:, None], ring_uv, blob_uv), np.where(ring, ring_radius, blob_radius)
 
 
 def ring_scores(energy: Tensor, radius: float) -> tuple[Tensor, np.ndarray]:
