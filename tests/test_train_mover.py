@@ -112,14 +112,19 @@ def test_fit_rings_finds_a_seamed_mover_cut_by_the_border():
     assert np.hypot(*(locate(maps[0])[0] - centres[0])) > 3.0  # what the blob alone gives
 
 
-def test_prefer_ring_keeps_the_blob_where_the_circle_strays():
-    """Circle centres within 0.75 blob radii of the blob's replace them, with the circle's
-    radius; one 16 px off a 20-px blob does not."""
-    blob = np.array([[30.0, 30.0], [40.0, 30.0], [50.0, 30.0]])
-    ring = blob + np.array([[3.0, 4.0], [0.0, 14.9], [16.0, 0.0]])
-    uv, radius = prefer_ring(ring, 18.0, blob, 20.0)
-    assert np.array_equal(uv, np.stack([ring[0], ring[1], blob[2]]))
-    assert radius.tolist() == [18.0, 18.0, 20.0]
+def test_prefer_ring_takes_circles_for_a_round_mover_and_blobs_otherwise():
+    """Circles agreeing with the blobs (within 0.75 blob radii) in most seen windows: circles,
+    the disagreeing window unseen. Agreeing in a minority: the blobs, all seen windows kept."""
+    blob = np.array([[30.0, 30.0], [40.0, 30.0], [50.0, 30.0], [60.0, 30.0]])
+    seen = np.array([True, True, True, False])
+    ring = blob + np.array([[3.0, 4.0], [0.0, 14.9], [16.0, 0.0], [0.0, 0.0]])
+    uv, radius, kept = prefer_ring(ring, 18.0, blob, 20.0, seen)
+    assert np.array_equal(uv, ring) and radius.tolist() == [18.0] * 4
+    assert kept.tolist() == [True, True, False, False]
+    ring[1] = blob[1] + [0.0, 15.1]
+    uv, radius, kept = prefer_ring(ring, 18.0, blob, 20.0, seen)
+    assert np.array_equal(uv, blob) and radius.tolist() == [20.0] * 4
+    assert kept.tolist() == seen.tolist()
 
 
 def test_reference_skips_a_mover_cut_by_the_border():

@@ -38,8 +38,8 @@ RING_CAP = 0.98  # measured: 0.9 and 0.95 let the radius run away in some seeds 
 # Adjacent windows agree when their centres lie within this many mover radii: the tiny ball
 # moves up to 0.4 radii per window, and the fits that miss it land 0.7-2 radii off.
 AGREE = 0.5
-# The circle replaces the blob within this many blob radii of it: measured, on the ball it
-# keeps 81-89% of the circles, on the butterfly 19%, on the duck none (docs/results.md).
+# The circle agrees with the blob within this many blob radii: measured, on the ball in 81-89%
+# of the windows, on the butterfly 19%, on the duck none (docs/results.md).
 RING_AGREE = 0.75
 
 
@@ -149,7 +149,7 @@ def find_path(
 
     Each window's blob (``locate``) says whether the mover is there (its contrast); its place
     and size come from the circle its outline draws (``fit_rings``, one radius for the whole
-    sequence) where that circle's centre lies within ``RING_AGREE`` blob radii of the blob's:
+    sequence) when the mover is round (``prefer_ring``):
     the blob's centre of energy is pulled off a round mover by its strongest seams and by the
     background's leftovers, and a mover cut by the border has its visible part's centre
     (docs/results.md, session 15)."""
@@ -167,26 +167,32 @@ def find_path(
     blob_radius = float(np.median(sizes[seen] if seen.any() else sizes))
     ring_uv, ring_radius = fit_rings(maps, blob_radius, seen)
     blob_uv = np.stack([c for c, _, _ in blobs])
-    uv, radius = prefer_ring(ring_uv, ring_radius, blob_uv, blob_radius)
-    step = AGREE * float(np.median(radius[seen] if seen.any() else radius))
+    uv, radius, seen = prefer_ring(ring_uv, ring_radius, blob_uv, blob_radius, seen)
     return MoverPath(
         times_us=starts + length // 2,
         uv=uv,
         radius_px=radius,
         contrast=contrast,
-        found=connected(uv, seen, step),
+        found=connected(uv, seen, AGREE * float(radius[0])),
     )
 
 
 def prefer_ring(
-    ring_uv: np.ndarray, ring_radius: float, blob_uv: np.ndarray, blob_radius: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """(centres [N,2], radii [N]): the circle's where it lies within ``RING_AGREE`` blob radii
-    of the blob's centre, else the blob's. Where they disagree the mover is no circle (the
-    duck's and the butterfly's fits land 13-25 px off, twice the blob's error) or the fit took
-    a seam."""
-    ring = np.hypot(*(ring_uv - blob_uv).T) <= RING_AGREE * blob_radius
-    return np.where(ring[:, None], ring_uv, blob_uv), np.where(ring, ring_radius, blob_radius)
+    ring_uv: np.ndarray,
+    ring_radius: float,
+    blob_uv: np.ndarray,
+    blob_radius: float,
+    seen: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(centres [N,2], radii [N], seen [N]): the circles when in most ``seen`` windows the
+    circle's centre lies within ``RING_AGREE`` blob radii of the blob's (a round mover), the
+    windows where they disagree then unseen (the circle took a seam; the blob there is the
+    visible part's centre at the image border); else the blobs, as seen. On movers that are no
+    circle the fits land 13-25 px off, twice the blob's error (duck, butterfly)."""
+    agree = np.hypot(*(ring_uv - blob_uv).T) <= RING_AGREE * blob_radius
+    if seen.any() and float(agree[seen].mean()) >= 0.5:
+        return ring_uv, np.full(len(ring_uv), ring_radius), seen & agree
+    return blob_uv, np.full(len(blob_uv), blob_radius), seen
 
 
 def ring_scores(energy: Tensor, radius: float) -> tuple[Tensor, np.ndarray]:
