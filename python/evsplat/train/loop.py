@@ -343,8 +343,8 @@ class Trainer:
 
         with torch.no_grad():
             path = find_path(residual_of, data.t_start_us, data.t_end_us, mc)
-        # Whether there is a mover: the windows that saw one; its path: those a neighbour agrees
-        # with (mover.connected; on the duck it drops 4 of 15 spikes, which would leave 23%).
+        # Whether there is a mover: the windows that saw one (contrast); its path: the found
+        # windows, fewer (mover.prefer_ring and mover.connected drop the fits that disagree).
         found = float((path.contrast >= mc.min_contrast).mean())
         if found < mc.min_found or not path.found.any():
             return {"mover_found": found}

@@ -51,7 +51,7 @@ class MoverPath:
     uv: np.ndarray  # [K,2] float64, pixel centres (x, y)
     radius_px: np.ndarray  # [K]
     contrast: np.ndarray  # [K] unexplained energy inside the disc over the image's mean
-    found: np.ndarray  # [K] bool: contrast >= min_contrast and a neighbour agrees (connected)
+    found: np.ndarray  # [K] bool: seen (prefer_ring) and an adjacent window agrees (connected)
 
     def at(self, t_us: np.ndarray) -> np.ndarray:
         """[T,2] pixel centres at ``t_us``, linear between the found windows (held at ends)."""
@@ -160,13 +160,10 @@ def find_path(
     # What the static model misses at a pixel in most windows is the model's own error, not a
     # mover (a mover passes by): the per-pixel median over the windows is taken away.
     maps = (maps - maps.median(dim=0).values).clamp_min(0.0)
-    blobs = [locate(energy) for energy in maps]
-    contrast = np.array([c for _, _, c in blobs])
+    blob_uv, sizes, contrast = (np.array(v) for v in zip(*(locate(e) for e in maps)))
     seen = contrast >= cfg.min_contrast
-    sizes = np.array([r for _, r, _ in blobs])
     blob_radius = float(np.median(sizes[seen] if seen.any() else sizes))
     ring_uv, ring_radius = fit_rings(maps, blob_radius, seen)
-    blob_uv = np.stack([c for c, _, _ in blobs])
     uv, radius, seen = prefer_ring(ring_uv, ring_radius, blob_uv, blob_radius, seen)
     return MoverPath(
         times_us=starts + length // 2,
