@@ -28,6 +28,7 @@ from evsplat.train.mover import (
     prefer_ring,
     unexplained,
 )
+from evsplat.train.spin import rotation
 
 
 def _ring(h: int, w: int, cx: float, cy: float, r: float, width: float = 1.5) -> torch.Tensor:
@@ -184,12 +185,32 @@ def test_fit_mlp_to_path_carries_gaussians_along_it():
     means = torch.randn(200, 3) * 0.1 + torch.tensor([0.0, 0.0, 3.0])
     times = torch.linspace(0, 1, 11)
     offsets = torch.stack([torch.sin(3 * times), 0.5 * times, 0.1 * times**2], 1)
-    rms = fit_mlp_to_path(mlp, means, times, offsets, steps=600, lr=5e-3, seed=0)
+    centre = np.array([0.0, 0.0, 3.0])
+    rms = fit_mlp_to_path(mlp, means, times, offsets, None, centre, steps=600, lr=5e-3, seed=0)
     with torch.no_grad():
         for t, goal in zip(times.tolist(), offsets):
             dx = mlp(means, t)[0]
             assert float((dx - goal).norm(dim=1).max()) < 0.08, t
     assert rms < 0.05
+
+
+def test_fit_mlp_to_path_turns_the_body_about_its_centre():
+    cfg = ModelConfig(mlp_width=64, mlp_depth=4, mlp_skip=2, pe_x=3)
+    torch.manual_seed(0)
+    mlp = DeformationMLP(cfg)
+    centre = np.array([0.0, 0.0, 3.0])
+    means = torch.randn(200, 3) * 0.1 + torch.from_numpy(centre).float()
+    times = torch.linspace(0, 1, 11)
+    offsets = torch.stack([0.5 * times, torch.zeros(11), torch.zeros(11)], 1)
+    turns = rotation(torch.stack([torch.zeros(11), torch.zeros(11), 1.5 * times], 1).double())
+    fit_mlp_to_path(mlp, means, times, offsets, turns.float(), centre, 800, 5e-3, seed=0)
+    arm = means - torch.from_numpy(centre).float()
+    with torch.no_grad():
+        for t, shift, turn in zip(times.tolist(), offsets, turns.float()):
+            goal = shift + arm @ turn.T - arm  # a rigid body: shifted, and turned about z
+            dx = mlp(means, t)[0]
+            # within a tenth of the body's size (0.1) of the turned place
+            assert float((dx - goal).norm(dim=1).median()) < 0.01, t
 
 
 def test_place_on_mover_moves_rows_and_clears_their_optimizer_state():

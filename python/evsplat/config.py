@@ -136,6 +136,19 @@ class MoverConfig:
     opacity: float = 0.5  # their initial opacity: the mover occludes what is behind it
     fit_steps: int = 400  # Adam steps fitting the MLP to the path (no rendering: ~1 s)
     fit_lr: float = 5e-3  # documented choice
+    # The mover's spin by contrast maximisation on its events (``evsplat.train.spin``): windows
+    # of this fraction of the sequence (30 ms on the tiny scenes), where the mover's disc lies
+    # inside the image. Documented choices, measured on the tiny ball with its true path
+    # (docs/results.md, session 16: within 0.2-1 rad/s of the true 10.3 rad/s).
+    spin: bool = True
+    spin_window: float = 0.05
+    spin_rim: float = 0.85  # events on the disc within this many radii (outline events out)
+    spin_events: int = 2000  # events per window, a random subset
+    spin_max_rate: float = 15.0  # rad/s, the coarse grid's extent
+    # A window's estimate is used when it sharpens the warped events by this much over no spin
+    # (the ball's windows: 8-11%).
+    spin_min_gain: float = 0.05
+    spin_steps: int = 40  # Adam steps refining the first window's estimate (half for later ones)
 
 
 @dataclass

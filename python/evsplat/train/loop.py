@@ -45,6 +45,7 @@ from evsplat.train.mover import (
     disc_depth,
     find_path,
     fit_mlp_to_path,
+    interp_rows,
     lift,
     near_path,
     place_on_mover,
@@ -63,9 +64,11 @@ from evsplat.train.skips import (
     static_due,
     unexplained_events,
 )
+from evsplat.train.spin import SpinSettings, find_spin, integrate
 from evsplat.train.stages import Stage, stage_at
 
 MAX_BAD_STEPS = 20  # consecutive non-finite steps before training stops
+FIT_GRID = 121  # times on which the MLP is fitted to the mover's path and turn
 
 
 @dataclass
@@ -367,10 +370,22 @@ class Trainer:
         m = max(1, int(mc.fraction * n), int(swept.sum()))
         rows = torch.cat([torch.nonzero(swept).reshape(-1), faintest[: m - int(swept.sum())]])
         place_on_mover(self.model, self.optimizer, rows, ref, radius, mc.opacity, cfg.seed)
-        t_norm = torch.tensor([self.renderer.time(int(t)) for t in times], dtype=torch.float32)
-        offsets = torch.from_numpy((points - ref).astype(np.float32))
+        # The fit follows the path on a grid of times (the spin needs more than the windows).
+        grid = np.linspace(data.t_start_us, data.t_end_us, FIT_GRID).astype(np.int64)
+        t_ref = int(path.times_us[k])
+        turns, spin = self._mover_spin(path, times, points, radius, t_ref, grid)
+        t_norm = torch.tensor([self.renderer.time(int(t)) for t in grid], dtype=torch.float32)
+        offsets = torch.from_numpy((interp_rows(grid, times, points) - ref).astype(np.float32))
         rms = fit_mlp_to_path(
-            self.mlp, self.model.means[rows], t_norm, offsets, mc.fit_steps, mc.fit_lr, cfg.seed
+            self.mlp,
+            self.model.means[rows],
+            t_norm,
+            offsets,
+            None if turns is None else torch.from_numpy(turns.astype(np.float32)),
+            ref,
+            mc.fit_steps,
+            mc.fit_lr,
+            cfg.seed,
         )
         self.mlp_optimizer = self._mlp_adam()  # the fit's moments are not training's
         static = torch.ones(n, dtype=torch.bool)
@@ -383,7 +398,67 @@ class Trainer:
             "mover_fit_rms": rms,
             "mover_gaussians": float(m),
             "mover_swept": float(swept.sum()),
-        }
+        } | spin
+
+    def _mover_spin(
+        self,
+        path: MoverPath,
+        times: np.ndarray,
+        points: np.ndarray,
+        radius: float,
+        t_ref: int,
+        grid: np.ndarray,
+    ) -> tuple[np.ndarray | None, dict[str, float]]:
+        """The mover's turn from ``t_ref`` to each ``grid`` time [G,3,3], from the angular
+        velocities its events show (``evsplat.train.spin``) in the windows where its disc is
+        inside the image; None when it is off or no window shows a spin. Numbers for the log."""
+        mc, data = self.cfg.mover, self.data
+        if not mc.spin:
+            return None, {}
+        duration = data.t_end_us - data.t_start_us
+        half = max(int(mc.spin_window * duration) // 2, 1)
+        centres = np.arange(data.t_start_us + half, data.t_end_us - half + 1, 2 * half)
+        centres = centres[(centres >= times[0]) & (centres <= times[-1])]
+        r_px = float(np.median(path.radius_px[path.found]))
+        u, v = path.at(centres).T
+        inside = (u >= r_px) & (v >= r_px) & (u <= data.width - r_px) & (v <= data.height - r_px)
+        centres = centres[inside]
+        if len(centres) == 0:
+            return None, {"spin_windows": 0.0}
+        ev = data.events
+
+        def events_in(t0: int, t1: int) -> tuple[np.ndarray, np.ndarray]:
+            i0, i1 = ev.window(t0, t1)
+            uv = np.stack([ev.x[i0:i1], ev.y[i0:i1]], 1).astype(np.float64) + 0.5
+            return uv, ev.t[i0:i1]
+
+        settings = SpinSettings(
+            mc.spin_rim,
+            mc.spin_events,
+            mc.spin_max_rate,
+            mc.spin_min_gain,
+            mc.spin_steps,
+            self.cfg.seed,
+        )
+        omegas, gains = find_spin(
+            events_in,
+            lambda t: interp_rows(t, times, points),
+            lambda t: data.trajectory.pose(np.asarray(t, dtype=np.float64)),
+            radius,
+            data.K,
+            (data.width, data.height),
+            centres,
+            half,
+            settings,
+        )
+        used = gains >= mc.spin_min_gain
+        stats = {"spin_windows": float(used.sum()), "spin_gain": float(np.nanmedian(gains))}
+        if not used.any():
+            return None, stats
+        rate = np.linalg.norm(omegas[used], axis=1)
+        stats["spin_rate"] = float(np.median(rate))
+        turns = integrate(centres[used], omegas[used], t_ref, grid)
+        return turns, stats
 
     @torch.no_grad()
     def _mover_depth(self, path: MoverPath) -> float:

@@ -289,25 +289,35 @@ def fit_mlp_to_path(
     means: Tensor,
     times: Tensor,
     offsets: Tensor,
+    turns: Tensor | None,
+    centre: np.ndarray,
     steps: int,
     lr: float,
     seed: int,
 ) -> float:
-    """Fit ``mlp`` so the Gaussians at canonical ``means`` [M,3] move by ``offsets`` [T,3] at
-    normalised ``times`` [T] (linear between them) without turning or scaling; returns the final
-    RMS error of Δx in world units. Only the MLP changes."""
+    """Fit ``mlp`` so the Gaussians at canonical ``means`` [M,3] move as a rigid body: by
+    ``offsets`` [T,3] at normalised ``times`` [T], turned by ``turns`` [T,3,3] (None: no turn)
+    about ``centre`` [3] (the body's centre in the canonical frame), linear between the times;
+    returns the final RMS error of Δx in world units. Only the MLP changes; the Gaussians' own
+    orientation and size are fitted not to change."""
     gen = torch.Generator().manual_seed(seed)
     opt = torch.optim.Adam(mlp.parameters(), lr=lr)
     x = means.detach()
+    arm = x - torch.as_tensor(centre, dtype=x.dtype)
+    flat_turns = None if turns is None else (turns - torch.eye(3)).reshape(-1, 9).numpy()
     batch = min(256, x.shape[0])
     err = torch.zeros(())
     for _ in range(steps):
         t = torch.rand(FIT_TIMES, generator=gen)
         rows = torch.randint(0, x.shape[0], (batch,), generator=gen)
         goal = torch.from_numpy(interp_rows(t.numpy(), times.numpy(), offsets.numpy()))
+        goal = goal.to(x.dtype).repeat_interleave(batch, dim=0)  # [FIT_TIMES*batch,3]
+        if flat_turns is not None:
+            bend = torch.from_numpy(interp_rows(t.numpy(), times.numpy(), flat_turns))
+            bend = bend.to(x.dtype).reshape(-1, 3, 3).repeat_interleave(batch, dim=0)
+            goal = goal + torch.einsum("nij,nj->ni", bend, arm[rows].repeat(FIT_TIMES, 1))
         # One pass over every (time, Gaussian) pair; the MLP takes a time per row.
         dx, dq, ds = mlp(x[rows].repeat(FIT_TIMES, 1), t.repeat_interleave(batch))
-        goal = goal.to(dx.dtype).repeat_interleave(batch, dim=0)
         loss = ((dx - goal) ** 2).sum(-1).mean() + (dq**2).sum(-1).mean() + (ds**2).sum(-1).mean()
         opt.zero_grad(set_to_none=True)
         loss.backward()
