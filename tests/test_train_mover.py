@@ -119,12 +119,12 @@ def test_prefer_ring_takes_circles_for_a_round_mover_and_blobs_otherwise():
     blob = np.array([[30.0, 30.0], [40.0, 30.0], [50.0, 30.0], [60.0, 30.0]])
     seen = np.array([True, True, True, False])
     ring = blob + np.array([[3.0, 4.0], [0.0, 14.9], [16.0, 0.0], [0.0, 0.0]])
-    uv, radius, kept = prefer_ring(ring, 18.0, blob, 20.0, seen)
-    assert np.array_equal(uv, ring) and radius.tolist() == [18.0] * 4
+    uv, radius, kept, round_ = prefer_ring(ring, 18.0, blob, 20.0, seen)
+    assert round_ and np.array_equal(uv, ring) and radius.tolist() == [18.0] * 4
     assert kept.tolist() == [True, True, False, False]
     ring[1] = blob[1] + [0.0, 15.1]
-    uv, radius, kept = prefer_ring(ring, 18.0, blob, 20.0, seen)
-    assert np.array_equal(uv, blob) and radius.tolist() == [20.0] * 4
+    uv, radius, kept, round_ = prefer_ring(ring, 18.0, blob, 20.0, seen)
+    assert not round_ and np.array_equal(uv, blob) and radius.tolist() == [20.0] * 4
     assert kept.tolist() == seen.tolist()
 
 

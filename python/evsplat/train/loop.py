@@ -411,9 +411,11 @@ class Trainer:
     ) -> tuple[np.ndarray | None, dict[str, float]]:
         """The mover's turn from ``t_ref`` to each ``grid`` time [G,3,3], from the angular
         velocities its events show (``evsplat.train.spin``) in the windows where its disc is
-        inside the image; None when it is off or no window shows a spin. Numbers for the log."""
+        inside the image; None when it is off, the mover is not round (the events are
+        back-projected onto a sphere: on the duck that found 10 rad/s for a body turning less
+        than 2, docs/results.md, session 16) or no window shows a spin. Numbers for the log."""
         mc, data = self.cfg.mover, self.data
-        if not mc.spin:
+        if not mc.spin or not path.round:
             return None, {}
         duration = data.t_end_us - data.t_start_us
         half = max(int(mc.spin_window * duration) // 2, 1)

@@ -52,6 +52,7 @@ class MoverPath:
     radius_px: np.ndarray  # [K]
     contrast: np.ndarray  # [K] unexplained energy inside the disc over the image's mean
     found: np.ndarray  # [K] bool: seen (prefer_ring) and an adjacent window agrees (connected)
+    round: bool = False  # the path is the circles' (prefer_ring): the mover looks like a disc
 
     def at(self, t_us: np.ndarray) -> np.ndarray:
         """[T,2] pixel centres at ``t_us``, linear between the found windows (held at ends)."""
@@ -164,13 +165,14 @@ def find_path(
     seen = contrast >= cfg.min_contrast
     blob_radius = float(np.median(sizes[seen] if seen.any() else sizes))
     ring_uv, ring_radius = fit_rings(maps, blob_radius, seen)
-    uv, radius, seen = prefer_ring(ring_uv, ring_radius, blob_uv, blob_radius, seen)
+    uv, radius, seen, is_round = prefer_ring(ring_uv, ring_radius, blob_uv, blob_radius, seen)
     return MoverPath(
         times_us=starts + length // 2,
         uv=uv,
         radius_px=radius,
         contrast=contrast,
         found=connected(uv, seen, AGREE * float(radius[0])),
+        round=is_round,
     )
 
 
@@ -180,16 +182,17 @@ def prefer_ring(
     blob_uv: np.ndarray,
     blob_radius: float,
     seen: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(centres [N,2], radii [N], seen [N]): the circles when in most ``seen`` windows the
-    circle's centre lies within ``RING_AGREE`` blob radii of the blob's (a round mover), the
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """(centres [N,2], radii [N], seen [N], whether circles were taken): the circles when in
+    most ``seen`` windows the circle's centre lies within ``RING_AGREE`` blob radii of the
+    blob's (a round mover), the
     windows where they disagree then unseen (the circle took a seam; the blob there is the
     visible part's centre at the image border); else the blobs, as seen. On movers that are no
     circle the fits land 13-25 px off, twice the blob's error (duck, butterfly)."""
     agree = np.hypot(*(ring_uv - blob_uv).T) <= RING_AGREE * blob_radius
     if seen.any() and float(agree[seen].mean()) >= 0.5:
-        return ring_uv, np.full(len(ring_uv), ring_radius), seen & agree
-    return blob_uv, np.full(len(blob_uv), blob_radius), seen
+        return ring_uv, np.full(len(ring_uv), ring_radius), seen & agree, True
+    return blob_uv, np.full(len(blob_uv), blob_radius), seen, False
 
 
 def ring_scores(energy: Tensor, radius: float) -> tuple[Tensor, np.ndarray]:
