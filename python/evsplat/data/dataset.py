@@ -77,13 +77,14 @@ class Dataset:
     track: ObjectTrack | None = None  # dense ground-truth path of the tracked moving object
 
     def between(self, t0_us: int, t1_us: int) -> Dataset:
-        """The same data restricted to [t0, t1] µs (inside [t_start_us, t_end_us]): training
-        samples windows there only; test frames outside it are left out."""
-        if not self.t_start_us <= t0_us < t1_us <= self.t_end_us:
+        """The same data restricted to [t0, t1] µs, a part of [t_start_us, t_end_us]: training
+        samples its windows there; test frames outside it are left out."""
+        start, length = self.t_start_us, (self.t_end_us - self.t_start_us) / 1e6
+        if not start <= t0_us < t1_us <= self.t_end_us:
             raise EvsplatError(
-                f"{self.root}: time range [{t0_us}, {t1_us}] µs is not a non-empty part of the "
-                f"recording [{self.t_start_us}, {self.t_end_us}] µs (meta.json); pick a range "
-                "inside it"
+                f"{self.root}: time range {(t0_us - start) / 1e6:g}:{(t1_us - start) / 1e6:g} s "
+                f"is not inside the recording, 0:{length:g} s from its start (meta.json "
+                f"t_start_us); pass --time-range START:END with 0 <= START < END <= {length:g}"
             )
         frames = [f for f in self.test_frames if t0_us <= f.time_us <= t1_us]
         return replace(self, t_start_us=t0_us, t_end_us=t1_us, test_frames=frames)

@@ -117,8 +117,9 @@ def _identity(path: Path) -> np.ndarray:
     return np.array([st.st_size, st.st_mtime_ns], np.int64)
 
 
-def load_sidecar(path: str | os.PathLike) -> tuple[int, np.ndarray] | None:
-    """The cached (origin, ms_to_idx) of ``path``; None when absent, unreadable or stale."""
+def load_sidecar(path: str | os.PathLike) -> tuple[int, np.ndarray, tuple[int, int]] | None:
+    """The cached (origin, ms_to_idx, (largest x + 1, largest y + 1)) of ``path``; None when
+    absent, unreadable or stale."""
     path = Path(path)
     cache = sidecar_path(path)
     try:
@@ -126,14 +127,20 @@ def load_sidecar(path: str | os.PathLike) -> tuple[int, np.ndarray] | None:
             fresh = int(z["version"]) == SIDECAR_VERSION and np.array_equal(
                 z["identity"], _identity(path)
             )
-            return (int(z["origin"]), z["ms_to_idx"].astype(np.int64)) if fresh else None
+            if not fresh:
+                return None
+            extent = (int(z["extent"][0]), int(z["extent"][1]))
+            return int(z["origin"]), z["ms_to_idx"].astype(np.int64), extent
     except (OSError, ValueError, KeyError):
         return None
 
 
-def save_sidecar(path: str | os.PathLike, origin: int, ms_to_idx: np.ndarray) -> Path | None:
-    """Caches the index of ``path`` atomically; None (nothing cached) when the folder is not
-    writable: the index then lives for this process only."""
+def save_sidecar(
+    path: str | os.PathLike, origin: int, ms_to_idx: np.ndarray, extent: tuple[int, int]
+) -> Path | None:
+    """Caches the index of ``path`` and the extent of its coordinates (the sensor size of a
+    file that names none) atomically; None (nothing cached) when the folder is not writable:
+    the index then lives for this process only."""
     path = Path(path)
 
     def write(tmp: Path) -> None:
@@ -144,6 +151,7 @@ def save_sidecar(path: str | os.PathLike, origin: int, ms_to_idx: np.ndarray) ->
                 identity=_identity(path),
                 origin=np.int64(origin),
                 ms_to_idx=ms_to_idx,
+                extent=np.array(extent, np.int64),
             )
 
     try:

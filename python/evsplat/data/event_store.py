@@ -266,15 +266,18 @@ def _index(
         return (h5_t_offset(f), np.asarray(f["ms_to_idx"][()]).astype(np.int64)), "in the file"
     cached = load_sidecar(path)
     if cached is not None:
-        return cached, f"cached in {sidecar_path(path)}"
-    known = {k: v for k, v in size.items() if v is not None}
-    scan = _scan(group, str(path), h5_t_offset(f), known, None)
-    for k, biggest in (("width", scan.max_x), ("height", scan.max_y)):
-        if size[k] is None and scan.count:
-            size[k] = biggest + 1  # the smallest sensor holding every event, as read_events
-    saved = save_sidecar(path, scan.origin, scan.ms_to_idx) if cache else None
-    where = f"cached in {saved}" if saved else "not cached"
-    return (scan.origin, scan.ms_to_idx), f"built by a streaming pass, {where}"
+        origin, ms_to_idx, extent = cached
+        source = f"cached in {sidecar_path(path)}"
+    else:
+        known = {k: v for k, v in size.items() if v is not None}
+        scan = _scan(group, str(path), h5_t_offset(f), known, None)
+        origin, ms_to_idx, extent = scan.origin, scan.ms_to_idx, (scan.max_x + 1, scan.max_y + 1)
+        saved = save_sidecar(path, origin, ms_to_idx, extent) if cache else None
+        source = f"built by a streaming pass, {f'cached in {saved}' if saved else 'not cached'}"
+    for k, side in zip(("width", "height"), extent):
+        if size[k] is None and side > 0:
+            size[k] = side  # the smallest sensor holding every event, as read_events
+    return (origin, ms_to_idx), source
 
 
 def verify_store(
