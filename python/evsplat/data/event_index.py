@@ -70,7 +70,7 @@ def check_index(
     fix = "run `evsplat check` on it, then re-convert the file (or delete a cached index)"
     if ms_to_idx.ndim != 1:
         raise EvsplatError(f"{source}: ms_to_idx has shape {ms_to_idx.shape}; expected 1-D; {fix}")
-    want = 0 if t_last_us is None else (t_last_us - origin) // MS + 1
+    want = 0 if t_last_us is None else max(0, (t_last_us - origin) // MS + 1)
     if len(ms_to_idx) != want:
         raise EvsplatError(
             f"{source}: ms_to_idx has {len(ms_to_idx)} entries but the events span {want} ms "

@@ -79,13 +79,16 @@ def _scan(group: h5py.Group, src: str, t_offset: int, size: dict, origin: int | 
 
 
 def _absolute(t: np.ndarray, t_offset: int, src: str) -> np.ndarray:
-    """Stored timestamps (any integer type, relative to t_offset) as int64 µs on the clock."""
+    """Stored timestamps (any integer type, relative to t_offset) as int64 µs on the clock.
+    Takes ownership of ``t`` (a fresh read): int64 input is shifted in place, no copy."""
     if t.dtype.kind not in "iu":
         raise EvsplatError(
             f"{src}: events/t holds {t.dtype} values; windowed reads need integer µs: convert "
             "the file with `evsplat convert IN OUT.h5`"
         )
-    return t.astype(np.int64) + t_offset
+    t = t.astype(np.int64, copy=False)
+    t += t_offset
+    return t
 
 
 class EventStore:
