@@ -10,6 +10,7 @@ import pytest
 
 from evsplat.cli import main
 from evsplat.data.dataset import check_dataset, load_dataset
+from evsplat.data.event_files import read_events
 from evsplat.data.images import read_exr, read_png
 from evsplat.data.simulator import simulate_dataset
 from evsplat.errors import EvsplatError
@@ -34,10 +35,12 @@ def test_simulated_tiny_dataset_loads_and_is_consistent(tiny_ball):
     assert check_dataset(tiny_ball) == []
     ds = load_dataset(tiny_ball)
     assert (ds.width, ds.height, ds.bayer) == (96, 96, "RGGB")
-    assert len(ds.events) > 10_000
-    assert ds.events.t.min() >= ds.t_start_us and ds.events.t.max() <= ds.t_end_us
+    events = read_events(tiny_ball / "events.h5")
+    assert ds.events.count == len(events) > 10_000
+    assert (ds.events.t_first_us, ds.events.t_last_us) == (events.t[0], events.t[-1])
+    assert events.t.min() >= ds.t_start_us and events.t.max() <= ds.t_end_us
     # RGGB: events on all four Bayer positions
-    assert len(set(zip((ds.events.y % 2).tolist(), (ds.events.x % 2).tolist()))) == 4
+    assert len(set(zip((events.y % 2).tolist(), (events.x % 2).tolist()))) == 4
     # measured (100 Hz) spline vs dense ground truth: close but not identical between knots
     q = np.linspace(ds.t_start_us, ds.t_end_us, 301)
     err = np.abs(ds.trajectory.pose(q) - ds.gt_trajectory.pose(q)).max()
@@ -198,10 +201,9 @@ def test_events_integrate_to_the_ground_truth_log_change(tiny_ball):
     ds = load_dataset(tiny_ball)
     scene = get_scene("ball", tiny=True)
     ta, tb = 200_000, 230_000
-    ia, ib = np.searchsorted(ds.events.t, [ta, tb], side="right")
+    ev = ds.events.read(ta + 1, tb + 1)  # (ta, tb]: the events after the render at ta
     acc = np.zeros((ds.height, ds.width))
-    p = ds.events.p[ia:ib]
-    np.add.at(acc, (ds.events.y[ia:ib], ds.events.x[ia:ib]), np.where(p > 0, ds.c_pos, -ds.c_neg))
+    np.add.at(acc, (ev.y, ev.x), np.where(ev.p > 0, ds.c_pos, -ds.c_neg))
     y, x = np.mgrid[0 : ds.height, 0 : ds.width]
     channel = np.array([[0, 1], [1, 2]])[y % 2, x % 2]  # RGGB
     la, lb = (np.log(scene.render(t)[0][y, x, channel] + LOG_EPS) for t in (ta, tb))

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from evsplat.data import event_files
-from evsplat.data.event_files import read_events, write_events_h5
+from evsplat.data.event_files import read_events
+from evsplat.data.event_writer import write_events_h5
 from evsplat.data.events import EventStream
 from evsplat.errors import EvsplatError
 

@@ -4,6 +4,7 @@ from the public spec (Prophesee EVT 2.0, EVT 3.0, DAT), then `evsplat convert` o
 
 from __future__ import annotations
 
+import hashlib
 import re
 from pathlib import Path
 
@@ -234,6 +235,10 @@ def test_byte_views_agree_with_the_rosbags_deserializer(tmp_path, ros2):
         reader.close()
 
 
+#: The PyPI decoder each converted file's provenance must name.
+DECODERS = {"a": "evt3", "b": "expelliarmus", "c": "expelliarmus", "d": "aedat", "e": "rosbags"}
+
+
 def test_convert_streams_every_format_into_the_same_h5(tmp_path, capsys):
     x, y, t, p = _events(4, t0=5_000)
     inputs = {
@@ -255,9 +260,18 @@ def test_convert_streams_every_format_into_the_same_h5(tmp_path, capsys):
         assert rate and int(rate.group(1)) == N, line
         with h5py.File(out) as f:
             assert (f.attrs["width"], f.attrs["height"]) == (W, H)
-            np.testing.assert_array_equal(f["events/t"][:], t)
+            # DSEC layout: t relative to t_offset, the first event's millisecond.
+            assert f["t_offset"][()] == t[0] // 1000 * 1000
+            np.testing.assert_array_equal(f["events/t"][:] + f["t_offset"][()], t)
+            prov = dict(f["provenance"].attrs)
             np.testing.assert_array_equal(f["events/x"][:], x)
             np.testing.assert_array_equal(f["events/p"][:], np.where(p > 0, 1, -1))
+        raw = (tmp_path / name).read_bytes()
+        assert prov["source"] == str((tmp_path / name).resolve())
+        assert prov["source_bytes"] == len(raw)
+        assert prov["source_sha256"] == hashlib.sha256(raw).hexdigest()
+        assert (prov["events"], prov["events_dropped"]) == (N, 0)
+        assert prov["decoder"].split()[0] == DECODERS[name.split(".")[0]]
     from evsplat.data.poses import read_tum
 
     times, c2w = read_tum(tmp_path / "poses.txt")

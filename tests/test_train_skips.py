@@ -296,9 +296,9 @@ def moves(name: str) -> bool:
 
 def esi_of(data):
     def window(t0: int, t1: int):
-        i0, i1 = data.events.window(t0, t1)
-        esi, mask = data.events.esi_and_mask(i0, i1, data.c_pos, data.c_neg)
-        return torch.from_numpy(esi), torch.from_numpy(mask), i1 - i0
+        ev = data.events.read(t0, t1)
+        esi, mask = ev.esi_and_mask(0, len(ev), data.c_pos, data.c_neg)
+        return torch.from_numpy(esi), torch.from_numpy(mask), len(ev)
 
     return window
 

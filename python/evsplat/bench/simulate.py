@@ -33,15 +33,15 @@ def picture(dataset: Path, out: Path, window_us: int = 10_000) -> None:
     ds = load_dataset(dataset)
     f = ds.test_frames[len(ds.test_frames) // 2]
     rgb, depth = read_png(f.rgb_path), read_exr(f.depth_path)
-    i0, i1 = ds.events.window(f.time_us - window_us // 2, f.time_us + window_us // 2)
+    events = ds.events.read(f.time_us - window_us // 2, f.time_us + window_us // 2)
     ev = np.zeros((ds.height, ds.width))
-    np.add.at(ev, (ds.events.y[i0:i1], ds.events.x[i0:i1]), ds.events.p[i0:i1])
+    np.add.at(ev, (events.y, events.x), events.p)
     lim = max(1.0, np.percentile(np.abs(ev[ev != 0]), 95)) if (ev != 0).any() else 1.0
     fig, axes = plt.subplots(1, 3, figsize=(12, 4 * ds.height / ds.width + 0.6))
     axes[0].imshow(np.clip(rgb, 0, 1) ** (1 / 2.2), cmap="gray")
     axes[0].set_title(f"{ds.meta['scene']}: frame at {f.time_us / 1e3:.1f} ms")
     axes[1].imshow(ev, cmap="bwr_r", vmin=-lim, vmax=lim)
-    axes[1].set_title(f"events ±{window_us // 2000} ms ({i1 - i0} events; red +, blue −)")
+    axes[1].set_title(f"events ±{window_us // 2000} ms ({len(events)} events; red +, blue −)")
     im = axes[2].imshow(depth, cmap="viridis")
     axes[2].set_title("depth (m)")
     fig.colorbar(im, ax=axes[2], fraction=0.046)

@@ -1,23 +1,66 @@
-"""`evsplat check DIR`: validate a dataset folder, one line per problem."""
+"""`evsplat check DATA`: validate a dataset folder (or one HDF5 event file), one line per
+problem: every event, and the millisecond index against the timestamps, in one streaming
+pass. Also prints what the event file holds and where it came from (its provenance)."""
 
 from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from evsplat.data.event_store import EventStore
 
 HELP = (
-    "validate a dataset folder (events, poses, intrinsics, meta, test frames); exit 2 on problems"
+    "validate a dataset folder (events and their index, poses, intrinsics, meta, test frames) "
+    "or an event .h5; exit 2 on problems"
 )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("path", help="dataset folder (see docs/dataset.md)")
+    parser.add_argument("path", help="dataset folder (see docs/dataset.md) or an event .h5 file")
+
+
+def describe(store: EventStore) -> list[str]:
+    """What an event file holds, its index, and its provenance, one line each."""
+    if store.count:
+        span = (store.t_last_us - store.t_first_us) / 1e6
+        when = f"from {store.t_first_us} to {store.t_last_us} µs ({span:.3f} s)"
+    else:
+        when = "(empty)"
+    lines = [
+        f"{store.path}: {store.count:,} events {when}, sensor {store.width}x{store.height}",
+        f"  ms index: {len(store.ms_to_idx):,} entries from {store.origin} µs, "
+        f"{store.index_source}",
+    ]
+    prov = store.provenance
+    if not prov:
+        lines.append("  provenance: none recorded (written by `evsplat simulate` or another tool)")
+        return lines
+    lines.append(
+        f"  provenance: converted from {prov.get('source')} ({prov.get('source_bytes'):,} bytes, "
+        f"sha256 {prov.get('source_sha256')})"
+    )
+    lines.append(
+        f"  by {prov.get('converter')} with {prov.get('decoder')} (format {prov.get('format')}): "
+        f"{prov.get('events'):,} events written, {prov.get('events_dropped'):,} dropped"
+    )
+    return lines
 
 
 def run(args: argparse.Namespace) -> int:
-    from evsplat.data.dataset import check_dataset
+    from evsplat.data.dataset import verify_dataset
+    from evsplat.data.event_store import verify_store
 
-    problems = check_dataset(args.path)
+    path = Path(args.path)
+    if path.is_file() and path.suffix.lower() in (".h5", ".hdf5"):
+        problems, store = verify_store(path)
+    else:
+        problems, data = verify_dataset(path)
+        store = data.events if data else None
+    if store is not None:
+        print("\n".join(describe(store)))
     for p in problems:
         print(p, file=sys.stderr)
     if problems:

@@ -1,4 +1,5 @@
-"""`evsplat convert IN OUT.h5`: any event recording -> the project's HDF5 layout, streaming.
+"""`evsplat convert IN OUT.h5`: any event recording -> the project's HDF5 layout, streaming,
+with the millisecond index and the source's provenance (path, size, SHA-256, decoder).
 
 Sensor recordings (AEDAT 4, Prophesee RAW/DAT, ROS bags) are converted chunk by chunk, so a
 recording larger than memory converts; the other event files are read whole. A bag's
@@ -7,20 +8,21 @@ recording larger than memory converts; the other event files are read whole. A b
 from __future__ import annotations
 
 import argparse
-import os
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 HELP = "convert an event recording (AEDAT4, Prophesee RAW/DAT, ROS bag, h5, npz, txt) to HDF5"
 
-#: HDF5 chunk length (events) of the output datasets, and events validated and written at once.
-H5_CHUNK = 1 << 18
+#: Events validated and written at once.
 BATCH = 1 << 20
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from evsplat.data.event_writer import DEFAULT_CODEC, codecs
+
     parser.add_argument("input", type=Path, help="recording (.aedat4 .raw .dat .bag .mcap, ...)")
     parser.add_argument("output", type=Path, help="output .h5 (DSEC layout events/{x,y,t,p})")
     parser.add_argument(
@@ -31,7 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--pose-topic", default=None, help="pose topic (default: the only one)")
     parser.add_argument(
-        "--compression", default="gzip", choices=("gzip", "lzf", "none"), help="HDF5 codec"
+        "--compression",
+        default=DEFAULT_CODEC,
+        choices=sorted(codecs()),
+        help=f"HDF5 codec (default {DEFAULT_CODEC}: Blosc LZ4, needs hdf5plugin to read)",
     )
 
 
@@ -54,16 +59,21 @@ def convert(
     out: Path,
     *,
     topic: str | None = None,
-    compression: str = "gzip",
+    compression: str | None = None,
     progress: bool = True,
 ) -> tuple[int, float]:
-    """Converts ``src`` to ``out`` (written atomically); returns (events, seconds)."""
-    import h5py
+    """Converts ``src`` to ``out`` (written atomically, with its millisecond index and the
+    provenance of ``src``; ``compression`` defaults to the writer's); returns (events,
+    seconds)."""
+    from concurrent.futures import Future, ThreadPoolExecutor
+
     from tqdm import tqdm
 
     from evsplat.data import formats
     from evsplat.data.event_files import read_events
+    from evsplat.data.event_writer import DEFAULT_CODEC, write_events
     from evsplat.data.events import EventStream
+    from evsplat.data.provenance import provenance, source_digest
     from evsplat.errors import EvsplatError
 
     if out.suffix.lower() not in (".h5", ".hdf5"):
@@ -76,64 +86,43 @@ def convert(
     if formats.is_sensor_format(src):
         source = formats.open_source(src, topic=topic)
         width, height, chunks = source.width, source.height, source.chunks
-        kind = source.format
+        kind, decoder = source.format, source.decoder
     else:
         if topic is not None:
             raise EvsplatError(f"{src}: --topic applies to ROS bags only")
         ev = read_events(src)
         width, height, chunks = ev.width, ev.height, iter([(ev.x, ev.y, ev.t, ev.p)])
-        kind = src.suffix.lstrip(".").lower()
-    codec = {"gzip": {"compression": "gzip"}, "lzf": {"compression": "lzf"}, "none": {}}
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    n, last_t = 0, None
-    try:
-        with (
-            h5py.File(tmp, "w") as f,
-            tqdm(
-                unit="ev",
-                unit_scale=True,
-                desc=f"convert {src.name} ({kind})",
-                disable=not progress,
-            ) as bar,
-        ):
-            f.attrs["width"], f.attrs["height"] = width, height
-            group = f.create_group("events")
-            dtypes = {"x": np.uint16, "y": np.uint16, "t": np.int64, "p": np.int8}
-            dsets = {
-                k: group.create_dataset(
-                    k,
-                    shape=(0,),
-                    maxshape=(None,),
-                    dtype=dt,
-                    chunks=(H5_CHUNK,),
-                    **codec[compression],
-                )
-                for k, dt in dtypes.items()
-            }
-            for x, y, t, p in _batched(chunks, BATCH):
-                if len(t) == 0:
-                    continue
-                # Validation and canonical dtypes per chunk; order across chunks checked here.
-                ev = EventStream.from_arrays(x, y, t, p, width, height, str(src))
-                if last_t is not None and ev.t[0] < last_t:
-                    raise EvsplatError(
-                        f"{src}: events go back in time at event {n} ({ev.t[0]} µs after "
-                        f"{last_t} µs); the recording's packets are out of order"
-                    )
-                for k in "xytp":
-                    d = dsets[k]
-                    d.resize((n + len(ev),))
-                    d[n:] = getattr(ev, k)
-                n += len(ev)
-                last_t = int(ev.t[-1])
-                bar.update(len(ev))
+        kind, decoder = src.suffix.lstrip(".").lower(), "evsplat"
+    record: dict[str, object] = {}
+
+    def streams(bar: tqdm, digest: Future[tuple[int, str]]) -> Iterator[EventStream]:
+        n = 0
+        for x, y, t, p in _batched(chunks, BATCH):
+            # Validation and canonical dtypes per batch; the writer checks order across them.
+            ev = EventStream.from_arrays(x, y, t, p, width, height, str(src))
+            yield ev
+            n += len(ev)
+            bar.update(len(ev))
         if n == 0:
             raise EvsplatError(f"{src}: the recording holds no events; nothing to convert")
-        os.replace(tmp, out)
-    except OSError as e:
-        raise EvsplatError(f"{out}: cannot write ({' '.join(str(e).split())})") from None
-    finally:
-        tmp.unlink(missing_ok=True)
+        # The readers stop with an error rather than skip events: none are dropped.
+        record.update(provenance(src, *digest.result(), kind, decoder, n, dropped=0))
+
+    bar = tqdm(
+        unit="ev", unit_scale=True, desc=f"convert {src.name} ({kind})", disable=not progress
+    )
+    # The checksum reads the source on a second thread (hashlib releases the GIL) while the
+    # decoder reads it on this one.
+    with bar, ThreadPoolExecutor(1) as pool:
+        digest = pool.submit(source_digest, src)
+        n = write_events(
+            out,
+            width,
+            height,
+            streams(bar, digest),
+            compression=compression or DEFAULT_CODEC,
+            provenance=record,
+        )
     return n, time.perf_counter() - start
 
 

@@ -117,8 +117,8 @@ def _write_videos(args: argparse.Namespace, state: dict, frames: list, window_us
 
     def panels():
         for t_us, img, depth in frames:
-            i0, i1 = events.window(int(t_us - window_us / 2), int(t_us + window_us / 2))
-            yield side_by_side(img, event_frame(events, i0, i1), depth)
+            ev = events.read(int(t_us - window_us / 2), int(t_us + window_us / 2))
+            yield side_by_side(img, event_frame(ev, 0, len(ev)), depth)
 
     n = write_mp4(args.out / "render_events.mp4", panels(), args.fps)
     print(f"wrote {args.out / 'render_events.mp4'} ({n} frames: render | events | depth)")

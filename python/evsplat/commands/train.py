@@ -35,7 +35,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="time-local opacity for fast objects (default off; not in the paper, see "
         "docs/results.md)",
     )
+    parser.add_argument(
+        "--time-range",
+        default=None,
+        metavar="START:END",
+        help="train on part of the recording: seconds from its start, either side may be "
+        "empty (e.g. 2:5, 10:)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def parse_time_range(text: str) -> tuple[float | None, float | None]:
+    """``START:END`` in seconds, either side empty for that end of the recording."""
+    import math
+
+    from evsplat.errors import EvsplatError
+
+    try:
+        ends = tuple(float(v) if v.strip() else None for v in text.split(":"))
+    except ValueError:
+        ends = ()
+    if len(ends) != 2 or not all(v is None or math.isfinite(v) for v in ends):
+        raise EvsplatError(
+            f"--time-range {text!r}: expected START:END in seconds from the recording's start, "
+            "e.g. 2:5 or 10: (either side may be empty)"
+        )
+    return ends
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
         cfg.seed = args.seed
     if args.temporal_opacity is not None:
         cfg.model.temporal_opacity = args.temporal_opacity
+    if args.time_range is not None:
+        cfg.time_range = parse_time_range(args.time_range)
     if args.checkpoint_every is not None:
         cfg.schedule.checkpoint_every = max(1, args.checkpoint_every)
     stats = train(

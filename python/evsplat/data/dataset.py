@@ -1,7 +1,8 @@
 """The dataset folder: events, poses, intrinsics, sensor metadata and ground-truth test frames.
 
 Layout (docs/dataset.md describes every field):
-    events.h5            events (x, y, t µs, p), written by evsplat.data.event_files
+    events.h5            events (x, y, t µs, p) with their millisecond index, written by
+                         evsplat.data.event_writer and read by time window (event_store)
     poses.txt            measured camera-to-world poses, TUM format (sparse, e.g. 100 Hz)
     poses_gt.txt         optional dense ground-truth poses, TUM format
     intrinsics.json      {"K": 3x3, "width", "height", "distortion": null or a lens model
@@ -17,14 +18,13 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from evsplat.data.distortion import LensDistortion, rectify_events
-from evsplat.data.event_files import read_events
-from evsplat.data.events import EventStream
+from evsplat.data.distortion import LensDistortion, Rectifier
+from evsplat.data.event_store import EventStore, open_store, verify_store
 from evsplat.data.poses import read_tum
 from evsplat.data.simulator import BAYER_PATTERNS
 from evsplat.data.trajectory import Trajectory, validate_poses
@@ -59,7 +59,7 @@ class Dataset:
     """Everything training and evaluation need from a dataset folder."""
 
     root: Path
-    events: EventStream
+    events: EventStore  # read by time window; on the ideal pinhole grid when distorted
     trajectory: Trajectory  # fitted to the sparse measured poses (poses.txt)
     gt_trajectory: Trajectory | None  # dense ground truth (poses_gt.txt), if present
     K: np.ndarray
@@ -75,6 +75,19 @@ class Dataset:
     depth_prior_dir: Path | None = None
     distortion: LensDistortion | None = None  # of the raw events; ``events`` are undistorted
     track: ObjectTrack | None = None  # dense ground-truth path of the tracked moving object
+
+    def between(self, t0_us: int, t1_us: int) -> Dataset:
+        """The same data restricted to [t0, t1] µs, a part of [t_start_us, t_end_us]: training
+        samples its windows there; test frames outside it are left out."""
+        start, length = self.t_start_us, (self.t_end_us - self.t_start_us) / 1e6
+        if not start <= t0_us < t1_us <= self.t_end_us:
+            raise EvsplatError(
+                f"{self.root}: time range {(t0_us - start) / 1e6:g}:{(t1_us - start) / 1e6:g} s "
+                f"is not inside the recording, 0:{length:g} s from its start (meta.json "
+                f"t_start_us); pass --time-range START:END with 0 <= START < END <= {length:g}"
+            )
+        frames = [f for f in self.test_frames if t0_us <= f.time_us <= t1_us]
+        return replace(self, t_start_us=t0_us, t_end_us=t1_us, test_frames=frames)
 
 
 @dataclass
@@ -278,7 +291,39 @@ def _track(c: _Checker) -> ObjectTrack | None:
     return ObjectTrack(times, centres, None if radius is None else float(radius))
 
 
-def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
+def _events(
+    c: _Checker,
+    path: Path,
+    size: tuple[int, int] | None,
+    intr: tuple[np.ndarray, int, int, LensDistortion | None] | None,
+    verify: bool,
+) -> EventStore | None:
+    """The event store of ``path`` (sensor size from meta.json when the file has none). A
+    file without an index gets one; loading caches it beside the file and validates windows
+    as they are read, while ``verify`` checks every event and the index in one streaming
+    pass and writes nothing."""
+    if not path.is_file():
+        return None
+    w, h = size or (None, None)
+    rectify = None
+    if intr and intr[3] is not None and size and not c.problems:
+        # Undistorted as read; everything downstream sees the ideal pinhole grid.
+        rectify = c.attempt(Rectifier, intr[3], intr[0], w, h, str(path))
+    if verify:
+        problems, store = verify_store(path, w, h, rectify)
+        for problem in problems:
+            c.fail(problem)
+    else:
+        store = c.attempt(open_store, path, w, h, rectify)
+    if store is not None and size is not None and (store.width, store.height) != size:
+        c.fail(
+            f"{path}: sensor size {store.width}x{store.height} differs from meta.json "
+            f"{size[0]}x{size[1]}; the events belong to another sensor or the metadata is wrong"
+        )
+    return store
+
+
+def _inspect(root: str | os.PathLike, verify: bool = False) -> tuple[list[str], Dataset | None]:
     root = Path(root)
     c = _Checker(root)
     if not root.is_dir():
@@ -297,16 +342,7 @@ def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
         )
     size = (meta["width"], meta["height"]) if meta else (intr[1], intr[2]) if intr else None
     t0, t1 = (meta["t_start_us"], meta["t_end_us"]) if meta else (None, None)
-    events = c.attempt(read_events, root / "events.h5") if (root / "events.h5").is_file() else None
-    if events is not None and size is not None and (events.width, events.height) != size:
-        c.fail(
-            f"{root / 'events.h5'}: sensor size {events.width}x{events.height} differs from "
-            f"meta.json {size[0]}x{size[1]}; "
-            "the events belong to another sensor or the metadata is wrong"
-        )
-    if events is not None and intr and intr[3] is not None and not c.problems:
-        # Undistorted once here; everything downstream sees the ideal pinhole grid.
-        events = c.attempt(rectify_events, events, intr[3], intr[0], str(root / "events.h5"))
+    events = _events(c, root / "events.h5", size, intr, verify)
     traj = _trajectory(c, "poses.txt", t0, t1) if (root / "poses.txt").is_file() else None
     gt = _trajectory(c, "poses_gt.txt", t0, t1) if (root / "poses_gt.txt").is_file() else None
     # With two different sensor sizes on record, image sizes cannot be judged (one line above).
@@ -336,9 +372,15 @@ def _inspect(root: str | os.PathLike) -> tuple[list[str], Dataset | None]:
     )
 
 
+def verify_dataset(path: str | os.PathLike) -> tuple[list[str], Dataset | None]:
+    """All problems with the dataset folder, one line each, from a check of every event and
+    of the millisecond index against the timestamps; and the dataset when there are none."""
+    return _inspect(path, verify=True)
+
+
 def check_dataset(path: str | os.PathLike) -> list[str]:
     """All problems with the dataset folder, one line each (empty list = usable)."""
-    return _inspect(path)[0]
+    return verify_dataset(path)[0]
 
 
 def load_dataset(path: str | os.PathLike) -> Dataset:

@@ -101,31 +101,50 @@ def rectification_map(
         raise EvsplatError(f"{source}: {e}") from None
 
 
+class Rectifier:
+    """Moves events to the ideal pinhole grid of ``K``: each event goes to the undistorted pixel
+    containing its pixel centre's undistorted point; events that leave the image or where the
+    lens cannot be inverted are dropped. Order and timestamps are kept, so rectifying a window
+    gives the window of the rectified stream. The pixel map is computed once."""
+
+    def __init__(
+        self, dist: LensDistortion, K: np.ndarray, width: int, height: int, source: str
+    ) -> None:
+        m = rectification_map(dist, K, width, height, source)
+        # Pixel (row i, column j) covers [j, j+1) x [i, i+1) in K's coordinates.
+        with np.errstate(invalid="ignore"):
+            col = np.floor(m[..., 0])
+            row = np.floor(m[..., 1])
+            inside = (
+                np.isfinite(col)
+                & np.isfinite(row)
+                & (col >= 0)
+                & (col < width)
+                & (row >= 0)
+                & (row < height)
+            )
+        self.target = np.where(inside, row * width + col, -1).astype(np.int64).ravel()
+        self.width, self.height, self.source = width, height, source
+
+    def __call__(self, events: EventStream) -> EventStream:
+        w = self.width
+        dest = self.target[events.y.astype(np.int64) * w + events.x]
+        keep = dest >= 0
+        dest = dest[keep]
+        return EventStream.from_arrays(
+            (dest % w).astype(np.uint16),
+            (dest // w).astype(np.uint16),
+            events.t[keep],
+            events.p[keep],
+            w,
+            self.height,
+            self.source,
+        )
+
+
 def rectify_events(
     events: EventStream, dist: LensDistortion, K: np.ndarray, source: str | None = None
 ) -> EventStream:
-    """Moves every event to the undistorted pixel containing its centre's undistorted point;
-    drops events that leave the image or where the lens cannot be inverted. Order is kept."""
+    """``events`` on the ideal pinhole grid (see :class:`Rectifier`)."""
     source = source or events.source
-    w, h = events.width, events.height
-    m = rectification_map(dist, K, w, h, source)
-    # Pixel (row i, column j) covers [j, j+1) x [i, i+1) in K's coordinates.
-    with np.errstate(invalid="ignore"):
-        col = np.floor(m[..., 0])
-        row = np.floor(m[..., 1])
-        inside = (
-            np.isfinite(col) & np.isfinite(row) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
-        )
-    target = np.where(inside, row * w + col, -1).astype(np.int64).ravel()
-    dest = target[events.y.astype(np.int64) * w + events.x]
-    keep = dest >= 0
-    dest = dest[keep]
-    return EventStream.from_arrays(
-        (dest % w).astype(np.uint16),
-        (dest // w).astype(np.uint16),
-        events.t[keep],
-        events.p[keep],
-        w,
-        h,
-        source,
-    )
+    return Rectifier(dist, K, events.width, events.height, source)(events)

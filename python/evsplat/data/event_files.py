@@ -1,6 +1,7 @@
 """Event files: HDF5 (DSEC-style ``events/{x,y,t,p}`` or flat ``/x,/y,/t,/p``, any
-hdf5plugin codec), ``.npz`` and text (``t x y p`` per line), read into an
-:class:`EventStream`; and an atomic, chunked, compressed HDF5 writer.
+hdf5plugin codec), ``.npz`` and text (``t x y p`` per line), read whole into an
+:class:`EventStream` (``evsplat.data.event_store`` reads an HDF5 file by time window instead;
+``evsplat.data.event_writer`` writes one).
 
 Sensor size, when neither the file (attributes ``width``/``height``) nor the caller gives it,
 is ``max(x) + 1`` by ``max(y) + 1``: the smallest sensor holding every event.
@@ -31,7 +32,6 @@ TEXT_CHUNK = 1 << 20
 
 _H5 = (".h5", ".hdf5")
 _TEXT = (".txt", ".csv")
-_CODECS = {"gzip": {"compression": "gzip"}, "lzf": {"compression": "lzf"}, "none": {}}
 
 
 def _one_line(e: BaseException) -> str:
@@ -99,34 +99,53 @@ def _to_microseconds(t: np.ndarray, time_unit: str | None) -> np.ndarray:
         return np.rint(np.asarray(t, np.float64) * 1e6)
 
 
+def h5_events_group(f: h5py.File, src: str) -> h5py.Group:
+    """The group holding the x, y, t, p datasets: ``events`` (DSEC layout) or the root."""
+    group = f["events"] if isinstance(f.get("events"), h5py.Group) else f
+    missing = [k for k in "xytp" if not isinstance(group.get(k), h5py.Dataset)]
+    if missing:
+        where = ", ".join(f"{group.name.rstrip('/')}/{k}" for k in missing)
+        raise EvsplatError(
+            f"{src}: missing dataset {where}; expected events/{{x,y,t,p}} (DSEC "
+            "layout) or /x, /y, /t, /p"
+        )
+    return group
+
+
+def h5_t_offset(f: h5py.File) -> int:
+    """DSEC's ``t_offset`` (µs): the stored t are relative to it; 0 when absent."""
+    return int(f["t_offset"][()]) if "t_offset" in f else 0
+
+
+def h5_sensor_size(f: h5py.File, group: h5py.Group) -> dict:
+    """``width``/``height`` attributes of the events group or the file, those present."""
+    size = {}
+    for k in ("width", "height"):
+        for attrs in (group.attrs, f.attrs):
+            if k in attrs:
+                size[k] = int(np.asarray(attrs[k]).reshape(-1)[0])
+                break
+    return size
+
+
+def h5_read_error(src: str, e: OSError) -> EvsplatError:
+    return EvsplatError(
+        f"{src}: cannot read HDF5 ({_one_line(e)}); the file is truncated, corrupt or not "
+        "HDF5: re-export or re-download it"
+    )
+
+
 def _read_h5(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
     src = str(path)
     try:
         with h5py.File(path, "r") as f:
-            group = f["events"] if isinstance(f.get("events"), h5py.Group) else f
-            missing = [k for k in "xytp" if not isinstance(group.get(k), h5py.Dataset)]
-            if missing:
-                where = ", ".join(f"{group.name.rstrip('/')}/{k}" for k in missing)
-                raise EvsplatError(
-                    f"{src}: missing dataset {where}; expected events/{{x,y,t,p}} (DSEC "
-                    "layout) or /x, /y, /t, /p"
-                )
+            group = h5_events_group(f, src)
             x, y, t, p = (_read_dataset(group[k]) for k in "xytp")
             if "t_offset" in f:
-                # DSEC stores t relative to t_offset (µs).
-                t = t + np.int64(f["t_offset"][()])
-            size = {}
-            for k in ("width", "height"):
-                for attrs in (group.attrs, f.attrs):
-                    if k in attrs:
-                        size[k] = int(np.asarray(attrs[k]).reshape(-1)[0])
-                        break
-            return x, y, t, p, size
+                t = t + np.int64(h5_t_offset(f))
+            return x, y, t, p, h5_sensor_size(f, group)
     except OSError as e:
-        raise EvsplatError(
-            f"{src}: cannot read HDF5 ({_one_line(e)}); the file is truncated, corrupt or not "
-            "HDF5: re-export or re-download it"
-        ) from None
+        raise h5_read_error(src, e) from None
 
 
 def _read_dataset(ds: h5py.Dataset) -> np.ndarray:
@@ -212,44 +231,3 @@ def _read_text(
     cols = np.concatenate(blocks)
     unit = "s" if float_time else "us"
     return cols[:, 1], cols[:, 2], cols[:, 0], cols[:, 3], unit
-
-
-def write_events_h5(
-    path: str | os.PathLike,
-    events: EventStream,
-    *,
-    compression: str = "gzip",
-    chunk: int = 1 << 20,
-) -> None:
-    """Writes ``events`` as DSEC-style HDF5: datasets events/{x,y,t,p} (uint16, uint16, int64
-    µs, int8 ±1), chunked by ``chunk`` events and compressed (``compression``: "gzip", "lzf",
-    "zstd", "blosc" or "none"), with ``width``/``height`` attributes on the file. Written to a
-    temporary file in the same directory and renamed, so ``path`` is never half-written."""
-    path = Path(path)
-    codecs = dict(_CODECS, zstd=hdf5plugin.Zstd(), blosc=hdf5plugin.Blosc())
-    if compression not in codecs:
-        raise EvsplatError(
-            f"{path}: compression {compression!r} is unknown; use {', '.join(sorted(codecs))}"
-        )
-    if chunk < 1:
-        raise EvsplatError(f"{path}: chunk {chunk} must be at least 1 event")
-    codec = codecs[compression]
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["width"] = events.width
-            f.attrs["height"] = events.height
-            group = f.create_group("events")
-            for name in "xytp":
-                data = getattr(events, name)
-                group.create_dataset(
-                    name, data=data, chunks=(max(1, min(chunk, len(data))),), **codec
-                )
-        os.replace(tmp, path)
-    except OSError as e:
-        raise EvsplatError(
-            f"{path}: cannot write ({_one_line(e)}); check that the directory exists and is "
-            "writable"
-        ) from None
-    finally:
-        tmp.unlink(missing_ok=True)

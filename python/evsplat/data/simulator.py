@@ -169,7 +169,7 @@ def simulate_dataset(
     `speed` K renders K times fewer frames over the same motion (the paper's Table 2 protocol).
     Everything is written to a temporary sibling folder that is renamed to `out_dir` at the end,
     so an interrupted run leaves nothing half-written. Returns `out_dir`."""
-    from evsplat.data.event_files import write_events_h5
+    from evsplat.data.event_writer import write_events_h5
     from evsplat.data.images import write_exr, write_png
     from evsplat.data.poses import write_tum
     from evsplat.scenes import get_scene

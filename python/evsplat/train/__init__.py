@@ -55,6 +55,8 @@ def train(
         cfg = TrainConfig.from_dict(load_checkpoint(latest)["config"])
     else:
         cfg = config or preset(preset_name)
+    if cfg.time_range is not None:
+        data = data.between(*_range_us(data.t_start_us, data.t_end_us, cfg.time_range))
     if iterations is not None:
         if iterations < 1:
             raise EvsplatError(f"--iters {iterations}: must be at least 1")
@@ -69,3 +71,15 @@ def train(
         return trainer.run(progress=progress)
     finally:
         torch.set_num_threads(callers_threads)  # a preset's setting ends with its run
+
+
+def _range_us(
+    start_us: int, end_us: int, seconds: tuple[float | None, float | None]
+) -> tuple[int, int]:
+    """A (START, END) time range in seconds from ``start_us`` (None: that end of the data) as
+    absolute µs; whole µs, so the integer clock is never in floating point."""
+    a, b = seconds
+    return (
+        start_us if a is None else start_us + round(a * 1e6),
+        end_us if b is None else start_us + round(b * 1e6),
+    )

@@ -46,6 +46,8 @@ class TrainConfig:
     background: float = 0.5  # grey background intensity where no Gaussian covers a pixel
     threads: int = 0  # torch intra-op threads (0 = torch's default)
     deform: bool = True  # False: a static scene, no deformation MLP at all (also a baseline)
+    # Seconds from the recording's start (meta.json t_start_us) to train on; None = that end.
+    time_range: tuple[float | None, float | None] | None = None
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
@@ -65,6 +67,7 @@ class TrainConfig:
             background=d["background"],
             threads=d.get("threads", 0),
             deform=d.get("deform", True),
+            time_range=tuple(d["time_range"]) if d.get("time_range") else None,
             schedule=ScheduleConfig(**d["schedule"]),
             model=ModelConfig(**d["model"]),
             densify=DensifyConfig(**d["densify"]),

@@ -212,13 +212,12 @@ class Trainer:
         self, t0: int, t1: int, coarse: bool = False
     ) -> tuple[torch.Tensor, torch.Tensor, int]:
         """(ESI, event mask, event count) of [t0, t1), 2x2-binned for a coarse render."""
-        ev = self.data.events
-        i0, i1 = ev.window(t0, t1)
-        esi, mask = ev.esi_and_mask(i0, i1, self.data.c_pos, self.data.c_neg)
+        ev = self.data.events.read(t0, t1)
+        esi, mask = ev.esi_and_mask(0, len(ev), self.data.c_pos, self.data.c_neg)
         esi, mask = torch.from_numpy(esi), torch.from_numpy(mask)
         if coarse:
             esi, mask = bin_events(esi, mask, self.channel_map)
-        return esi, mask, i1 - i0
+        return esi, mask, len(ev)
 
     def _pose(self, t_us: float) -> np.ndarray:
         return self.data.trajectory.pose(float(t_us))
@@ -427,12 +426,10 @@ class Trainer:
         centres = centres[inside]
         if len(centres) == 0:
             return None, {"spin_windows": 0.0}
-        ev = data.events
 
         def events_in(t0: int, t1: int) -> tuple[np.ndarray, np.ndarray]:
-            i0, i1 = ev.window(t0, t1)
-            uv = np.stack([ev.x[i0:i1], ev.y[i0:i1]], 1).astype(np.float64) + 0.5
-            return uv, ev.t[i0:i1]
+            ev = data.events.read(t0, t1)
+            return np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5, ev.t
 
         settings = SpinSettings(
             mc.spin_rim,
@@ -550,10 +547,11 @@ class Trainer:
             pred = self._linearized_change(out1, flow_cam + out1.extra, coarse)
             out["ef"] = event_flow_loss(short, pred)
         # L_m (eq. 15): patches of m equal-count sub-windows around the moving centres.
-        ev = data.events
+        if lc.w_motion <= 0:
+            return out
         span = int(lc.motion_window * (data.t_end_us - data.t_start_us))
-        i0, i1 = ev.window(t1, min(t1 + span, data.t_end_us))
-        if lc.w_motion > 0 and i1 - i0 >= lc.patch_m:
+        ev = data.events.read(t1, min(t1 + span, data.t_end_us))
+        if len(ev) >= lc.patch_m:
             gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
             idx = select_visible(
                 out1.meta["means2d"],
@@ -564,7 +562,7 @@ class Trainer:
                 gen,
             )
             if idx.numel() > 0:
-                bounds = ev.split_equal_count(i0, i1, lc.patch_m)
+                bounds = ev.split_equal_count(0, len(ev), lc.patch_m)
                 frames, centres = [], []
                 for j in range(lc.patch_m):
                     a, b = int(bounds[j]), int(bounds[j + 1])

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsplat.data.events import EventStream
+from evsplat.data.event_store import EventStore
 from evsplat.data.poses import matrix_to_quat, quat_to_matrix
 from evsplat.data.trajectory import Trajectory
 from evsplat.errors import EvsplatError
@@ -46,7 +46,7 @@ class ViewState:
 class RunView:
     """A run's renderer, trajectory and (optionally) events; renders a :class:`ViewState`."""
 
-    def __init__(self, run_dir: Path, events: EventStream | None = None):
+    def __init__(self, run_dir: Path, events: EventStore | None = None):
         self.renderer, state = Renderer.from_run(run_dir)
         traj = state["trajectory"]
         self.times_us = np.asarray(traj["times_us"], np.int64)
@@ -70,8 +70,8 @@ class RunView:
         r = self.renderer
         half = EVENT_WINDOW * (r.t_end_us - r.t_start_us) / 2
         t = self.t_us(frac)
-        i0, i1 = self.events.window(int(t - half), int(t + half))
-        return event_frame(self.events, i0, i1)
+        ev = self.events.read(int(t - half), int(t + half))
+        return event_frame(ev, 0, len(ev))
 
     def render(self, view: ViewState) -> np.ndarray:
         """[H,W,3] uint8 of ``view``: following the training camera, it is the run's own camera

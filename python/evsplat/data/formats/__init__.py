@@ -38,13 +38,15 @@ SUFFIXES = (".aedat4", ".raw", ".dat", ".bag", ".mcap", ".db3")
 
 @dataclass
 class EventSource:
-    """An opened recording: where it came from, its sensor size and its event chunks."""
+    """An opened recording: where it came from, its sensor size, its event chunks, and the
+    PyPI package that decodes it (recorded in a converted file's provenance)."""
 
     path: Path
     width: int
     height: int
     chunks: Iterator[Chunk]
     format: str
+    decoder: str
 
 
 def is_sensor_format(path: str | os.PathLike) -> bool:

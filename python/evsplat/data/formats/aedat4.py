@@ -43,6 +43,7 @@ def open_aedat4(path: Path) -> EventSource:
         int(events[sid]["height"]),
         _chunks(path, decoder, sid),
         "aedat4",
+        "aedat",
     )
 
 

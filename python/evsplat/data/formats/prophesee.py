@@ -99,8 +99,10 @@ def open_raw(path: Path) -> EventSource:
                 f"{path}: EVT 2.0 data is {path.stat().st_size - start} bytes, not whole 32-bit "
                 "words; the file is truncated"
             )
-        return EventSource(path, width, height, _expelliarmus_chunks(path, "evt2"), "evt2")
-    return EventSource(path, width, height, _evt3_chunks(path), "evt3")
+        return EventSource(
+            path, width, height, _expelliarmus_chunks(path, "evt2"), "evt2", "expelliarmus"
+        )
+    return EventSource(path, width, height, _evt3_chunks(path), "evt3", "evt3")
 
 
 def open_dat(path: Path) -> EventSource:
@@ -115,7 +117,9 @@ def open_dat(path: Path) -> EventSource:
             f"{path}: corrupt header: event type/size bytes {kind.hex() or 'missing'}; a CD "
             f"event file has type {DAT_CD_TYPE:#04x} and size {DAT_CD_SIZE}"
         )
-    return EventSource(path, width, height, _expelliarmus_chunks(path, "dat"), "dat")
+    return EventSource(
+        path, width, height, _expelliarmus_chunks(path, "dat"), "dat", "expelliarmus"
+    )
 
 
 def _expelliarmus_chunks(path: Path, encoding: str) -> Iterator[Chunk]:

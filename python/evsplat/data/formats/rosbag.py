@@ -126,7 +126,7 @@ def open_bag(path: Path, *, topic: str | None = None) -> EventSource:
             "the driver did not fill width/height: re-record or fix the messages"
         )
     return EventSource(
-        path, int(msg.width), int(msg.height), _event_chunks(reader, conns), "rosbag"
+        path, int(msg.width), int(msg.height), _event_chunks(reader, conns), "rosbag", "rosbags"
     )
 
 
