@@ -332,10 +332,10 @@ class Trainer:
     def _seed_mover(self) -> dict[str, float]:
         """After the warm-up: find a fast mover from the events the static model leaves
         unexplained, re-place on it (at the time it is seen best) the Gaussians that smear it
-        along its path and then the faintest, fit the MLP to carry them along its path, and mark
-        every other Gaussian static (the background's gradients drowned the mover's in a shared
-        MLP: docs/results.md, session 11). Returns numbers for the log; nothing changes when no
-        mover is found."""
+        along its path and then the faintest, fit the MLP to carry them along its path (turning
+        them with its spin when it is round), and mark every other Gaussian static (the
+        background's gradients drowned the mover's in a shared MLP: docs/results.md, session
+        11). Returns numbers for the log; nothing changes when no mover is found."""
         mc, data, cfg = self.cfg.mover, self.data, self.cfg
         self.renderer.mlp = None  # the warm-up's static model
 

@@ -8,7 +8,8 @@ camera's motion makes over the static scene; in a short window, a moving object 
 events unexplained. Per window, the centre of the unexplained event energy is the mover's place
 in the image (EMVS in spirit: events located by back-projection against a known scene). The
 path is lifted to 3-D at the depth the warm-up model renders there, Gaussians are placed on the
-mover at one time, and the MLP is fitted to carry them along the path. Training then refines
+mover at one time, and the MLP is fitted to carry them along the path (and, for a round
+mover, to turn them with the spin its events show: ``evsplat.train.spin``). Training then refines
 that motion with the paper's losses; the MLP, not time-local opacity, holds it.
 """
 
