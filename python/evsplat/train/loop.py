@@ -43,6 +43,7 @@ from evsplat.train.depth_prior import DepthPrior
 from evsplat.train.mover import (
     MoverPath,
     disc_depth,
+    disc_inside,
     find_path,
     fit_mlp_to_path,
     interp_rows,
@@ -421,9 +422,7 @@ class Trainer:
         centres = np.arange(data.t_start_us + half, data.t_end_us - half + 1, 2 * half)
         centres = centres[(centres >= times[0]) & (centres <= times[-1])]
         r_px = float(np.median(path.radius_px[path.found]))
-        u, v = path.at(centres).T
-        inside = (u >= r_px) & (v >= r_px) & (u <= data.width - r_px) & (v <= data.height - r_px)
-        centres = centres[inside]
+        centres = centres[disc_inside(path.at(centres), r_px, data.width, data.height)]
         if len(centres) == 0:
             return None, {"spin_windows": 0.0}
 

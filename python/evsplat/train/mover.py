@@ -65,10 +65,15 @@ class MoverPath:
         border looks smaller and off-centre, so its own shrunken radius would pass the test
         (the corner window of the demo did: a mover of 13 px for a 20-px ball)."""
         r = float(np.median(self.radius_px[self.found])) if self.found.any() else 0.0
-        u, v = self.uv.T
-        inside = (u - r >= 0) & (v - r >= 0) & (u + r <= width) & (v + r <= height)
+        inside = disc_inside(self.uv, r, width, height)
         pick = self.found & inside if bool((self.found & inside).any()) else self.found
         return int(np.argmax(np.where(pick, self.contrast, -np.inf)))
+
+
+def disc_inside(uv: np.ndarray, radius: float, width: int, height: int) -> np.ndarray:
+    """Bool [K]: the discs of ``radius`` px at pixel centres ``uv`` [K,2] lie inside the image."""
+    u, v = uv.T
+    return (u - radius >= 0) & (v - radius >= 0) & (u + radius <= width) & (v + radius <= height)
 
 
 def interp_rows(q: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:

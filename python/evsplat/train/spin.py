@@ -29,6 +29,18 @@ STEP_US = 1000  # integration step of the turn
 GRID_EVENTS = 1000  # events the coarse grid search looks at (the refinement sees them all)
 
 
+def _gaussian_taps(sigma: float) -> Tensor:
+    """Normalised 1-D Gaussian taps out to 3 sigma (float64), built once for ``contrast``."""
+    radius = int(np.ceil(3 * sigma))
+    taps = torch.exp(
+        -(torch.arange(-radius, radius + 1, dtype=torch.float64) ** 2) / (2 * sigma**2)
+    )
+    return taps / taps.sum()
+
+
+BLUR_KERNEL = _gaussian_taps(BLUR_PX)
+
+
 @dataclass
 class SpinWindow:
     """The events of one window that fall on the mover, as points on its sphere."""
@@ -93,10 +105,8 @@ def contrast(window: SpinWindow, omega: Tensor, K: np.ndarray, size: tuple[int, 
             inside = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
             index = (vv.clamp(0, h - 1) * w + uu.clamp(0, w - 1)).long()
             image.scatter_add_(1, index, weight * inside)
-    radius = int(np.ceil(3 * BLUR_PX))
-    taps = torch.arange(-radius, radius + 1, dtype=dtype)
-    kernel = torch.exp(-(taps**2) / (2 * BLUR_PX**2))
-    kernel = kernel / kernel.sum()
+    kernel = BLUR_KERNEL.to(dtype)
+    radius = len(kernel) // 2
     image = image.view(-1, 1, h, w)
     image = torch.nn.functional.conv2d(image, kernel.view(1, 1, 1, -1), padding=(0, radius))
     image = torch.nn.functional.conv2d(image, kernel.view(1, 1, -1, 1), padding=(radius, 0))
