@@ -17,6 +17,8 @@ from evsplat.train.config import preset
 from evsplat.train.loop import Trainer
 from evsplat.train.mover import (
     MoverPath,
+    MoverTrack,
+    chain_circles,
     connected,
     find_path,
     fit_mlp_to_path,
@@ -26,6 +28,7 @@ from evsplat.train.mover import (
     near_path,
     place_on_mover,
     prefer_ring,
+    ring_scores,
     unexplained,
 )
 from evsplat.train.spin import rotation
@@ -93,6 +96,29 @@ def test_connected_drops_lone_detections_and_keeps_a_moving_track():
     assert not connected(far, np.ones(2, dtype=bool), step=5.0).any()
 
 
+def test_chain_circles_follows_the_path_through_either_fit_and_drops_stray_fits():
+    """A mover crossing at 4 px per window; each window has two circle fits, one of them off
+    by 20-40 px in some windows (as at the border); windows 12-15 are out of view (both fits
+    random). Seen by contrast only in a few windows of each stretch in view."""
+    rng = np.random.default_rng(3)
+    k = 24
+    truth = np.stack([10.0 + 4.0 * np.arange(k), 50.0 + 0.1 * np.arange(k) ** 2], axis=1)
+    candidates = np.stack([truth, truth], axis=1) + rng.normal(0.0, 0.3, (k, 2, 2))
+    candidates[[2, 5, 9], 0] += [30.0, -25.0]  # the first fit strays here...
+    candidates[[3, 7, 10, 11], 1] += [-20.0, 35.0]  # ...the second here
+    candidates[12:16] = rng.uniform(0.0, 96.0, (4, 2, 2))  # out of view
+    candidates[20:22, 0] += 40.0  # a short consistent pair of wrong fits near the end
+    seen = np.zeros(k, dtype=bool)
+    seen[4:8] = seen[18] = True
+    uv, found = chain_circles(candidates, seen, step=10.0)
+    assert found[:12].all() and not found[12:16].any() and found[16:].all()
+    err = np.hypot(*(uv - truth).T)
+    assert float(err[found].max()) < 1.5, err
+    # A chain without a seen window is no mover (the background's leftovers line up by chance).
+    _, none = chain_circles(candidates, np.zeros(k, dtype=bool), step=10.0)
+    assert not none.any()
+
+
 def test_fit_rings_finds_a_seamed_mover_cut_by_the_border():
     """A mover's outline (a ring of r = 18) half outside the image, with a bright seam across
     it and a dimmer stray ring beside it: the energy's centre is pulled off (the blob sees
@@ -107,10 +133,22 @@ def test_fit_rings_finds_a_seamed_mover_cut_by_the_border():
         energy += torch.from_numpy(3.0 * seam)
         energy += 0.5 * _ring(h, w, 15.0, 80.0, 6.0)
         maps.append(energy)
-    uv, radius = fit_rings(torch.stack(maps), 18.0, np.ones(3, dtype=bool))
+    uv, radius, _ = fit_rings(torch.stack(maps), 18.0, np.ones(3, dtype=bool))
     assert abs(radius - 18.0) < 1.0
     assert np.abs(uv - np.array(centres)).max() < 1.0
     assert np.hypot(*(locate(maps[0])[0] - centres[0])) > 3.0  # what the blob alone gives
+
+
+def test_border_fit_finds_a_mover_mostly_outside_the_image():
+    """A ring of r = 20 centred outside the top-right corner (about 30% of it visible): the
+    default fit needs 40% inside and squeezes the circle inwards; the border fit finds it."""
+    h = w = 96
+    centre = np.array([100.0, 6.0])
+    energy = (_ring(h, w, *centre, 20.0) + 0.05)[None]
+    _, default = ring_scores(energy, 20.0)
+    _, border = ring_scores(energy, 20.0, border=True)
+    assert np.hypot(*(default[0] - centre)) > 3.0
+    assert np.hypot(*(border[0] - centre)) < 1.0
 
 
 def test_prefer_ring_takes_circles_for_a_round_mover_and_blobs_otherwise():
@@ -211,6 +249,39 @@ def test_fit_mlp_to_path_turns_the_body_about_its_centre():
             dx = mlp(means, t)[0]
             # within a tenth of the body's size (0.1) of the turned place
             assert float((dx - goal).norm(dim=1).median()) < 0.01, t
+
+
+def _line_track() -> MoverTrack:
+    """A mover found at 0, 10 and 20 ms moving along x at 1 m per 10 ms, radius 0.5 m."""
+    times = np.array([0, 10_000, 20_000])
+    points = np.array([[0.0, 0.0, 3.0], [1.0, 0.0, 3.0], [2.0, 0.0, 3.0]])
+    return MoverTrack(times, points, radius=0.5, reach_us=3_000)
+
+
+def test_track_target_interpolates_near_found_windows_and_is_absent_elsewhere():
+    track = _line_track()
+    np.testing.assert_allclose(track.target(12_000), [1.2, 0.0, 3.0])
+    np.testing.assert_allclose(track.target(22_500), [2.0, 0.0, 3.0])  # held past the end
+    assert track.target(5_000) is None  # 5 ms from the nearest found window
+    assert track.target(30_000) is None
+    again = MoverTrack.from_state(track.state_dict())
+    np.testing.assert_allclose(again.target(12_000), track.target(12_000))
+
+
+def test_track_loss_is_the_centre_offset_in_radii_and_moves_only_positions():
+    track = _line_track()
+    means = torch.tensor([[1.0, 0.5, 3.0], [1.0, -0.5, 3.0], [1.5, 0.0, 3.0]], requires_grad=True)
+    opacity = torch.tensor([1.0, 1.0, 2.0], requires_grad=True)
+    loss = track.loss(means, opacity, 10_000)
+    # Weighted centre (1.25, 0, 3): 0.25 m from the path = half a radius -> 0.25.
+    assert float(loss) == pytest.approx(0.25)
+    loss.backward()
+    assert opacity.grad is None  # the weights are detached
+    # Analytic: d/dx_i of |c - g|^2 / r^2 = 2 (c - g) w_i / (sum w r^2), along x only.
+    expect = 2 * 0.25 * np.array([1.0, 1.0, 2.0]) / (4.0 * 0.25)
+    np.testing.assert_allclose(means.grad[:, 0].numpy(), expect, rtol=1e-6)
+    np.testing.assert_allclose(means.grad[:, 1:].numpy(), 0.0, atol=1e-7)
+    assert track.loss(means, opacity, 5_000) is None
 
 
 def test_place_on_mover_moves_rows_and_clears_their_optimizer_state():

@@ -149,6 +149,11 @@ class MoverConfig:
     # (the ball's windows: 8-11%).
     spin_min_gain: float = 0.05
     spin_steps: int = 40  # Adam steps refining the first window's estimate (half for later ones)
+    # The track prior (``mover.MoverTrack``): after the seeding, the mover's Gaussians' centre
+    # is pulled towards its found path, in mover radii squared, with this weight (0 = off), at
+    # times within `track_reach` (a fraction of the sequence) of a found window.
+    track_weight: float = 1.0
+    track_reach: float = 0.03
 
 
 @dataclass

@@ -42,6 +42,7 @@ from evsplat.train.config import TrainConfig
 from evsplat.train.depth_prior import DepthPrior
 from evsplat.train.mover import (
     MoverPath,
+    MoverTrack,
     disc_depth,
     disc_inside,
     find_path,
@@ -185,6 +186,7 @@ class Trainer:
             )
         self.plateau = Plateau()
         self.static_scene = False  # set when the static classification finds no motion
+        self.mover_track: MoverTrack | None = None  # set by the mover's seeding
 
     # ---- one iteration -------------------------------------------------------------------
 
@@ -286,6 +288,9 @@ class Trainer:
         losses: dict[str, torch.Tensor] = {"e": torch.stack(terms).mean()}
         if moving:
             losses.update(self._motion_losses(view, t1, dtau, pose1, out1, rng))
+            track = self._track_loss(g1[0], t1)
+            if track is not None:
+                losses["tr"] = track
         if stage is Stage.REFINE:
             # The refinement losses see the last window (pairs end with (views-2, views-1)).
             losses.update(self._refine_losses(t1, out1, logs[-1] - logs[-2], windows[-1][1]))
@@ -297,6 +302,7 @@ class Trainer:
             "d": lc.w_depth,
             "ne": lc.w_non_event,
             "sp": lc.w_spatial,
+            "tr": cfg.mover.track_weight,
         }
         total = sum(weights[k] * v for k, v in losses.items())
         values = {k: float(v.detach()) for k, v in losses.items()} | seeded
@@ -388,6 +394,9 @@ class Trainer:
             cfg.seed,
         )
         self.mlp_optimizer = self._mlp_adam()  # the fit's moments are not training's
+        if mc.track_weight > 0:
+            reach = int(mc.track_reach * (data.t_end_us - data.t_start_us))
+            self.mover_track = MoverTrack(times, points, radius, reach)
         static = torch.ones(n, dtype=torch.bool)
         static[rows] = False
         self.renderer.static_mask = static
@@ -399,6 +408,15 @@ class Trainer:
             "mover_gaussians": float(m),
             "mover_swept": float(swept.sum()),
         } | spin
+
+    def _track_loss(self, means: torch.Tensor, t_us: int) -> torch.Tensor | None:
+        """The track prior on the mover's deformed ``means`` [N,3] (all rows) at ``t_us``."""
+        static = self.renderer.static_mask
+        if self.mover_track is None or static is None:
+            return None
+        moving = ~static
+        opacities = self.model.opacities(self.renderer.time(t_us))[moving]
+        return self.mover_track.loss(means[moving], opacities, t_us)
 
     def _mover_spin(
         self,
@@ -657,6 +675,7 @@ class Trainer:
             "densifier": self.densifier.state_dict(),
             "static_mask": self.renderer.static_mask,
             "static_scene": self.static_scene,
+            "mover_track": None if self.mover_track is None else self.mover_track.state_dict(),
             "early_stop": self.plateau.state_dict(),
             "camera": {
                 "K": data.K.tolist(),
@@ -697,6 +716,8 @@ class Trainer:
         self.densifier.load_state_dict(state["densifier"])
         self.renderer.static_mask = state.get("static_mask")  # absent before skips existed
         self.static_scene = bool(state.get("static_scene", False))
+        track = state.get("mover_track")  # absent before the track prior existed
+        self.mover_track = None if track is None else MoverTrack.from_state(track)
         if "early_stop" in state:
             self.plateau.load_state_dict(state["early_stop"])
         s = state["stats"]

@@ -34,6 +34,10 @@ CAP_QUANTILE = 0.95  # see locate
 FIT_TIMES = 8  # times per step of fit_mlp_to_path
 RING_WIDTH = 1.0  # px, half-width of the rings of fit_rings
 RING_COVER = 0.4  # least share of a ring inside the image (a mover cut by the border)
+# The border fit (``ring_scores(border=True)``): a ring needs only this share inside the image
+# and scores by its visible length, so a mover mostly outside the image is fitted where its
+# arc is (the cover-0.4 fit pushed it 15-40 px inwards; docs/results.md, session 17).
+BORDER_COVER = 0.2
 RING_RADII = 25  # radii tried by fit_rings
 RING_CAP = 0.98  # measured: 0.9 and 0.95 let the radius run away in some seeds (results.md)
 # Adjacent windows agree when their centres lie within this many mover radii: the tiny ball
@@ -68,6 +72,55 @@ class MoverPath:
         inside = disc_inside(self.uv, r, width, height)
         pick = self.found & inside if bool((self.found & inside).any()) else self.found
         return int(np.argmax(np.where(pick, self.contrast, -np.inf)))
+
+
+@dataclass
+class MoverTrack:
+    """The mover's 3-D path as its events showed it (the found windows' centres, lifted at the
+    mover's depth), kept through training as a soft prior on where its Gaussians are. Without
+    it the paper's losses let the mover drift 5-14 px off its path and 0.3-0.8 m deeper after
+    the seeding (docs/results.md, session 16): a ball further away and larger draws nearly the
+    same events from a small camera orbit."""
+
+    times_us: np.ndarray  # [F] int64, the found windows' middle times
+    points: np.ndarray  # [F,3] world centres
+    radius: float  # the mover's radius, world units: the loss's length scale
+    reach_us: int  # a time further than this from every found window has no target
+
+    def target(self, t_us: int) -> np.ndarray | None:
+        """The path's centre at ``t_us`` (linear between found windows), or None away from them."""
+        if np.min(np.abs(self.times_us - t_us)) > self.reach_us:
+            return None
+        return interp_rows(np.array([t_us]), self.times_us, self.points)[0]
+
+    def loss(self, means: Tensor, weights: Tensor, t_us: int) -> Tensor | None:
+        """Squared distance, in mover radii, of the ``weights``-weighted centre of the mover's
+        deformed ``means`` [M,3] from the path at ``t_us``; None where the path has no target.
+        The weights (opacities) are detached: the prior moves Gaussians, it does not fade them."""
+        goal = self.target(t_us)
+        if goal is None or means.shape[0] == 0:
+            return None
+        w = weights.detach().reshape(-1, 1)
+        centre = (w * means).sum(0) / w.sum().clamp_min(EPS)
+        off = centre - torch.as_tensor(goal, dtype=means.dtype)
+        return (off**2).sum() / max(self.radius, EPS) ** 2
+
+    def state_dict(self) -> dict:
+        return {
+            "times_us": self.times_us.tolist(),
+            "points": self.points.tolist(),
+            "radius": self.radius,
+            "reach_us": self.reach_us,
+        }
+
+    @classmethod
+    def from_state(cls, d: dict) -> MoverTrack:
+        return cls(
+            np.asarray(d["times_us"], dtype=np.int64),
+            np.asarray(d["points"], dtype=np.float64),
+            float(d["radius"]),
+            int(d["reach_us"]),
+        )
 
 
 def disc_inside(uv: np.ndarray, radius: float, width: int, height: int) -> np.ndarray:
@@ -170,14 +223,18 @@ def find_path(
     blob_uv, sizes, contrast = (np.array(v) for v in zip(*(locate(e) for e in maps)))
     seen = contrast >= cfg.min_contrast
     blob_radius = float(np.median(sizes[seen] if seen.any() else sizes))
-    ring_uv, ring_radius = fit_rings(maps, blob_radius, seen)
+    ring_uv, ring_radius, border_uv = fit_rings(maps, blob_radius, seen)
     uv, radius, seen, is_round = prefer_ring(ring_uv, ring_radius, blob_uv, blob_radius, seen)
+    step = AGREE * float(radius[0])
+    found = connected(uv, seen, step)
+    if is_round:
+        uv, found = chain_circles(np.stack([ring_uv, border_uv], axis=1), seen, step)
     return MoverPath(
         times_us=starts + length // 2,
         uv=uv,
         radius_px=radius,
         contrast=contrast,
-        found=connected(uv, seen, AGREE * float(radius[0])),
+        found=found,
         round=is_round,
     )
 
@@ -201,13 +258,14 @@ def prefer_ring(
     return blob_uv, np.full(len(blob_uv), blob_radius), seen, False
 
 
-def ring_scores(energy: Tensor, radius: float) -> tuple[Tensor, np.ndarray]:
+def ring_scores(energy: Tensor, radius: float, border: bool = False) -> tuple[Tensor, np.ndarray]:
     """Circle-Hough scores of ``energy`` [N,H,W] for one ``radius``: per window, the best
     score and its centre [N,2] (x, y), centres searched up to one radius outside the image.
     A circle's score is its ring's mean energy over the ring's part inside the image, times
     the square root of the ring's length (the mean alone prefers small circles hugging one
     strong seam, the sum large ones collecting background); a circle with less than
-    ``RING_COVER`` of its ring inside the image scores 0."""
+    ``RING_COVER`` of its ring inside the image scores 0. ``border``: the square root of the
+    visible length instead, and ``BORDER_COVER`` (see there)."""
     n, h, w = energy.shape
     pad = int(math.ceil(radius)) + 2
     side = 2 * pad + 1
@@ -227,10 +285,11 @@ def ring_scores(energy: Tensor, radius: float) -> tuple[Tensor, np.ndarray]:
     total = convolve(energy.double())
     cover = convolve(torch.ones(1, h, w, dtype=torch.float64))
     length = float(ring.sum())
+    least, scale = RING_COVER, math.sqrt(length)
+    if border:
+        least, scale = BORDER_COVER, cover.clamp_min(0.0).sqrt()
     score = torch.where(
-        cover >= RING_COVER * length,
-        total / cover.clamp_min(EPS) * math.sqrt(length),
-        torch.zeros_like(total),
+        cover >= least * length, total / cover.clamp_min(EPS) * scale, torch.zeros_like(total)
     )
     best, k = score.reshape(n, -1).max(dim=1)
     cols = score.shape[-1]
@@ -239,12 +298,14 @@ def ring_scores(energy: Tensor, radius: float) -> tuple[Tensor, np.ndarray]:
     return best, centre
 
 
-def fit_rings(maps: Tensor, blob_radius: float, seen: np.ndarray) -> tuple[np.ndarray, float]:
-    """(centres [N,2], radius px) of the mover's outline in each of ``maps`` [N,H,W], each
-    capped at its ``RING_CAP`` quantile (a seam's few brightest pixels would outweigh the
-    outline): the radius best over the windows ``seen`` (median of each one's best, radii
-    from 0.3 to 1.5 x the blobs' ``blob_radius``), then each window's best centre at that
-    radius."""
+def fit_rings(
+    maps: Tensor, blob_radius: float, seen: np.ndarray
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """(centres [N,2], radius px, border centres [N,2]) of the mover's outline in each of
+    ``maps`` [N,H,W], each capped at its ``RING_CAP`` quantile (a seam's few brightest pixels
+    would outweigh the outline): the radius best over the windows ``seen`` (median of each
+    one's best, radii from 0.3 to 1.5 x the blobs' ``blob_radius``), then each window's best
+    centre at that radius, and its best by the border fit (``ring_scores(border=True)``)."""
     h, w = maps.shape[-2:]
     flat = maps.reshape(len(maps), -1).float()
     cap = torch.quantile(flat, RING_CAP, dim=1).to(maps.dtype)[:, None, None]
@@ -255,7 +316,71 @@ def fit_rings(maps: Tensor, blob_radius: float, seen: np.ndarray) -> tuple[np.nd
     scores = torch.stack([s for s, _ in fits], dim=1)  # [N,R]
     rows = seen if seen.any() else np.ones(len(maps), dtype=bool)
     radius = float(np.median(radii[scores.argmax(dim=1).numpy()[rows]]))
-    return ring_scores(maps, radius)[1], radius
+    return ring_scores(maps, radius)[1], radius, ring_scores(maps, radius, border=True)[1]
+
+
+def chain_circles(
+    candidates: np.ndarray, seen: np.ndarray, step: float, min_windows: int = 3
+) -> tuple[np.ndarray, np.ndarray]:
+    """(centres [K,2], found [K]) of a round mover from per-window ``candidates`` [K,C,2]
+    (circle fits) by chains: runs of consecutive windows whose chosen centres move by at most
+    ``step`` px per window, or by at most ``step`` px from the chain's constant-velocity
+    prediction. The longest chain is taken first (ties: the smoothest, least
+    change of velocity), its windows removed, and so on; a chain counts when it is at least
+    ``min_windows`` long and holds a window ``seen`` by its contrast. This keeps the windows
+    whose contrast is low but whose circle continues the path (the ball near its apex, or
+    half out of the image), and drops a lone fit to the background's leftovers or a corner
+    fit squeezed inside the image by its cover (docs/results.md, session 17)."""
+    k_n, c_n = candidates.shape[:2]
+    free = np.ones(k_n, dtype=bool)
+    uv = candidates[:, 0].copy()
+    found = np.zeros(k_n, dtype=bool)
+    while True:
+        length = np.zeros((k_n, c_n), dtype=np.int64)
+        bend = np.zeros((k_n, c_n))
+        back = np.full((k_n, c_n), -1, dtype=np.int64)
+        for k in range(k_n):
+            if not free[k]:
+                continue
+            length[k] = 1
+            if k == 0 or not free[k - 1]:
+                continue
+            for c in range(c_n):
+                for b in range(c_n):
+                    move = candidates[k, c] - candidates[k - 1, b]
+                    a = back[k - 1, b]
+                    # A link moves by at most `step`, or continues the chain's velocity to
+                    # within `step` (a fast mover moves more than `step` a window).
+                    turn = 0.0
+                    if a >= 0:
+                        vel = candidates[k - 1, b] - candidates[k - 2, a]
+                        turn = float(np.hypot(*(move - vel)))
+                    if np.hypot(*move) > step and (a < 0 or turn > step):
+                        continue
+                    key = (length[k - 1, b] + 1, -(bend[k - 1, b] + turn))
+                    if key > (length[k, c], -bend[k, c]) or back[k, c] < 0:
+                        length[k, c], bend[k, c], back[k, c] = key[0], -key[1], b
+        order = np.lexsort((bend.ravel(), -length.ravel()))
+        best = next(
+            (i for i in order if length.flat[i] >= min_windows and _holds_seen(i, back, seen)),
+            None,
+        )
+        if best is None:
+            return uv, found
+        k, c = divmod(int(best), c_n)
+        while c >= 0:
+            uv[k], found[k], free[k] = candidates[k, c], True, False
+            k, c = k - 1, back[k, c]
+
+
+def _holds_seen(index: int, back: np.ndarray, seen: np.ndarray) -> bool:
+    """Whether the chain ending at flat ``index`` of ``back`` [K,C] holds a ``seen`` window."""
+    k, c = divmod(index, back.shape[1])
+    while c >= 0:
+        if seen[k]:
+            return True
+        k, c = k - 1, back[k, c]
+    return False
 
 
 def connected(uv: np.ndarray, found: np.ndarray, step: float) -> np.ndarray:
