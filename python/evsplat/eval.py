@@ -200,7 +200,8 @@ def _tracking_lines(tr: dict) -> list[str]:
         "evsplat.motion_metrics): median error "
         f"{_fmt(tr['error_px_median'], 2)} px, mean {_fmt(tr['error_px_mean'], 2)} px over all "
         "(reference, other test time) pairs (the table's column: per test time the median over "
-        "references; its mean row: the mean over pairs); "
+        "references; its mean row: the mean over pairs); carried by the set's rigid motion "
+        f"(for a turning object): median error {_fmt(tr['rigid_error_px_median'], 2)} px; "
         f"path through the test times {_fmt(tr['pred_path_px'], 1)} px against the object's "
         f"{_fmt(tr['gt_path_px'], 1)} px, ratio {_fmt(tr['path_ratio'], 3)} "
         "(1 = moves with the object, 0 = stands still).",
@@ -252,7 +253,8 @@ def headline(result: dict) -> str:
         )
     if tr is not None and tr["error_px_median"] is not None:
         parts.append(
-            f"tracking: median error {tr['error_px_median']:.1f} px, path ratio "
+            f"tracking: median error {tr['error_px_median']:.1f} px "
+            f"(rigid {_fmt(tr['rigid_error_px_median'], 1)} px), path ratio "
             f"{_fmt(tr['path_ratio'], 2)} (1 = moves with the object)"
         )
     return "; ".join(parts) or "no moving object in the test frames"
