@@ -21,7 +21,7 @@ ITERS = 6
 def tiny_config(iterations: int = ITERS, **skips) -> dict:
     cfg = preset("tiny")
     cfg.schedule.iterations = iterations
-    cfg.mover.enabled = False  # its seeding costs a minute whatever the iteration count
+    cfg.mover.enabled = False  # its seeding alone would outlast these few iterations many times
     for k, v in skips.items():
         setattr(cfg.skips, k, v)
     return cfg.to_dict()
