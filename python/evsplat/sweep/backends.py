@@ -147,14 +147,26 @@ def import_ray(address: str):
     return ray
 
 
-def start_local_cluster(ray, cpus: int | None = None) -> None:
-    """A Ray head on this machine with ``cpus`` CPUs (default: all), no dashboard, quiet."""
-    ray.init(
-        num_cpus=cpus or os.cpu_count(),
-        include_dashboard=False,
-        log_to_driver=False,
-        logging_level=logging.ERROR,
-    )
+def start_local_cluster(ray, cpus: int | None = None, tries: int = 3) -> None:
+    """A Ray head on this machine with ``cpus`` CPUs (default: all), no dashboard, quiet.
+    Ray gives its raylet a fixed 30 s to register, which a busy machine can miss: try again."""
+    for attempt in range(1, tries + 1):
+        try:
+            ray.init(
+                num_cpus=cpus or os.cpu_count(),
+                include_dashboard=False,
+                log_to_driver=False,
+                logging_level=logging.ERROR,
+            )
+            return
+        except Exception as e:  # Ray raises a bare Exception for the time-out
+            ray.shutdown()
+            if attempt == tries:
+                first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+                raise EvsplatError(
+                    f"--ray: a local Ray cluster did not start in {tries} tries ({first}); "
+                    "run `ray start --head` and pass --ray auto"
+                ) from None
 
 
 def _connect(ray, address: str) -> None:
