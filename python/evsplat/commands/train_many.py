@@ -11,8 +11,8 @@ HELP = "train every dataset folder a glob matches (one run each; resumable; --ra
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from evsplat.commands.train import add_config_arguments
     from evsplat.sweep import add_sweep_arguments
-    from evsplat.train.config import PRESETS
 
     parser.add_argument(
         "data_glob",
@@ -20,11 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="dataset folders, as a quoted glob (e.g. 'recordings/*'); see docs/dataset.md",
     )
     parser.add_argument("--out", type=Path, required=True, help="sweep folder to write")
-    parser.add_argument("--preset", default="default", help=f"one of {', '.join(PRESETS)}")
-    parser.add_argument(
-        "--config", type=Path, default=None, help="a TrainConfig JSON (as in a run's config.json)"
-    )
-    parser.add_argument("--iters", type=int, default=None, help="override the iteration count")
+    add_config_arguments(parser)
     parser.add_argument("--seeds", default="0", help="comma list of seeds, one run each (0)")
     parser.add_argument("--depth-prior", default="auto", help="as for `evsplat train`")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -64,12 +60,12 @@ def parse_seeds(text: str) -> list[int]:
 
 def run(args: argparse.Namespace) -> int:
     from evsplat.bench.train import fmt
+    from evsplat.commands.train import config_from_args
     from evsplat.errors import EvsplatError
     from evsplat.sweep import Cell, SweepOptions, run_sweep
     from evsplat.sweep.store import write_table
-    from evsplat.train.config import load_config, preset
 
-    cfg = load_config(args.config) if args.config is not None else preset(args.preset)
+    cfg = config_from_args(args)
     if args.iters is not None:
         if args.iters < 1:
             raise EvsplatError(f"--iters {args.iters}: must be at least 1")

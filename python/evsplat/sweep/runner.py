@@ -127,7 +127,8 @@ def run_sweep(
     finally:
         bar.close()
         backend.close()
-    store.remove_attempts(out, set(done))  # attempts that lost the race to a retry
+    # Attempts of failed cells and those that lost the race to a retry: nothing half-written.
+    store.remove_attempts(out, set(unique))
     result = SweepResult(
         rows=[{**c.labels, **done[k]} for c, k in zip(cells, keys) if k in done],
         failures=[(c, failed[k]) for k, c in unique.items() if k in failed],
