@@ -53,7 +53,7 @@ fi
 deps_hash=$(sha256sum pyproject.toml | cut -c1-16)
 if [ "$(cat "$VENV/.evsplat-deps" 2>/dev/null)" != "$deps_hash" ]; then
     say "installing Python dependencies into .venv"
-    uv pip install -q --python "$VENV/bin/python" -r pyproject.toml --extra test "maturin>=1.5,<2"
+    uv pip install -q --python "$VENV/bin/python" -r pyproject.toml --extra test --extra ray "maturin>=1.5,<2"
     echo "$deps_hash" >"$VENV/.evsplat-deps"
 fi
 

@@ -5,15 +5,19 @@ from __future__ import annotations
 
 import argparse
 
+import pytest
+
 import evsplat.bench.paper as paper
+from evsplat.sweep import SweepResult
 
 
-def _fake_run(case, variant, spec, out, iters):
-    psnr = {"static": 15.0, "no-motion-losses": 16.0}.get(variant, 18.0 + case.speed)
+def _fake_row(cell):
+    case, variant = cell.labels["case"], cell.labels["variant"]
+    speed = int(case.rsplit("-x", 1)[1])
+    psnr = {"static": 15.0, "no-motion-losses": 16.0}.get(variant, 18.0 + speed)
     return {
-        "case": case.name,
-        "variant": variant,
-        "iterations": 7,
+        **cell.labels,
+        "iterations": cell.config["schedule"]["iterations"],
         "wall_seconds": 1.0 + len(variant),
         "iterations_per_second": 7.0,
         "peak_rss_mib": 1.0,
@@ -25,15 +29,44 @@ def _fake_run(case, variant, spec, out, iters):
     }
 
 
+def _fake_sweep(calls: list, change: dict | None = None):
+    """The sweep runner without training: one made-up row per cell, the cells recorded."""
+
+    def sweep(cells, out, options):
+        calls.extend(cells)
+        return SweepResult(rows=[{**_fake_row(c), **(change or {})} for c in cells])
+
+    return sweep
+
+
+@pytest.fixture(autouse=True)
+def no_simulation(monkeypatch):
+    monkeypatch.setattr(paper, "simulate_cases", lambda cases, out: {c.name: out for c in cases})
+
+
+def _args(tmp_path, doc, tables):
+    return argparse.Namespace(
+        full_size=False,
+        iters=7,
+        out=tmp_path / "b",
+        doc=doc,
+        tables=tables,
+        ray=None,
+        max_retries=3,
+        cpus_per_cell=1.0,
+        fresh=False,
+    )
+
+
 def test_tables_hold_every_run_and_the_papers_numbers(tmp_path, monkeypatch):
     calls = []
-    monkeypatch.setattr(paper, "run_one", lambda *a: calls.append(a[:2]) or _fake_run(*a))
+    monkeypatch.setattr(paper, "run_sweep", _fake_sweep(calls))
     doc = tmp_path / "results.md"
     doc.write_text("# old\n\n## Full-size runs\n\nball 400x400: kept\n")
-    args = argparse.Namespace(full_size=False, iters=7, out=tmp_path / "b", doc=doc, tables="1,2,3")
-    assert paper.run(args) == 0
+    assert paper.run(_args(tmp_path, doc, "1,2,3")) == 0
     # 4 scenes x 3 variants + speeds 2-4 + 4 ablation rows; ball x1 full is shared.
     assert len(calls) == 12 + 3 + 4
+    assert len({(c.labels["case"], c.labels["variant"]) for c in calls}) == len(calls)
     text = doc.read_text()
     assert "| butterfly | 24.27 / 0.902 / 0.12 |" in text
     assert "| x3 | 19.14 | 21.00 |" in text
@@ -44,13 +77,13 @@ def test_tables_hold_every_run_and_the_papers_numbers(tmp_path, monkeypatch):
 
 
 def test_rerunning_one_table_keeps_the_others_as_measured(tmp_path, monkeypatch):
-    monkeypatch.setattr(paper, "run_one", lambda *a: _fake_run(*a))
+    monkeypatch.setattr(paper, "run_sweep", _fake_sweep([]))
     doc = tmp_path / "results.md"
-    args = argparse.Namespace(full_size=False, iters=7, out=tmp_path / "b", doc=doc, tables="1,3")
+    args = _args(tmp_path, doc, "1,3")
     assert paper.run(args) == 0
     first = doc.read_text()
     table1 = first[first.index(paper.TITLES["1"]) : first.index(paper.TITLES["3"])]
-    monkeypatch.setattr(paper, "run_one", lambda *a: {**_fake_run(*a), "psnr": 30.0})
+    monkeypatch.setattr(paper, "run_sweep", _fake_sweep([], {"psnr": 30.0}))
     args.tables = "3"
     assert paper.run(args) == 0
     text = doc.read_text()

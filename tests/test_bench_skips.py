@@ -6,44 +6,53 @@ from __future__ import annotations
 import argparse
 
 import evsplat.bench.skips as skips
-from evsplat.train.config import preset
+from evsplat.sweep import SweepResult
+from evsplat.train.config import TrainConfig
 
 
-def _fake_run(case, variant, spec, out, iters, apply, cli):
-    cfg = preset("tiny")
-    apply(cfg)
+def _fake_row(cell) -> dict:
+    cfg = TrainConfig.from_dict(cell.config)
     # Time follows what the variant switched off, so the table's arithmetic can be checked.
     wall = 50.0 if not cfg.deform else 100.0
-    row = {
-        "case": case.name,
-        "variant": variant,
-        "iterations": iters,
-        "wall_seconds": wall + (10.0 if cli else 0.0),
+    return {
+        **cell.labels,
+        "iterations": cfg.schedule.iterations,
+        "wall_seconds": wall + (10.0 if cell.train_args else 0.0),
         "psnr": 20.0 + (0.5 if cfg.skips.static else 0.0),
         "ssim": 0.5,
-        "psnr_moving": None if case.scene == "still" else 12.0,
+        "psnr_moving": None if cell.labels["case"].startswith("still") else 12.0,
         "static_fraction": 0.0,
         "static_scene": False,
         "stopped_early_at": None,
     }
-    return row, cfg
 
 
 def test_each_variant_reaches_its_run_and_the_table_reports_both_sides(tmp_path, monkeypatch):
     calls = {}
 
-    def fake(*a):
-        row, cfg = _fake_run(*a)
-        calls[(row["case"], row["variant"])] = cfg, a[-1]
-        return row
+    def fake(cells, out, options):
+        for c in cells:
+            calls[(c.labels["case"], c.labels["variant"])] = TrainConfig.from_dict(c.config), c
+        return SweepResult(rows=[_fake_row(c) for c in cells])
 
-    monkeypatch.setattr(skips, "run_one", fake)
+    monkeypatch.setattr(skips, "run_sweep", fake)
+    monkeypatch.setattr(skips, "simulate_cases", lambda cases, out: {c.name: out for c in cases})
     monkeypatch.setattr(skips, "render_table", lambda repeats: ["| render table |"])
     doc = tmp_path / "results.md"
     doc.write_text(
         "# Results\n\n## Skipping what a scene does not need\n\nold table\n\n## Next\n\nkept\n"
     )
-    args = argparse.Namespace(iters=9, long_iters=30, repeats=1, out=tmp_path / "b", doc=doc)
+    args = argparse.Namespace(
+        iters=9,
+        long_iters=30,
+        repeats=1,
+        out=tmp_path / "b",
+        doc=doc,
+        ray=None,
+        max_retries=3,
+        cpus_per_cell=1.0,
+        fresh=False,
+    )
     assert skips.run(args) == 0
     long = [name for name, v in skips.VARIANTS.items() if v.long]
     assert len(calls) == len(skips.CASES) * len(skips.VARIANTS) - len(long)
@@ -53,7 +62,7 @@ def test_each_variant_reaches_its_run_and_the_table_reports_both_sides(tmp_path,
     assert calls[("still-tiny-x1", "no-mlp")][0].deform is False
     assert calls[("ball-tiny-x1", "coarse")][0].skips.coarse_fraction == 0.3
     assert calls[("ball-tiny-x1", "budget-3000")][0].densify.max_gaussians == 3000
-    assert calls[("ball-tiny-x1", "no-depth-prior")][1] == ("--depth-prior", "none")
+    assert calls[("ball-tiny-x1", "no-depth-prior")][1].train_args == ("--depth-prior", "none")
     text = doc.read_text()
     assert "old table" not in text and text.count(skips.SECTION) == 1
     assert text.rstrip().endswith("## Next\n\nkept")

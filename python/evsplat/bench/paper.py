@@ -4,8 +4,9 @@ Table 1: the four built-in scenes with our method and two baselines run on the s
 event-only static 3DGS, and the method without the motion losses L_ef and L_m), beside the
 paper's numbers for its scenes. Table 2: speed factors 1-4 on the ball scene. Table 3: the loss
 ablation L_e -> +L_ef -> +L_m -> +L_d -> +L_ne/L_sp. Every run goes through the training
-benchmark (`evsplat.bench.train.run_one`), so it is simulated, trained in its own process and
-scored exactly like `evsplat bench --preset ...`.
+benchmark's cells (`evsplat.bench.train.bench_cell`) and the sweep runner, so it is simulated,
+trained in its own process and scored exactly like `evsplat bench --preset ...`, reused by a
+rerun, and run on a Ray cluster with `--ray`.
 """
 
 from __future__ import annotations
@@ -14,8 +15,17 @@ import argparse
 import json
 from pathlib import Path
 
-from evsplat.bench.train import SCENES, Case, fmt, machine_info, plot_pareto, run_one
+from evsplat.bench.train import (
+    SCENES,
+    Case,
+    bench_cell,
+    fmt,
+    machine_info,
+    plot_pareto,
+    simulate_cases,
+)
 from evsplat.data.atomic import write_text_atomic
+from evsplat.sweep import SweepOptions, add_sweep_arguments, run_sweep
 
 HELP = "the paper's Tables 1-3 (scenes, speed factors, loss ablation) into docs/results.md"
 
@@ -59,6 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--tables", default="1,2,3", help="comma list of the tables to run (default 1,2,3)"
     )
+    add_sweep_arguments(parser)
 
 
 def _table1(rows: list[dict]) -> list[str]:
@@ -140,19 +151,23 @@ def run(args: argparse.Namespace) -> int:
         plan += [("2", Case("ball", tiny=tiny, speed=k), "full") for k in (1, 2, 3, 4)]
     if 3 in tables:
         plan += [("3", Case("ball", tiny=tiny), v) for v in ABLATION]
-    done: dict[tuple[str, str], dict] = {}
+    # ball x1 full serves all three tables: one cell, its row shared.
+    runs = list(dict.fromkeys((case, variant) for _, case, variant in plan))
+    data = simulate_cases(list(dict.fromkeys(case for case, _ in runs)), out)
+    cells = [bench_cell(c, v, spec, data[c.name], args.iters) for c, v in runs]
+    sweep = run_sweep(cells, out, SweepOptions.from_args(args))
+    done = {(r["case"], r["variant"]): r for r in sweep.rows}
     for table, case, variant in plan:
-        key = (case.name, variant)
-        if key not in done:  # ball x1 full serves all three tables
-            done[key] = run_one(case, variant, spec, out, args.iters)
-            r = done[key]
-            print(
-                f"table {table}: {case.name:<16} {variant:<18} {r['iterations']:>5} it "
-                f"{r['wall_seconds']:>7.1f} s  PSNR {r['psnr']:.2f}  SSIM {r['ssim']:.3f}  "
-                f"moving {fmt(r['psnr_moving'])}",
-                flush=True,
-            )
-        results[table].append(done[key])
+        r = done.get((case.name, variant))
+        if r is None:
+            continue
+        results[table].append(r)
+        print(
+            f"table {table}: {case.name:<16} {variant:<18} {r['iterations']:>5} it "
+            f"{r['wall_seconds']:>7.1f} s  PSNR {fmt(r['psnr'])}  SSIM {fmt(r['ssim'], 3)}  "
+            f"moving {fmt(r['psnr_moving'])}",
+            flush=True,
+        )
     rows = list(done.values())
     write_text_atomic(out / "results.json", json.dumps({**info, "rows": rows}, indent=2))
     plot_pareto(rows, args.doc.parent / "results_pareto.png", f"paper tables ({info['adapter']})")
@@ -190,4 +205,4 @@ def run(args: argparse.Namespace) -> int:
     args.doc.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.doc, "\n".join(doc))
     print(f"written: {args.doc}, {args.doc.parent / 'results_pareto.png'}, {out / 'results.json'}")
-    return 0
+    return sweep.exit_code

@@ -1,9 +1,10 @@
 """`evsplat bench skips`: what each skip saves and what it costs, on a static and a dynamic scene.
 
 Every skip is measured as a pair of runs that differ only in it, on the scene where it should
-apply (`still`: only the camera moves) and on one where it should not matter (`ball`). Runs go
-through the training benchmark (`run_one`: own process, held-out evaluation), and the table is
-written into docs/results.md as its own section, replaced on every regeneration.
+apply (`still`: only the camera moves) and on one where it should not matter (`ball`). Runs are
+the training benchmark's cells on the sweep runner (own process, held-out evaluation; `--ray`
+for a cluster), and the table is written into docs/results.md as its own section, replaced on
+every regeneration.
 """
 
 from __future__ import annotations
@@ -15,8 +16,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from evsplat.bench.train import Case, fmt, machine_info, run_one
+from evsplat.bench.train import Case, bench_cell, fmt, machine_info, simulate_cases
 from evsplat.data.atomic import write_text_atomic
+from evsplat.sweep import SweepOptions, add_sweep_arguments, run_sweep
 
 HELP = "time saved and PSNR change of every skip, on a static and a dynamic scene"
 SECTION = "## Skipping what a scene does not need"
@@ -99,6 +101,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--out", type=Path, default=Path("bench_results/skips"))
     parser.add_argument("--doc", type=Path, default=Path("docs/results.md"))
+    add_sweep_arguments(parser)
 
 
 def table(rows: dict[tuple[str, str], dict]) -> list[str]:
@@ -179,23 +182,33 @@ def run(args: argparse.Namespace) -> int:
     print(f"machine: {info['machine']}\nadapter: {info['adapter']}\ncommit: {info['commit']}")
     args.out.mkdir(parents=True, exist_ok=True)
     spec = {"train_preset": "tiny", "iterations": args.iters}
-    rows: dict[tuple[str, str], dict] = {}
     render_lines = render_table(args.repeats)
     print("\n".join(render_lines), flush=True)
-    for case in CASES:
-        for name, variant in VARIANTS.items():
-            if variant.long and case is not CASES[0]:
-                continue
-            iters = args.long_iters if variant.long else args.iters
-            r = run_one(case, name, spec, args.out, iters, variant.apply, variant.cli)
-            rows[(case.name, name)] = r
-            print(
-                f"{case.name:<16} {name:<22} {r['iterations']:>5} it {r['wall_seconds']:>7.1f} s "
-                f"PSNR {r['psnr']:.2f} SSIM {r['ssim']:.3f} moving {fmt(r['psnr_moving'])} "
-                f"static {r['static_fraction']:.2f} static scene {r['static_scene']} "
-                f"stopped at {r['stopped_early_at']}",
-                flush=True,
-            )
+    data = simulate_cases(list(CASES), args.out)
+    cells = [
+        bench_cell(
+            case,
+            name,
+            spec,
+            data[case.name],
+            args.long_iters if variant.long else args.iters,
+            variant.apply,
+            variant.cli,
+        )
+        for case in CASES
+        for name, variant in VARIANTS.items()
+        if not variant.long or case is CASES[0]
+    ]
+    sweep = run_sweep(cells, args.out, SweepOptions.from_args(args))
+    rows = {(r["case"], r["variant"]): r for r in sweep.rows}
+    for r in sweep.rows:
+        print(
+            f"{r['case']:<16} {r['variant']:<22} {r['iterations']:>5} it "
+            f"{r['wall_seconds']:>7.1f} s PSNR {fmt(r['psnr'])} SSIM {fmt(r['ssim'], 3)} "
+            f"moving {fmt(r['psnr_moving'])} static {r['static_fraction']:.2f} "
+            f"static scene {r['static_scene']} stopped at {r['stopped_early_at']}",
+            flush=True,
+        )
     write_text_atomic(
         args.out / "results.json",
         json.dumps({**info, "rows": [r for r in rows.values()]}, indent=2),
@@ -224,4 +237,4 @@ def run(args: argparse.Namespace) -> int:
     old = args.doc.read_text() if args.doc.is_file() else ""
     write_text_atomic(args.doc, replace_section(old, section))
     print(f"written: {args.doc}, {args.out / 'results.json'}")
-    return 0
+    return sweep.exit_code

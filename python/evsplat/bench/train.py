@@ -1,26 +1,25 @@
 """`evsplat bench train --preset quick|full|ablation|speed`: run time against error.
 
-Each case (scene, size, speed factor) x variant (model/loss set) is simulated once, trained in
-its own process (so peak memory is per run), evaluated on the held-out frames, and recorded
-with the machine, the adapter and the git commit. Writes results.csv, results.json and a
+Each case (scene, size, speed factor) x variant (model/loss set) is simulated once and is a
+cell of the sweep runner (`evsplat.sweep`: trained in its own process, evaluated on the
+held-out frames, reused by a rerun; `--ray` runs the cells on a Ray cluster), recorded with
+the machine, the adapter and the git commit. Writes results.csv, results.json and a
 Pareto plot (time on x, PSNR on y, frontier drawn) into the output folder.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import os
 import platform
 import subprocess
-import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from evsplat.data.atomic import write_atomic, write_text_atomic
+from evsplat.data.atomic import write_atomic
+from evsplat.sweep import Cell, SweepOptions, add_sweep_arguments, run_sweep
+from evsplat.sweep.store import write_table
 
 HELP = "train + evaluate scenes x variants; CSV, JSON and a time-vs-PSNR Pareto plot"
 
@@ -102,6 +101,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=None, help="default bench_results/<preset>")
     parser.add_argument("--iters", type=int, default=None, help="override iterations per run")
     parser.add_argument("--variants", default=None, help="comma list to run a subset")
+    add_sweep_arguments(parser)
 
 
 def machine_info() -> dict:
@@ -123,66 +123,48 @@ def machine_info() -> dict:
     }
 
 
-def run_one(
+def simulate_cases(cases: list[Case], out: Path) -> dict[str, Path]:
+    """Each case's dataset under ``out``/data, simulated once and reused by later runs. The
+    sweep's workers read it in place, so ``out`` must be on a path they all see."""
+    from evsplat.data.simulator import simulate_dataset
+
+    paths = {}
+    for case in cases:
+        data_dir = (out / "data" / case.name).resolve()
+        if not (data_dir / "meta.json").is_file():
+            data_dir.parent.mkdir(parents=True, exist_ok=True)
+            simulate_dataset(case.scene, data_dir, speed=case.speed, tiny=case.tiny, progress=False)
+        paths[case.name] = data_dir
+    return paths
+
+
+def bench_cell(
     case: Case,
     variant: str,
     spec: dict,
-    out: Path,
+    data: Path,
     iters: int | None,
     apply: Callable | None = None,
     cli: tuple[str, ...] = (),
-) -> dict:
-    """Simulate (cached), train in a subprocess, evaluate; one result row.
-
-    ``apply`` changes the preset's config (default: the named entry of ``VARIANTS``); ``cli``
-    are extra `evsplat train` arguments."""
-    from evsplat.data.dataset import load_dataset
-    from evsplat.data.simulator import simulate_dataset
-    from evsplat.eval import evaluate
-    from evsplat.render import Renderer
+) -> Cell:
+    """One run of the grid: the preset's config changed by ``apply`` (default: the named entry
+    of ``VARIANTS``) and ``cli`` as extra `evsplat train` arguments. The sweep trains it in its
+    own process (so peak memory is per run) and scores it on the held-out frames."""
     from evsplat.train.config import preset
 
-    data_dir = out / "data" / case.name
-    if not (data_dir / "meta.json").is_file():
-        data_dir.parent.mkdir(parents=True, exist_ok=True)
-        simulate_dataset(case.scene, data_dir, speed=case.speed, tiny=case.tiny, progress=False)
     cfg = preset(spec["train_preset"])
     (apply or VARIANTS[variant])(cfg)
     n = iters or spec["iterations"]
     if n:
         cfg.schedule.iterations = n
-    run_dir = out / "runs" / f"{case.name}-{variant}"
-    cfg_path = out / "runs" / f"{case.name}-{variant}.json"
-    cfg_path.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(cfg_path, json.dumps(cfg.to_dict()))
-    if run_dir.exists():
-        import shutil
-
-        shutil.rmtree(run_dir)
-    start = time.perf_counter()
-    cmd = [sys.executable, "-m", "evsplat.cli", "train", str(data_dir), "--out", str(run_dir)]
-    cmd += ["--config", str(cfg_path), "--no-progress", *cli]
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
-    wall = time.perf_counter() - start
-    stats = json.loads((run_dir / "stats.json").read_text())
-    renderer, _ = Renderer.from_run(run_dir)
-    metrics = evaluate(renderer, load_dataset(data_dir))["mean"]
-    return {
-        "case": case.name,
-        "variant": variant,
-        "iterations": stats["iterations"],
-        "wall_seconds": round(wall, 2),
-        "iterations_per_second": round(stats["iterations_per_second"], 3),
-        "peak_rss_mib": round(stats["peak_rss_mib"], 1),
-        "gaussians": stats["gaussians"],
-        "psnr": metrics["psnr"],
-        "ssim": metrics["ssim"],
-        "lpips": metrics["lpips"],
-        "psnr_moving": metrics["psnr_moving"],
-        "static_fraction": stats.get("static_fraction", 0.0),
-        "static_scene": stats.get("static_scene", False),
-        "stopped_early_at": stats.get("stopped_early_at"),
-    }
+    return Cell(
+        scene=case.name,
+        data=data,
+        config=cfg.to_dict(),
+        seed=cfg.seed,
+        train_args=tuple(cli),
+        labels={"case": case.name, "variant": variant},
+    )
 
 
 def fmt(v, nd: int = 2) -> str:
@@ -241,33 +223,29 @@ def run(args: argparse.Namespace) -> int:
     variants = args.variants.split(",") if args.variants else spec["variants"]
     info = machine_info()
     print(f"machine: {info['machine']}\nadapter: {info['adapter']}\ncommit: {info['commit']}")
-    rows = []
+    data = simulate_cases(spec["cases"], out)
+    cells = [
+        bench_cell(case, variant, spec, data[case.name], args.iters)
+        for case in spec["cases"]
+        for variant in variants
+    ]
+    sweep = run_sweep(cells, out, SweepOptions.from_args(args))
+    rows = sweep.rows
     header = f"{'case':<18} {'variant':<18} {'iters':>6} {'time s':>8} {'it/s':>6} "
     header += f"{'MiB':>7} {'PSNR':>6} {'SSIM':>6} {'PSNRmov':>8}"
     print(header)
-    for case in spec["cases"]:
-        for variant in variants:
-            r = run_one(case, variant, spec, out, args.iters)
-            rows.append(r)
-            mov = "-" if r["psnr_moving"] is None else f"{r['psnr_moving']:.2f}"
-            print(
-                f"{r['case']:<18} {r['variant']:<18} {r['iterations']:>6} "
-                f"{r['wall_seconds']:>8.1f} {r['iterations_per_second']:>6.2f} "
-                f"{r['peak_rss_mib']:>7.0f} {r['psnr']:>6.2f} {r['ssim']:>6.3f} {mov:>8}",
-                flush=True,
-            )
-    doc = {"preset": args.preset, **info, "rows": rows}
-    write_text_atomic(out / "results.json", json.dumps(doc, indent=2))
-
-    def write_csv(tmp: Path) -> None:
-        with open(tmp, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
-
-    write_atomic(out / "results.csv", write_csv)
+    for r in rows:
+        print(
+            f"{r['case']:<18} {r['variant']:<18} {r['iterations']:>6} "
+            f"{r['wall_seconds']:>8.1f} {r['iterations_per_second']:>6.2f} "
+            f"{r['peak_rss_mib']:>7.0f} {fmt(r['psnr']):>6} {fmt(r['ssim'], 3):>6} "
+            f"{fmt(r['psnr_moving']):>8}"
+        )
+    if not rows:
+        return sweep.exit_code
+    written = write_table(out, rows, {"preset": args.preset, **info})
     plot_pareto(
         rows, out / "pareto.png", f"evsplat bench --preset {args.preset} ({info['adapter']})"
     )
-    print(f"written: {out / 'results.csv'}, {out / 'results.json'}, {out / 'pareto.png'}")
-    return 0
+    print(f"written: {', '.join(map(str, written))}, {out / 'pareto.png'}")
+    return sweep.exit_code

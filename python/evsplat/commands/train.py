@@ -8,16 +8,28 @@ from pathlib import Path
 HELP = "train a deformable Gaussian scene on a dataset folder (events + poses)"
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_config_arguments(parser: argparse.ArgumentParser) -> None:
+    """--preset, --config and --iters (shared with `evsplat train-many`)."""
     from evsplat.train.config import PRESETS
 
-    parser.add_argument("data", type=Path, help="dataset folder (see docs/dataset.md)")
-    parser.add_argument("--out", type=Path, required=True, help="run folder to write")
     parser.add_argument("--preset", default="default", help=f"one of {', '.join(PRESETS)}")
     parser.add_argument(
         "--config", type=Path, default=None, help="a TrainConfig JSON (as in a run's config.json)"
     )
     parser.add_argument("--iters", type=int, default=None, help="override the iteration count")
+
+
+def config_from_args(args: argparse.Namespace):
+    """The TrainConfig that --config or --preset names."""
+    from evsplat.train.config import load_config, preset
+
+    return load_config(args.config) if args.config is not None else preset(args.preset)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("data", type=Path, help="dataset folder (see docs/dataset.md)")
+    parser.add_argument("--out", type=Path, required=True, help="run folder to write")
+    add_config_arguments(parser)
     parser.add_argument("--resume", action="store_true", help="continue the newest checkpoint")
     parser.add_argument(
         "--checkpoint-every", type=int, default=None, help="iterations between checkpoints"
@@ -65,9 +77,8 @@ def parse_time_range(text: str) -> tuple[float | None, float | None]:
 
 def run(args: argparse.Namespace) -> int:
     from evsplat.train import train
-    from evsplat.train.config import load_config, preset
 
-    cfg = load_config(args.config) if args.config is not None else preset(args.preset)
+    cfg = config_from_args(args)
     if args.seed is not None:
         cfg.seed = args.seed
     if args.temporal_opacity is not None:
