@@ -14,6 +14,20 @@
 @group(0) @binding(7) var<storage, read_write> out_alpha: array<f32>;
 // (final T, bitcast entries walked to the last contributor, sum of w z, 0) per pixel.
 @group(0) @binding(8) var<storage, read_write> aux: array<vec4<f32>>;
+// Words 2..8: the work counters, (low, high) pairs, of the counting build.
+@group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>>;
+
+// True only in the counting build (crates/raster/src/splat/mod.rs), which tallies pixel steps
+// evaluated, composited and walked after the pixel closed; false compiles the tallies away.
+const COUNT_WORK: bool = false;
+
+// Adds v to 64-bit counter k, carrying into its high word when the low word wraps.
+fn count_add(k: u32, v: u32) {
+    let old = atomicAdd(&counters[2u + 2u * k], v);
+    if (old > 0xffffffffu - v) {
+        atomicAdd(&counters[3u + 2u * k], 1u);
+    }
+}
 
 @compute @workgroup_size(16, 4)
 fn main(
@@ -28,11 +42,16 @@ fn main(
     var wz: array<f32, PX>;
     var last: array<u32, PX>;
     var live: array<bool, PX>;
+    var inside: array<bool, PX>;
     var n_live = 0u;
+    var n_eval = 0u;
+    var n_used = 0u;
+    var n_closed = 0u;
     for (var j = 0u; j < PX; j = j + 1u) {
         let py = tile_row(wid.y, lid.y, j);
         t[j] = 1.0;
-        live[j] = px < params.width && py < params.height;
+        inside[j] = px < params.width && py < params.height;
+        live[j] = inside[j];
         if (live[j]) {
             n_live = n_live + 1u;
         }
@@ -46,7 +65,13 @@ fn main(
         let fb = params.off_feat + g * D;
         for (var j = 0u; j < PX; j = j + 1u) {
             if (!live[j]) {
+                if (COUNT_WORK && inside[j]) {
+                    n_closed = n_closed + 1u;
+                }
                 continue;
+            }
+            if (COUNT_WORK) {
+                n_eval = n_eval + 1u;
             }
             let py = tile_row(wid.y, lid.y, j);
             let dd = mo.xy - vec2<f32>(f32(px) + 0.5, f32(py) + 0.5);
@@ -71,7 +96,15 @@ fn main(
             wz[j] = wz[j] + mo.w * w;
             t[j] = next_t;
             last[j] = walked;
+            if (COUNT_WORK) {
+                n_used = n_used + 1u;
+            }
         }
+    }
+    if (COUNT_WORK) {
+        count_add(0u, n_eval);
+        count_add(1u, n_used);
+        count_add(2u, n_closed);
     }
     for (var j = 0u; j < PX; j = j + 1u) {
         let py = tile_row(wid.y, lid.y, j);

@@ -10,7 +10,7 @@ import torch
 import evsplat
 from evsplat.errors import EvsplatError
 from evsplat.gpu import adapter_info
-from tests.reference.raster_ref import render
+from tests.reference.raster_ref import ALPHA_MAX, ALPHA_MIN, POWER_CUT, T_MIN, project, render
 
 
 def make_scene(n: int, d: int, width: int, height: int, seed: int = 0, depth: float = 4.0):
@@ -208,6 +208,42 @@ def test_gradients_match_finite_differences_of_float64_reference():
             flat[j] = (loss(plus) - loss(minus)) / (2 * eps)
         rel = relative_errors(gpu[k], fd.float())
         assert rel.max() <= 1e-2, (name, rel.max())
+
+
+def _reference_fragments(scene, width: int, height: int) -> int:
+    """Pixel-Gaussian fragments the float64 reference composites (3DGS's rules, depth order)."""
+    means, quats, scales, opac, feats, viewmat, K = [t.double() for t in scene]
+    mean2d, conic, z, _, ok = project(means, quats, scales, opac, viewmat, K, width, height,
+                                      0.01, 1e4)  # fmt: skip
+    order = torch.argsort(torch.where(ok, z, torch.full_like(z, float("inf"))), stable=True)
+    order = order[ok[order]]
+    jj, ii = torch.meshgrid(torch.arange(width), torch.arange(height), indexing="xy")
+    pix = torch.stack([jj.reshape(-1) + 0.5, ii.reshape(-1) + 0.5], -1).double()
+    dd = mean2d[order][None] - pix[:, None]
+    co = conic[order]
+    power = -0.5 * (co[:, 0] * dd[..., 0] ** 2 + co[:, 2] * dd[..., 1] ** 2)
+    power = power - co[:, 1] * dd[..., 0] * dd[..., 1]
+    alpha = torch.clamp(opac[order][None] * torch.exp(power.clamp(max=0.0)), max=ALPHA_MAX)
+    use = (power >= POWER_CUT) & (alpha >= ALPHA_MIN)
+    t_after = torch.cumprod(1 - torch.where(use, alpha, torch.zeros_like(alpha)), dim=1)
+    return int((use & (t_after >= T_MIN)).sum())
+
+
+def test_work_counts_match_the_reference_fragments_and_leave_the_image_unchanged():
+    width, height = 48, 40
+    scene = make_scene(300, 3, width, height, seed=8)
+    plain = evsplat.rasterize(*scene, width, height)
+    image, depth, alpha, meta = evsplat.rasterize(*scene, width, height, count_work=True)
+    assert torch.equal(image, plain[0]) and torch.equal(alpha, plain[2])
+    work = meta["work"]
+    # Composited steps are the reference's fragments (float32 vs float64: a few may sit on the
+    # alpha or transmittance thresholds).
+    fragments = _reference_fragments(scene, width, height)
+    assert abs(work["contributed"] - fragments) <= 2 + 1e-3 * fragments
+    # Every step is one of a tile list's entries at one of the tile's 256 pixels.
+    assert work["contributed"] <= work["evaluated"]
+    assert work["evaluated"] + work["saturated"] <= work["pairs"] * 256
+    assert work["saturated"] > 0  # the scene saturates pixels (alpha reaches 1 - 1e-4)
 
 
 def test_float_atomic_and_cas_paths_agree():

@@ -2,8 +2,13 @@
 
 use std::time::Instant;
 
-use super::buffers::{Buffers, SORT_BLOCK};
-use super::{pipeline, pipeline_d, Camera, ForwardOutput, Gaussians, Params, PassTimes, State};
+use std::cell::OnceCell;
+
+use super::buffers::{Buffers, COUNTER_WORDS, SORT_BLOCK};
+use super::{
+    pipeline, pipeline_d, Camera, ForwardOutput, Gaussians, Params, PassTimes, State, WorkCounts,
+    COUNTING,
+};
 use crate::context::{dispatch_dims, GpuContext, GpuError};
 use crate::ScanScratch;
 
@@ -104,6 +109,34 @@ pub struct Binds {
     /// Indexed by which ping-pong buffer holds the tile-sorted lists.
     ranges: [wgpu::BindGroup; 2],
     raster: [wgpu::BindGroup; 2],
+    /// The counting build's, made on the first render that counts.
+    raster_count: OnceCell<[wgpu::BindGroup; 2]>,
+}
+
+/// The compositing pass's bind groups (one per ping-pong buffer) for `raster_p`.
+fn raster_binds(
+    ctx: &GpuContext,
+    b: &Buffers,
+    raster_p: &wgpu::ComputePipeline,
+) -> [wgpu::BindGroup; 2] {
+    [0, 1].map(|k| {
+        bind(
+            ctx,
+            raster_p,
+            &[
+                (0, &b.params),
+                (1, &b.inputs.buf),
+                (2, &b.proj.buf),
+                (3, &b.tile_vals[k].buf),
+                (4, &b.ranges.buf),
+                (5, &b.image.buf),
+                (6, &b.depth.buf),
+                (7, &b.alpha.buf),
+                (8, &b.aux.buf),
+                (9, &b.counters.buf),
+            ],
+        )
+    })
 }
 
 fn sort_binds(
@@ -203,23 +236,7 @@ impl Binds {
                 ],
             )
         });
-        let raster = [0, 1].map(|k| {
-            bind(
-                ctx,
-                &raster_p,
-                &[
-                    (0, &b.params),
-                    (1, &b.inputs.buf),
-                    (2, &b.proj.buf),
-                    (3, &b.tile_vals[k].buf),
-                    (4, &b.ranges.buf),
-                    (5, &b.image.buf),
-                    (6, &b.depth.buf),
-                    (7, &b.alpha.buf),
-                    (8, &b.aux.buf),
-                ],
-            )
-        });
+        let raster = raster_binds(ctx, b, &raster_p);
         Self {
             project,
             depth_hist,
@@ -230,6 +247,7 @@ impl Binds {
             tile_scatter,
             ranges,
             raster,
+            raster_count: OnceCell::new(),
         }
     }
 }
@@ -269,12 +287,14 @@ fn encode_sort(
     Ok(())
 }
 
-/// Encode the whole forward render (no readback).
+/// Encode the whole forward render (no readback); `count_work` picks the counting build of the
+/// compositing pass.
 pub fn encode(
     ctx: &GpuContext,
     st: &mut State,
     p: &Params,
     rec: &mut Recorder,
+    count_work: bool,
 ) -> Result<(), GpuError> {
     if st.binds.is_none() {
         st.binds = Some(Binds::new(ctx, &st.bufs, &st.sort_passes, p.d));
@@ -354,11 +374,20 @@ pub fn encode(
         })?;
     }
     let sorted = t_passes % 2;
+    let (shader, groups) = if count_work {
+        let counting = pipeline_d(ctx, COUNTING, "main", p.d);
+        let groups = binds
+            .raster_count
+            .get_or_init(|| raster_binds(ctx, b, &counting));
+        (COUNTING, groups)
+    } else {
+        ("rasterize_fwd.wgsl", &binds.raster)
+    };
     rec.step("rasterize", |enc| {
         dispatch(
             enc,
-            &pipeline_d(ctx, "rasterize_fwd.wgsl", "main", p.d),
-            &binds.raster[sorted],
+            &pipeline_d(ctx, shader, "main", p.d),
+            &groups[sorted],
             (p.tiles_x, p.tiles_y),
         )
     })?;
@@ -379,6 +408,7 @@ pub fn run(
     cam: &Camera,
     id: u64,
     mut profile: Option<&mut PassTimes>,
+    count_work: bool,
 ) -> Result<ForwardOutput, GpuError> {
     let packed = g.pack();
     loop {
@@ -386,7 +416,7 @@ pub fn run(
         ctx.queue
             .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(&packed));
         let mut rec = Recorder::new(ctx, profile.as_deref_mut());
-        encode(ctx, st, &p, &mut rec)?;
+        encode(ctx, st, &p, &mut rec, count_work)?;
         let (n, d) = (g.len() as u64, g.d as u64);
         let pixels = cam.width as u64 * cam.height as u64;
         let b = &st.bufs;
@@ -395,7 +425,7 @@ pub fn run(
             (&b.depth.buf, 4 * pixels),
             (&b.alpha.buf, 4 * pixels),
             (&b.proj.buf, 4 * 8 * n),
-            (&b.counters.buf, 16),
+            (&b.counters.buf, 4 * COUNTER_WORDS),
         ];
         let mut at = 0;
         for (src, bytes) in parts {
@@ -407,8 +437,9 @@ pub fn run(
         let raw = rec.finish(&b.staging, at)?;
         let all = floats(&raw);
         let (pixels, n, d) = (pixels as usize, n as usize, d as usize);
-        let counters = &raw[raw.len() - 16..];
-        let m = u32::from_le_bytes([counters[0], counters[1], counters[2], counters[3]]);
+        let counters: Vec<u32> =
+            bytemuck::pod_collect_to_vec(&raw[raw.len() - 4 * COUNTER_WORDS as usize..]);
+        let m = counters[0];
         if m as u64 > st.isect_cap {
             // Render again with room for every intersection (rare: the capacity follows the
             // counts of earlier renders).
@@ -436,6 +467,16 @@ pub fn run(
             means2d: proj.chunks_exact(8).flat_map(|q| [q[0], q[1]]).collect(),
             depths: proj.chunks_exact(8).map(|q| q[3]).collect(),
             intersections: m,
+            work: count_work.then(|| {
+                let wide =
+                    |k: usize| counters[2 + 2 * k] as u64 | (counters[3 + 2 * k] as u64) << 32;
+                WorkCounts {
+                    pairs: m as u64,
+                    evaluated: wide(0),
+                    contributed: wide(1),
+                    saturated: wide(2),
+                }
+            }),
             id,
         });
     }
