@@ -1,8 +1,10 @@
 // prelude: splat_common.wgsl
-// One (tile, Gaussian) pair per tile a Gaussian touches, written at its scanned offset. Ranks are
+// One (tile, Gaussian) pair per tile a Gaussian reaches, written at its scanned offset. Ranks are
 // in depth order, so a stable sort by tile alone leaves every tile's list front to back.
-// The last rank also records the total count; pairs beyond the capacity are dropped and the host
-// grows the buffers and renders again.
+// Rank 0 records the total count; pairs beyond the capacity are dropped and the host grows the
+// buffers and renders again. count_tiles.wgsl ran the same tile_hit on the same values; should a
+// compiler ever make the two disagree, no write leaves this Gaussian's slots and counters[1]
+// tells the host.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> proj: array<vec4<f32>>;
@@ -18,14 +20,23 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (rank >= params.n) {
         return;
     }
+    if (rank == 0u) {
+        counters[0] = offsets[params.n];
+    }
     let g = sorted_ids[rank];
-    let b = proj[2u * g + 1u];
+    let mo = proj[2u * g];
+    let co = proj[2u * g + 1u];
     var at = offsets[rank];
-    if (b.w > 0.0) {
-        let r = tile_rect(proj[2u * g].xy, b.w);
+    let end = offsets[rank + 1u];
+    if (co.w > 0.0) {
+        let q_max = cull_q_max(mo.z);
+        let r = cull_rect(mo.xy, co.w, q_max);
         for (var ty = r.y; ty < r.w; ty = ty + 1u) {
             for (var tx = r.x; tx < r.z; tx = tx + 1u) {
-                if (at < params.cap) {
+                if (!tile_hit(mo.xy, co.xyz, q_max, tx, ty)) {
+                    continue;
+                }
+                if (at < end && at < params.cap) {
                     tile_keys[at] = ty * params.tiles_x + tx;
                     tile_vals[at] = g;
                 }
@@ -33,7 +44,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             }
         }
     }
-    if (rank == params.n - 1u) {
-        counters[0] = at;
+    if (at != end) {
+        counters[1] = 1u;
     }
 }

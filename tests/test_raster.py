@@ -99,12 +99,32 @@ def test_intersection_capacity_follows_the_counts_without_losing_any():
     big = (means, quats, scales * 2.0, *rest)  # wide splats: tens of thousands of tile keys
     for scene, size in [(small, 32), (big, 128), (small, 32), (small, 32), (big, 128)]:
         *_, meta = assert_forward_matches(scene, size, size)
-    # Tiles (16 px) each visible splat's square of radius r touches: far above the smallest
-    # capacity (4096), so the last render overflowed the shrunk one.
+    # Tile pairs of the last render: enough that the capacity grew to 32768 (so the small renders
+    # shrank it back to 4096) and far above 4096, so the last render overflowed the shrunk one.
+    assert evsplat.rasterize(*big, 128, 128, count_work=True)[3]["work"]["pairs"] > 3 * 4096
+
+
+def _square_pairs(meta: dict, width: int, height: int) -> int:
+    """Tile pairs of the 3-sigma bounding squares (the culling before the exact tile test)."""
     r = meta["radii"].float()[:, None]
-    lo = ((meta["means2d"] - r) / 16).floor().clamp(0, 8)
-    hi = ((meta["means2d"] + r) / 16).floor().add(1).clamp(0, 8)
-    assert int((hi - lo).prod(dim=1)[meta["visible"]].sum()) > 4 * 4096
+    size = torch.tensor([(width + 15) // 16, (height + 15) // 16])
+    lo = torch.minimum(((meta["means2d"] - r) / 16).floor().clamp(min=0), size)
+    hi = torch.minimum(((meta["means2d"] + r) / 16).floor().add(1).clamp(min=0), size)
+    return int((hi - lo).clamp(min=0).prod(dim=1)[meta["visible"]].sum())
+
+
+def test_exact_tile_culling_drops_pairs_but_no_fragment_of_thin_faint_tilted_splats():
+    # Needles and faint splats are where the ellipse-tile test and the opacity-aware extent cut
+    # most of the 3-sigma square, and where a test that is not conservative would lose fragments.
+    width, height = 96, 80
+    means, quats, scales, opac, feats, view, K = make_scene(400, 3, width, height, seed=12)
+    g = torch.Generator().manual_seed(12)
+    scales = scales * torch.tensor([3.0, 0.05, 1.0]) * (0.3 + torch.rand(400, 1, generator=g))
+    opac = torch.exp(torch.rand(400, generator=g) * -5.5).clamp(min=1 / 255)
+    scene = (means, quats, scales, opac, feats, view, K)
+    *_, meta = assert_forward_matches(scene, width, height)
+    pairs = evsplat.rasterize(*scene, width, height, count_work=True)[3]["work"]["pairs"]
+    assert pairs < 0.6 * _square_pairs(meta, width, height)
 
 
 def test_forward_matches_reference_with_rotated_camera_and_off_centre_principal_point():

@@ -79,8 +79,8 @@ pub struct Buffers {
 }
 
 pub const SORT_BLOCK: u64 = 256;
-/// u32 words of `counters`: the tile-pair count, one unused word, then three 64-bit work
-/// counters as (low, high) words (rasterize_fwd.wgsl's counting build).
+/// u32 words of `counters`: the tile-pair count, the tile passes' disagreement flag, then three
+/// 64-bit work counters as (low, high) words (rasterize_fwd.wgsl's counting build).
 pub const COUNTER_WORDS: u64 = 8;
 /// Floats per Gaussian in `inputs`: mean 3, quaternion 4, scale 3, opacity 1 (features follow).
 pub const INPUT_FLOATS: u64 = 11;
@@ -143,7 +143,7 @@ impl Buffers {
         for b in self.depth_keys.iter_mut().chain(self.depth_vals.iter_mut()) {
             grown |= b.ensure(ctx, f * s.n)?;
         }
-        grown |= self.offsets.ensure(ctx, f * s.n)?;
+        grown |= self.offsets.ensure(ctx, f * (s.n + 1))?;
         for b in self.tile_keys.iter_mut().chain(self.tile_vals.iter_mut()) {
             grown |= b.ensure(ctx, f * s.isect)?;
         }

@@ -339,13 +339,14 @@ pub fn encode(
         )?;
         let (count_scan, tile_scans) = rest.split_at_mut(1);
         rec.step("tiles: count, scan, emit", |enc| {
+            // n + 1 counts (the last is 0), so the scan leaves every Gaussian's end and the total.
             dispatch(
                 enc,
                 &pipeline(ctx, "count_tiles.wgsl", "main"),
                 &binds.count,
-                per_gaussian,
+                dispatch_dims((n + 1).div_ceil(256)),
             );
-            count_scan[0].encode(ctx, enc, &b.offsets.buf, n);
+            count_scan[0].encode(ctx, enc, &b.offsets.buf, n + 1);
             dispatch(
                 enc,
                 &pipeline(ctx, "emit_keys.wgsl", "main"),
@@ -440,6 +441,14 @@ pub fn run(
         let counters: Vec<u32> =
             bytemuck::pod_collect_to_vec(&raw[raw.len() - 4 * COUNTER_WORDS as usize..]);
         let m = counters[0];
+        if counters[1] != 0 {
+            return Err(GpuError::Invalid(
+                "rasterize: the tile count and tile key passes disagree on which tiles a \
+                 Gaussian reaches (a shader compiler broke their shared test); please report it \
+                 with the adapter's name"
+                    .into(),
+            ));
+        }
         if m as u64 > st.isect_cap {
             // Render again with room for every intersection (rare: the capacity follows the
             // counts of earlier renders).
