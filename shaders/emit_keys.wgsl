@@ -1,7 +1,7 @@
 // prelude: splat_common.wgsl
 // One (tile, Gaussian) pair per tile a Gaussian reaches, written at its scanned offset. Ranks are
 // in depth order, so a stable sort by tile alone leaves every tile's list front to back.
-// Rank 0 records the total count; pairs beyond the capacity are dropped and the host grows the
+// Rank 0 records the total count and the live keys' workgroup counts; pairs beyond the capacity are dropped and the host grows the
 // buffers and renders again. count_tiles.wgsl ran the same tile_hit on the same values; should a
 // compiler ever make the two disagree, no write leaves this Gaussian's slots and counters[1]
 // tells the host.
@@ -13,6 +13,9 @@
 @group(0) @binding(4) var<storage, read_write> tile_keys: array<u32>;
 @group(0) @binding(5) var<storage, read_write> tile_vals: array<u32>;
 @group(0) @binding(6) var<storage, read_write> counters: array<u32>;
+// Workgroups (x, y, z) of 256 for the passes over the live keys (tile sort, tile ranges), folded
+// into 2-D over 65535 as dispatch_dims (crates/raster/src/context.rs) does.
+@group(0) @binding(7) var<storage, read_write> live_blocks: array<u32>;
 
 @compute @workgroup_size(256)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -21,7 +24,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         return;
     }
     if (rank == 0u) {
-        counters[0] = offsets[params.n];
+        let total = offsets[params.n];
+        counters[0] = total;
+        let blocks = max((min(total, params.cap) + 255u) / 256u, 1u);
+        let x = min(blocks, 65535u);
+        live_blocks[0] = x;
+        live_blocks[1] = (blocks + x - 1u) / x;
+        live_blocks[2] = 1u;
     }
     let g = sorted_ids[rank];
     let mo = proj[2u * g];

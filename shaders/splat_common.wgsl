@@ -45,18 +45,21 @@ const MAX_VAR_PX: f32 = 1e12; // cull 2-D variances beyond (1e6 px)^2: keeps the
 const QUAT_EPS2: f32 = 1e-12; // squared-norm floor when normalising quaternions
 const ALPHA_EPS: f32 = 1e-6; // depth = sum(w z) / alpha only where alpha exceeds this, else 0
 const CULLED_KEY: u32 = 0xffffffffu;
-// Compositing: a 16x4 workgroup covers a 16x16 tile, each invocation PX pixels (rows y, y+4,
-// y+8, y+12), so every Gaussian loaded from the tile list serves PX pixels.
-const PX: u32 = 4u;
+// Compositing: a 16x4 workgroup covers a 16x16 tile, each invocation four consecutive pixels of
+// one column as the lanes of vec4s: every Gaussian loaded from the tile list serves four pixels,
+// the per-pixel state is vectors, not arrays indexed by pixel, and neighbouring invocations (run
+// together as SIMD lanes on a CPU, a warp on a GPU) cover a compact block, so a splat that misses
+// the block is skipped by all of them at once.
 
-// Pixel row of an invocation's j-th pixel in its tile.
-fn tile_row(tile_y: u32, local_y: u32, j: u32) -> u32 {
-    return tile_y * TILE + local_y + 4u * j;
+// Pixel rows of an invocation's four lanes.
+fn lane_rows(tile_y: u32, local_y: u32) -> vec4<u32> {
+    return vec4<u32>(tile_y * TILE + 4u * local_y) + vec4<u32>(0u, 1u, 2u, 3u);
 }
 
-// Exponent of a splat at offset dd = mean2d - pixel centre with conic (a, b, c) in co.xyz.
-fn splat_power(co: vec4<f32>, dd: vec2<f32>) -> f32 {
-    return -0.5 * (co.x * dd.x * dd.x + co.z * dd.y * dd.y) - co.y * dd.x * dd.y;
+// Exponents of a splat with conic (a, b, c) in co.xyz at offsets (dx, dy) = mean2d - pixel centre
+// of the four lanes (one column: one dx).
+fn splat_powers(co: vec4<f32>, dx: f32, dy: vec4<f32>) -> vec4<f32> {
+    return -0.5 * (co.x * dx * dx + co.z * dy * dy) - co.y * dx * dy;
 }
 
 // Culling of (tile, Gaussian) pairs. A pixel composites a splat only where power >= POWER_CUT and

@@ -150,7 +150,8 @@ def measure(size: int, n: int, d: int, atomics: list[str], repeats: int, keep: P
         row["work"] = call(False, count_work=True)[3]["work"]
     if keep is not None:
         image, depth, alpha, _, grads = call(True, atomics=_atomics(atomics[0]))
-        torch.save({"image": image, "depth": depth, "alpha": alpha, "grads": grads}, keep)
+        out = {"image": image, "depth": depth, "alpha": alpha}
+        torch.save({**{k: v.detach() for k, v in out.items()}, "grads": grads}, keep)
     return row
 
 

@@ -74,6 +74,8 @@ pub struct Buffers {
     pub grads: Grow,
     pub param_grads: Grow,
     pub params: wgpu::Buffer,
+    /// Workgroup counts (x, y, z) of the passes over the live tile keys, written by emit_keys.
+    pub live_blocks: wgpu::Buffer,
     pub staging: wgpu::Buffer,
     staging_cap: u64,
 }
@@ -114,6 +116,12 @@ impl Buffers {
                 label: Some("splat params"),
                 size: params_bytes,
                 usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+            live_blocks: ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("live tile-key blocks"),
+                size: 16,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDIRECT,
                 mapped_at_creation: false,
             }),
             staging: Self::staging_buffer(ctx, 16),

@@ -97,6 +97,19 @@ pub fn dispatch(
     pass.dispatch_workgroups(dims.0, dims.1, 1);
 }
 
+/// A dispatch whose workgroup counts a previous pass wrote into `args` (x, y, z).
+fn dispatch_indirect(
+    enc: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    group: &wgpu::BindGroup,
+    args: &wgpu::Buffer,
+) {
+    let mut pass = enc.begin_compute_pass(&Default::default());
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, group, &[]);
+    pass.dispatch_workgroups_indirect(args, 0);
+}
+
 /// Bind groups of the forward passes (rebuilt only after buffers grew).
 pub struct Binds {
     project: wgpu::BindGroup,
@@ -220,6 +233,7 @@ impl Binds {
                 (4, &b.tile_keys[0].buf),
                 (5, &b.tile_vals[0].buf),
                 (6, &b.counters.buf),
+                (7, &b.live_blocks),
             ],
         );
         let ranges_p = pipeline(ctx, "tile_ranges.wgsl", "main");
@@ -262,6 +276,9 @@ pub fn tile_passes(tiles: u32) -> usize {
     bits.div_ceil(4) as usize
 }
 
+/// The radix passes of one sort. The depth sort runs over all `elements`; the tile sort only
+/// over the live tile keys, with the block counts emit_keys.wgsl wrote into `live` (its
+/// histogram keeps the capacity's layout, so the blocks not run are cleared to zero counts).
 #[allow(clippy::too_many_arguments)]
 fn encode_sort(
     ctx: &GpuContext,
@@ -272,6 +289,7 @@ fn encode_sort(
     scatter_binds: &[wgpu::BindGroup],
     scans: &mut [ScanScratch],
     elements: u64,
+    live: Option<&wgpu::Buffer>,
 ) -> Result<(), GpuError> {
     let hist = pipeline(ctx, "sort.wgsl", "histogram");
     let scatter = pipeline(ctx, "sort.wgsl", "scatter");
@@ -279,9 +297,18 @@ fn encode_sort(
     let dims = dispatch_dims(blocks);
     for ((hb, sb), scan) in hist_binds.iter().zip(scatter_binds).zip(scans.iter_mut()) {
         rec.step(name, |enc| {
-            dispatch(enc, &hist, hb, dims);
+            match live {
+                Some(args) => {
+                    enc.clear_buffer(&b.hist.buf, 0, Some(4 * 16 * blocks as u64));
+                    dispatch_indirect(enc, &hist, hb, args);
+                }
+                None => dispatch(enc, &hist, hb, dims),
+            }
             scan.encode(ctx, enc, &b.hist.buf, 16 * blocks);
-            dispatch(enc, &scatter, sb, dims);
+            match live {
+                Some(args) => dispatch_indirect(enc, &scatter, sb, args),
+                None => dispatch(enc, &scatter, sb, dims),
+            }
         })?;
     }
     Ok(())
@@ -336,6 +363,7 @@ pub fn encode(
             &binds.depth_scatter,
             depth_scans,
             n as u64,
+            None,
         )?;
         let (count_scan, tile_scans) = rest.split_at_mut(1);
         rec.step("tiles: count, scan, emit", |enc| {
@@ -363,14 +391,15 @@ pub fn encode(
             &binds.tile_scatter[..t_passes],
             tile_scans,
             *isect_cap,
+            Some(&b.live_blocks),
         )?;
         let sorted = t_passes % 2;
         rec.step("tile ranges", |enc| {
-            dispatch(
+            dispatch_indirect(
                 enc,
                 &pipeline(ctx, "tile_ranges.wgsl", "main"),
                 &binds.ranges[sorted],
-                dispatch_dims((*isect_cap / 256) as u32),
+                &b.live_blocks,
             )
         })?;
     }
