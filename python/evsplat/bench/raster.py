@@ -94,14 +94,16 @@ def _weights(size: int, d: int):
     )
 
 
-def _time(fn, repeats: int) -> list[float]:
+def _time(fn, repeats: int) -> tuple[list[float], list[float]]:
+    """Wall-clock and process CPU seconds (all threads, lavapipe's included) of each call."""
     fn()  # warm-up: pipelines and buffers
-    samples = []
+    wall, cpu = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
-        samples.append(time.perf_counter() - t0)
-    return samples
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return wall, cpu
 
 
 def _gpu_call(params, view, K, size, backward: bool, weights, atomics=None, **kw):
@@ -142,10 +144,11 @@ def measure(size: int, n: int, d: int, atomics: list[str], repeats: int, keep: P
     params, view, K = _scene(size, n, d)
     weights = _weights(size, d)
     call = functools.partial(_gpu_call, params, view, K, size, weights=weights)
-    row: dict = {"fwd": _time(functools.partial(call, False), repeats)}
+    row: dict = {}
+    row["fwd"], row["fwd cpu"] = _time(functools.partial(call, False), repeats)
     for name in atomics:
         both = functools.partial(call, True, atomics=_atomics(name))
-        row[f"fwd+bwd {name}"] = _time(both, repeats)
+        row[f"fwd+bwd {name}"], row[f"fwd+bwd {name} cpu"] = _time(both, repeats)
     if "count_work" in inspect.signature(rasterize).parameters:
         row["work"] = call(False, count_work=True)[3]["work"]
     if keep is not None:
@@ -191,8 +194,8 @@ def run(args: argparse.Namespace) -> int:
         if ref is not None and size * size * n <= args.reference_max_pairs:
             weights = _weights(size, d)
             call = functools.partial(_ref_call, ref, params, view, K, size, weights=weights)
-            r_fwd = _time(functools.partial(call, False), 1)[0]
-            r_both = _time(functools.partial(call, True), 1)[0]
+            r_fwd = _time(functools.partial(call, False), 1)[0][0]
+            r_both = _time(functools.partial(call, True), 1)[0][0]
         rows.append((size, n, d, row, r_fwd, r_both, prof))
     print()
     both_cols = " | ".join(f"fwd+bwd ms ({a})" for a in atomics)
@@ -295,16 +298,22 @@ def _compare(args: argparse.Namespace) -> int:
     (a, b) = sides
     print()
     print(f"Medians over {args.rounds} rounds x {args.repeats} calls, builds interleaved "
-          f"(A = this build, B = {python}); ms:")  # fmt: skip
-    print("| image | Gaussians | D | timed | B ms | A ms | B / A |")
-    print("|---|---|---|---|---|---|---|")
+          f"(A = this build, B = {python}); wall and process CPU (all threads) ms:")  # fmt: skip
+    print("| image | Gaussians | D | timed | B wall | A wall | B / A wall | B cpu | A cpu "
+          "| B / A cpu |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for key in configs:
         for col in ["fwd"] + [f"fwd+bwd {x}" for x in atomics]:
-            tb = statistics.median(samples[b][(key, col)])
-            ta = statistics.median(samples[a][(key, col)])
+            med = {
+                (side, kind): statistics.median(samples[side][(key, col + kind)])
+                for side in (a, b)
+                for kind in ("", " cpu")
+            }
             size, n, d = key
-            print(f"| {size}x{size} | {n} | {d} | {col} | {tb * 1e3:.1f} | {ta * 1e3:.1f} "
-                  f"| {tb / ta:.2f}x |")  # fmt: skip
+            wall_b, wall_a, cpu_b, cpu_a = (med[b, ""], med[a, ""], med[b, " cpu"], med[a, " cpu"])
+            print(f"| {size}x{size} | {n} | {d} | {col} | {wall_b * 1e3:.0f} | {wall_a * 1e3:.0f} "
+                  f"| {wall_b / wall_a:.2f}x | {cpu_b * 1e3:.0f} | {cpu_a * 1e3:.0f} "
+                  f"| {cpu_b / cpu_a:.2f}x |")  # fmt: skip
     print()
     print(f"A against B: max |image, depth, alpha difference| (limit {IMAGE_TOL:g}); gradient "
           f"relative error, worst parameter's median (limit {GRAD_MEDIAN:g}) and max "
