@@ -24,6 +24,7 @@ from pathlib import Path
 
 import torch
 
+from evsplat.errors import EvsplatError
 from evsplat.gpu import adapter_info
 from evsplat.raster import rasterize
 
@@ -133,8 +134,16 @@ def _atomics(name: str) -> str | None:
 
 
 def _configs(args) -> list[tuple[int, int, int]]:
-    cases = [tuple(int(v) for v in c.lower().split("x")) for c in args.cases.split(",")]
-    channels = [int(c) for c in str(args.channels).split(",")]
+    try:
+        cases = [tuple(int(v) for v in c.lower().split("x")) for c in args.cases.split(",")]
+        channels = [int(c) for c in str(args.channels).split(",")]
+    except ValueError:
+        raise EvsplatError(
+            f"bench raster: --cases {args.cases!r} / --channels {args.channels!r}: use e.g. "
+            "--cases 256x20000,512x100000 --channels 1,3,8"
+        ) from None
+    if any(len(c) != 2 for c in cases):
+        raise EvsplatError(f"bench raster: --cases {args.cases!r}: each case is SIZExGAUSSIANS")
     return [(size, n, d) for size, n in cases for d in channels]
 
 
