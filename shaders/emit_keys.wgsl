@@ -1,8 +1,10 @@
 // prelude: splat_common.wgsl
-// One (tile, Gaussian) pair per tile a Gaussian touches, written at its scanned offset. Ranks are
+// One (tile, Gaussian) pair per tile a Gaussian reaches, written at its scanned offset. Ranks are
 // in depth order, so a stable sort by tile alone leaves every tile's list front to back.
-// The last rank also records the total count; pairs beyond the capacity are dropped and the host
-// grows the buffers and renders again.
+// Rank 0 records the total count and the live keys' workgroup counts; pairs beyond the capacity are dropped and the host grows the
+// buffers and renders again. count_tiles.wgsl ran the same tile_hit on the same values; should a
+// compiler ever make the two disagree, no write leaves this Gaussian's slots and counters[1]
+// tells the host.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> proj: array<vec4<f32>>;
@@ -11,6 +13,9 @@
 @group(0) @binding(4) var<storage, read_write> tile_keys: array<u32>;
 @group(0) @binding(5) var<storage, read_write> tile_vals: array<u32>;
 @group(0) @binding(6) var<storage, read_write> counters: array<u32>;
+// Workgroups (x, y, z) of 256 for the passes over the live keys (tile sort, tile ranges), folded
+// into 2-D over 65535 as dispatch_dims (crates/raster/src/context.rs) does.
+@group(0) @binding(7) var<storage, read_write> live_blocks: array<u32>;
 
 @compute @workgroup_size(256)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -18,14 +23,29 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (rank >= params.n) {
         return;
     }
+    if (rank == 0u) {
+        let total = offsets[params.n];
+        counters[0] = total;
+        let blocks = max((min(total, params.cap) + 255u) / 256u, 1u);
+        let x = min(blocks, 65535u);
+        live_blocks[0] = x;
+        live_blocks[1] = (blocks + x - 1u) / x;
+        live_blocks[2] = 1u;
+    }
     let g = sorted_ids[rank];
-    let b = proj[2u * g + 1u];
+    let mo = proj[2u * g];
+    let co = proj[2u * g + 1u];
     var at = offsets[rank];
-    if (b.w > 0.0) {
-        let r = tile_rect(proj[2u * g].xy, b.w);
+    let end = offsets[rank + 1u];
+    if (co.w > 0.0) {
+        let q_max = cull_q_max(mo.z);
+        let r = cull_rect(mo.xy, co.w, q_max);
         for (var ty = r.y; ty < r.w; ty = ty + 1u) {
             for (var tx = r.x; tx < r.z; tx = tx + 1u) {
-                if (at < params.cap) {
+                if (!tile_hit(mo.xy, co.xyz, q_max, tx, ty)) {
+                    continue;
+                }
+                if (at < end && at < params.cap) {
                     tile_keys[at] = ty * params.tiles_x + tx;
                     tile_vals[at] = g;
                 }
@@ -33,7 +53,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             }
         }
     }
-    if (rank == params.n - 1u) {
-        counters[0] = at;
+    if (at != end) {
+        counters[1] = 1u;
     }
 }

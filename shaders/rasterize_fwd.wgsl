@@ -1,6 +1,7 @@
 // prelude: splat_common.wgsl
-// Forward compositing, one 16x4 workgroup per 16x16 tile, PX pixels per invocation: each pixel
-// blends the tile's depth-sorted Gaussians front to back.
+// Forward compositing, one 16x4 workgroup per 16x16 tile, four pixels per invocation (vec4 lanes,
+// see splat_common.wgsl): each pixel blends the tile's depth-sorted Gaussians front to back until
+// its transmittance would fall below T_MIN; the invocation stops when all four have.
 // Per pixel it also stores what the backward pass replays from: final transmittance, the number
 // of list entries walked up to the last contributor, and sum(w z).
 
@@ -14,6 +15,22 @@
 @group(0) @binding(7) var<storage, read_write> out_alpha: array<f32>;
 // (final T, bitcast entries walked to the last contributor, sum of w z, 0) per pixel.
 @group(0) @binding(8) var<storage, read_write> aux: array<vec4<f32>>;
+// Words 2..8: the work counters, (low, high) pairs, of the counting build.
+@group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>>;
+
+// True only in the counting build (crates/raster/src/splat/mod.rs), which tallies pixel steps
+// evaluated, composited and walked after the pixel closed; false compiles the tallies away.
+const COUNT_WORK: bool = false;
+
+// Adds the four lanes of `lanes` to 64-bit counter k, carrying into its high word when the low
+// word wraps.
+fn count_add(k: u32, lanes: vec4<u32>) {
+    let v = dot(lanes, vec4<u32>(1u));
+    let old = atomicAdd(&counters[2u + 2u * k], v);
+    if (old > 0xffffffffu - v) {
+        atomicAdd(&counters[3u + 2u * k], 1u);
+    }
+}
 
 @compute @workgroup_size(16, 4)
 fn main(
@@ -22,73 +39,75 @@ fn main(
 ) {
     let tile = wid.x + wid.y * params.tiles_x;
     let px = wid.x * TILE + lid.x;
+    let py = lane_rows(wid.y, lid.y);
+    let inside = (py < vec4<u32>(params.height)) & vec4<bool>(px < params.width);
+    let centre_x = f32(px) + 0.5;
+    let centre_y = vec4<f32>(py) + 0.5;
     let range = ranges[tile];
-    var acc: array<array<f32, D>, PX>;
-    var t: array<f32, PX>;
-    var wz: array<f32, PX>;
-    var last: array<u32, PX>;
-    var live: array<bool, PX>;
-    var n_live = 0u;
-    for (var j = 0u; j < PX; j = j + 1u) {
-        let py = tile_row(wid.y, lid.y, j);
-        t[j] = 1.0;
-        live[j] = px < params.width && py < params.height;
-        if (live[j]) {
-            n_live = n_live + 1u;
-        }
+    var acc: array<vec4<f32>, D>;
+    for (var c = 0u; c < D; c = c + 1u) {
+        acc[c] = vec4<f32>(0.0);
     }
+    var t = vec4<f32>(1.0);
+    var wz = vec4<f32>(0.0);
+    var last = vec4<u32>(0u);
+    var open = inside; // transmittance still above T_MIN
     var walked = 0u;
-    for (var idx = range.x; idx < range.y && n_live > 0u; idx = idx + 1u) {
+    var n_eval = vec4<u32>(0u);
+    var n_used = vec4<u32>(0u);
+    var n_closed = vec4<u32>(0u);
+    for (var idx = range.x; idx < range.y && any(open); idx = idx + 1u) {
         walked = walked + 1u;
         let g = tile_vals[idx];
         let mo = proj[2u * g];
         let co = proj[2u * g + 1u];
-        let fb = params.off_feat + g * D;
-        for (var j = 0u; j < PX; j = j + 1u) {
-            if (!live[j]) {
-                continue;
-            }
-            let py = tile_row(wid.y, lid.y, j);
-            let dd = mo.xy - vec2<f32>(f32(px) + 0.5, f32(py) + 0.5);
-            let power = splat_power(co, dd);
-            if (power < POWER_CUT) {
-                continue;
-            }
-            let alpha = min(ALPHA_MAX, mo.z * exp(power));
-            if (alpha < ALPHA_MIN) {
-                continue;
-            }
-            let next_t = t[j] * (1.0 - alpha);
-            if (next_t < T_MIN) {
-                live[j] = false;
-                n_live = n_live - 1u;
-                continue;
-            }
-            let w = alpha * t[j];
-            for (var c = 0u; c < D; c = c + 1u) {
-                acc[j][c] = acc[j][c] + inputs[fb + c] * w;
-            }
-            wz[j] = wz[j] + mo.w * w;
-            t[j] = next_t;
-            last[j] = walked;
+        let power = splat_powers(co, mo.x - centre_x, vec4<f32>(mo.y) - centre_y);
+        let near = open & (power >= vec4<f32>(POWER_CUT));
+        if (COUNT_WORK) {
+            n_eval = n_eval + select(vec4<u32>(0u), vec4<u32>(1u), open);
+            n_closed = n_closed + select(vec4<u32>(0u), vec4<u32>(1u), inside & !open);
         }
-    }
-    for (var j = 0u; j < PX; j = j + 1u) {
-        let py = tile_row(wid.y, lid.y, j);
-        if (px >= params.width || py >= params.height) {
+        if (!any(near)) {
+            continue; // beyond 3 sigma of all four pixels: no exp, no feature loads
+        }
+        let alpha = min(vec4<f32>(ALPHA_MAX), mo.z * exp(power));
+        let hit = near & (alpha >= vec4<f32>(ALPHA_MIN));
+        let next_t = t * (1.0 - alpha);
+        let closes = hit & (next_t < vec4<f32>(T_MIN));
+        let used = hit & !closes;
+        if (COUNT_WORK) {
+            n_used = n_used + select(vec4<u32>(0u), vec4<u32>(1u), used);
+        }
+        open = open & !closes;
+        if (!any(used)) {
             continue;
         }
-        let pi = py * params.width + px;
+        let w = select(vec4<f32>(0.0), alpha * t, used);
+        let fb = params.off_feat + g * D;
         for (var c = 0u; c < D; c = c + 1u) {
-            out_image[pi * D + c] = acc[j][c] + t[j] * inputs[params.off_bg + c];
+            acc[c] = acc[c] + inputs[fb + c] * w;
         }
-        let a = 1.0 - t[j];
-        var depth = 0.0;
-        if (a > ALPHA_EPS) {
-            depth = wz[j] / a;
+        wz = wz + mo.w * w;
+        t = select(t, next_t, used);
+        last = select(last, vec4<u32>(walked), used);
+    }
+    if (COUNT_WORK) {
+        count_add(0u, n_eval);
+        count_add(1u, n_used);
+        count_add(2u, n_closed);
+    }
+    let a = 1.0 - t;
+    let depth = select(vec4<f32>(0.0), wz / a, a > vec4<f32>(ALPHA_EPS));
+    for (var j = 0u; j < 4u; j = j + 1u) {
+        if (!inside[j]) {
+            continue;
         }
-        out_depth[pi] = depth;
-        out_alpha[pi] = a;
+        let pi = py[j] * params.width + px;
+        for (var c = 0u; c < D; c = c + 1u) {
+            out_image[pi * D + c] = acc[c][j] + t[j] * inputs[params.off_bg + c];
+        }
+        out_depth[pi] = depth[j];
+        out_alpha[pi] = a[j];
         aux[pi] = vec4<f32>(t[j], bitcast<f32>(last[j]), wz[j], 0.0);
     }
 }

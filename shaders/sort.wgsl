@@ -52,9 +52,10 @@ fn histogram(
 ) {
     let block = wid.x + wid.y * nwg.x;
     let nb = num_blocks();
-    // The tile keys' blocks follow the buffer's capacity, usually far beyond the live count:
-    // a block with no live element only writes its zero counts (whole workgroup, so the
-    // barriers below stay in uniform control flow).
+    // The tile keys' histogram layout follows the buffer's capacity, but only the live blocks
+    // run (an indirect dispatch; the host clears the rest). A block with no live element (no
+    // keys at all) only writes its zero counts (whole workgroup, so the barriers below stay in
+    // uniform control flow).
     if (block * WG >= live_count()) {
         if (lid < 16u && block < nb) {
             hist[lid * nb + block] = 0u;

@@ -40,23 +40,72 @@ const LOW_PASS: f32 = 0.3; // px^2 added to the 2-D covariance diagonal (anti-al
 const ALPHA_MIN: f32 = 0.00392156862745098; // 1/255: fainter fragments are skipped
 const ALPHA_MAX: f32 = 0.99; // alpha clamp: keeps 1/(1 - alpha) finite in the backward pass
 const T_MIN: f32 = 1e-4; // stop compositing once transmittance would fall below this
-const POWER_CUT: f32 = -4.5; // -0.5 * 3^2: nothing beyond 3 sigma, so the 3-sigma tile bbox is exact
+const POWER_CUT: f32 = -4.5; // -0.5 * 3^2: nothing beyond 3 sigma
 const MAX_VAR_PX: f32 = 1e12; // cull 2-D variances beyond (1e6 px)^2: keeps the determinant finite
 const QUAT_EPS2: f32 = 1e-12; // squared-norm floor when normalising quaternions
 const ALPHA_EPS: f32 = 1e-6; // depth = sum(w z) / alpha only where alpha exceeds this, else 0
 const CULLED_KEY: u32 = 0xffffffffu;
-// Compositing: a 16x4 workgroup covers a 16x16 tile, each invocation PX pixels (rows y, y+4,
-// y+8, y+12), so every Gaussian loaded from the tile list serves PX pixels.
-const PX: u32 = 4u;
+// Compositing: a 16x4 workgroup covers a 16x16 tile, each invocation four consecutive pixels of
+// one column as the lanes of vec4s: every Gaussian loaded from the tile list serves four pixels,
+// the per-pixel state is vectors, not arrays indexed by pixel, and neighbouring invocations (run
+// together as SIMD lanes on a CPU, a warp on a GPU) cover a compact block, so a splat that misses
+// the block is skipped by all of them at once.
 
-// Pixel row of an invocation's j-th pixel in its tile.
-fn tile_row(tile_y: u32, local_y: u32, j: u32) -> u32 {
-    return tile_y * TILE + local_y + 4u * j;
+// Pixel rows of an invocation's four lanes.
+fn lane_rows(tile_y: u32, local_y: u32) -> vec4<u32> {
+    return vec4<u32>(tile_y * TILE + 4u * local_y) + vec4<u32>(0u, 1u, 2u, 3u);
 }
 
-// Exponent of a splat at offset dd = mean2d - pixel centre with conic (a, b, c) in co.xyz.
-fn splat_power(co: vec4<f32>, dd: vec2<f32>) -> f32 {
-    return -0.5 * (co.x * dd.x * dd.x + co.z * dd.y * dd.y) - co.y * dd.x * dd.y;
+// Exponents of a splat with conic (a, b, c) in co.xyz at offsets (dx, dy) = mean2d - pixel centre
+// of the four lanes (one column: one dx).
+fn splat_powers(co: vec4<f32>, dx: f32, dy: vec4<f32>) -> vec4<f32> {
+    return -0.5 * (co.x * dx * dx + co.z * dy * dy) - co.y * dx * dy;
+}
+
+// Culling of (tile, Gaussian) pairs. A pixel composites a splat only where power >= POWER_CUT and
+// opacity * exp(power) >= ALPHA_MIN, i.e. inside the ellipse q <= q_max of q = -2 power, with
+// q_max = min(9, 2 ln(opacity / ALPHA_MIN)) (opacity-aware, as gsplat's and Brush's extents). A
+// tile gets the splat only when that ellipse reaches one of its pixel centres (an exact
+// ellipse-rectangle test, as Speedy-Splat's), with margins so that float32 rounding never drops a
+// fragment the compositing pass would draw:
+const CULL_SLACK: f32 = 1e-3; // on q, for exp and log rounding
+const CULL_REL: f32 = 1e-5; // relative to q's terms, which cancel for thin, tilted ellipses
+
+fn cull_q_max(opacity: f32) -> f32 {
+    return min(-2.0 * POWER_CUT, 2.0 * log(opacity / ALPHA_MIN)) + CULL_SLACK;
+}
+
+// q = a dx^2 + 2 b dx dy + c dy^2 for the conic (a, b, c).
+fn conic_q(co: vec3<f32>, d: vec2<f32>) -> f32 {
+    return co.x * d.x * d.x + 2.0 * co.y * d.x * d.y + co.z * d.y * d.y;
+}
+
+// Tiles whose pixels the splat at `m` (conic `co`, `radius` its 3-sigma radius) may reach when its
+// ellipse is q <= q_max: the 3-sigma square shrunk to the opacity-aware extent.
+fn cull_rect(m: vec2<f32>, radius: f32, q_max: f32) -> vec4<u32> {
+    return tile_rect(m, min(radius, radius * sqrt(q_max / (-2.0 * POWER_CUT)) + 0.5));
+}
+
+// Does the ellipse q(mean - pixel) <= q_max reach a pixel centre of tile (tx, ty)? The smallest q
+// over the tile's box of centres is 0 when the mean is inside, else on one of its four edges,
+// where q is a 1-D quadratic minimised in closed form.
+fn tile_hit(m: vec2<f32>, co: vec3<f32>, q_max: f32, tx: u32, ty: u32) -> bool {
+    let first = vec2<f32>(f32(tx * TILE), f32(ty * TILE)) + 0.5;
+    let lo = m - (first + f32(TILE - 1u)); // d = mean - pixel over the tile: [lo, hi]
+    let hi = m - first;
+    if (all(lo <= vec2<f32>(0.0)) && all(hi >= vec2<f32>(0.0))) {
+        return true;
+    }
+    var q = 3.4e38;
+    for (var e = 0u; e < 2u; e = e + 1u) {
+        let x = select(lo.x, hi.x, e == 1u);
+        let y = select(lo.y, hi.y, e == 1u);
+        q = min(q, conic_q(co, vec2<f32>(x, clamp(-co.y * x / co.z, lo.y, hi.y))));
+        q = min(q, conic_q(co, vec2<f32>(clamp(-co.y * y / co.x, lo.x, hi.x), y)));
+    }
+    let far = max(abs(lo), abs(hi));
+    let terms = co.x * far.x * far.x + 2.0 * abs(co.y) * far.x * far.y + co.z * far.y * far.y;
+    return q <= q_max + CULL_REL * terms;
 }
 
 // Tile rectangle [x0, x1) x [y0, y1) covered by the square of half-side `radius` around `m`.

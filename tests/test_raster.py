@@ -10,7 +10,7 @@ import torch
 import evsplat
 from evsplat.errors import EvsplatError
 from evsplat.gpu import adapter_info
-from tests.reference.raster_ref import render
+from tests.reference.raster_ref import ALPHA_MAX, ALPHA_MIN, POWER_CUT, T_MIN, project, render
 
 
 def make_scene(n: int, d: int, width: int, height: int, seed: int = 0, depth: float = 4.0):
@@ -99,12 +99,32 @@ def test_intersection_capacity_follows_the_counts_without_losing_any():
     big = (means, quats, scales * 2.0, *rest)  # wide splats: tens of thousands of tile keys
     for scene, size in [(small, 32), (big, 128), (small, 32), (small, 32), (big, 128)]:
         *_, meta = assert_forward_matches(scene, size, size)
-    # Tiles (16 px) each visible splat's square of radius r touches: far above the smallest
-    # capacity (4096), so the last render overflowed the shrunk one.
+    # Tile pairs of the last render: enough that the capacity grew to 32768 (so the small renders
+    # shrank it back to 4096) and far above 4096, so the last render overflowed the shrunk one.
+    assert evsplat.rasterize(*big, 128, 128, count_work=True)[3]["work"]["pairs"] > 3 * 4096
+
+
+def _square_pairs(meta: dict, width: int, height: int) -> int:
+    """Tile pairs of the 3-sigma bounding squares (the culling before the exact tile test)."""
     r = meta["radii"].float()[:, None]
-    lo = ((meta["means2d"] - r) / 16).floor().clamp(0, 8)
-    hi = ((meta["means2d"] + r) / 16).floor().add(1).clamp(0, 8)
-    assert int((hi - lo).prod(dim=1)[meta["visible"]].sum()) > 4 * 4096
+    size = torch.tensor([(width + 15) // 16, (height + 15) // 16])
+    lo = torch.minimum(((meta["means2d"] - r) / 16).floor().clamp(min=0), size)
+    hi = torch.minimum(((meta["means2d"] + r) / 16).floor().add(1).clamp(min=0), size)
+    return int((hi - lo).clamp(min=0).prod(dim=1)[meta["visible"]].sum())
+
+
+def test_exact_tile_culling_drops_pairs_but_no_fragment_of_thin_faint_tilted_splats():
+    # Needles and faint splats are where the ellipse-tile test and the opacity-aware extent cut
+    # most of the 3-sigma square, and where a test that is not conservative would lose fragments.
+    width, height = 96, 80
+    means, quats, scales, opac, feats, view, K = make_scene(400, 3, width, height, seed=12)
+    g = torch.Generator().manual_seed(12)
+    scales = scales * torch.tensor([3.0, 0.05, 1.0]) * (0.3 + torch.rand(400, 1, generator=g))
+    opac = torch.exp(torch.rand(400, generator=g) * -5.5).clamp(min=1 / 255)
+    scene = (means, quats, scales, opac, feats, view, K)
+    *_, meta = assert_forward_matches(scene, width, height)
+    pairs = evsplat.rasterize(*scene, width, height, count_work=True)[3]["work"]["pairs"]
+    assert pairs < 0.6 * _square_pairs(meta, width, height)
 
 
 def test_forward_matches_reference_with_rotated_camera_and_off_centre_principal_point():
@@ -208,6 +228,42 @@ def test_gradients_match_finite_differences_of_float64_reference():
             flat[j] = (loss(plus) - loss(minus)) / (2 * eps)
         rel = relative_errors(gpu[k], fd.float())
         assert rel.max() <= 1e-2, (name, rel.max())
+
+
+def _reference_fragments(scene, width: int, height: int) -> int:
+    """Pixel-Gaussian fragments the float64 reference composites (3DGS's rules, depth order)."""
+    means, quats, scales, opac, feats, viewmat, K = [t.double() for t in scene]
+    mean2d, conic, z, _, ok = project(means, quats, scales, opac, viewmat, K, width, height,
+                                      0.01, 1e4)  # fmt: skip
+    order = torch.argsort(torch.where(ok, z, torch.full_like(z, float("inf"))), stable=True)
+    order = order[ok[order]]
+    jj, ii = torch.meshgrid(torch.arange(width), torch.arange(height), indexing="xy")
+    pix = torch.stack([jj.reshape(-1) + 0.5, ii.reshape(-1) + 0.5], -1).double()
+    dd = mean2d[order][None] - pix[:, None]
+    co = conic[order]
+    power = -0.5 * (co[:, 0] * dd[..., 0] ** 2 + co[:, 2] * dd[..., 1] ** 2)
+    power = power - co[:, 1] * dd[..., 0] * dd[..., 1]
+    alpha = torch.clamp(opac[order][None] * torch.exp(power.clamp(max=0.0)), max=ALPHA_MAX)
+    use = (power >= POWER_CUT) & (alpha >= ALPHA_MIN)
+    t_after = torch.cumprod(1 - torch.where(use, alpha, torch.zeros_like(alpha)), dim=1)
+    return int((use & (t_after >= T_MIN)).sum())
+
+
+def test_work_counts_match_the_reference_fragments_and_leave_the_image_unchanged():
+    width, height = 48, 40
+    scene = make_scene(300, 3, width, height, seed=8)
+    plain = evsplat.rasterize(*scene, width, height)
+    image, depth, alpha, meta = evsplat.rasterize(*scene, width, height, count_work=True)
+    assert torch.equal(image, plain[0]) and torch.equal(alpha, plain[2])
+    work = meta["work"]
+    # Composited steps are the reference's fragments (float32 vs float64: a few may sit on the
+    # alpha or transmittance thresholds).
+    fragments = _reference_fragments(scene, width, height)
+    assert abs(work["contributed"] - fragments) <= 2 + 1e-3 * fragments
+    # Every step is one of a tile list's entries at one of the tile's 256 pixels.
+    assert work["contributed"] <= work["evaluated"]
+    assert work["evaluated"] + work["saturated"] <= work["pairs"] * 256
+    assert work["saturated"] > 0  # the scene saturates pixels (alpha reaches 1 - 1e-4)
 
 
 def test_float_atomic_and_cas_paths_agree():

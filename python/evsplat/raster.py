@@ -28,6 +28,7 @@ class _Camera:
     far: float
     atomics: str | None
     profile: dict | None
+    work: dict | None  # filled with the compositing step counts when not None
 
 
 def _flat(t: torch.Tensor) -> np.ndarray:
@@ -86,9 +87,12 @@ class _Rasterize(torch.autograd.Function):
             _core.rasterize_forward,
             **_args(means, quats, scales, opacities, features, viewmat, K, background, cam),
             profile=cam.profile is not None,
+            count_work=cam.work is not None,
         )
         if cam.profile is not None:
             cam.profile["forward"] = dict(out["times"])
+        if cam.work is not None:
+            cam.work.update(out["work"])
         h, w = cam.height, cam.width
         image = torch.from_numpy(out["image"]).reshape(h, w, d)
         depth = torch.from_numpy(out["depth"]).reshape(h, w)
@@ -156,6 +160,7 @@ def rasterize(
     *,
     atomics: str | None = None,
     profile: dict | None = None,
+    count_work: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict]:
     """Render N Gaussians with D feature channels into an H x W view.
 
@@ -164,6 +169,9 @@ def rasterize(
     K [3,3]; background [D] (default 0). ``atomics`` picks the gradient accumulation
     ("float", "cas"; default: the adapter's, ``EVSPLAT_ATOMICS=cas`` forces CAS). ``profile``, a
     dict, receives per-pass host times in seconds (passes then run one submission each).
+    ``count_work`` runs the compositing pass's counting build (slower) and adds meta["work"]:
+    tile-Gaussian "pairs" and pixel-Gaussian steps "evaluated", "contributed" (composited) and
+    "saturated" (walked after the pixel's transmittance fell below the cut-off).
 
     Returns image [H,W,D] = sum f_i w_i + T_final * background, depth [H,W] = sum w_i z_i / alpha
     (0 where alpha is 0), alpha [H,W] = 1 - T_final, and meta with "radii" int32 [N] (0 = culled),
@@ -191,7 +199,8 @@ def rasterize(
         raise EvsplatError(f"rasterize: need finite 0 < near < far, got near={near}, far={far}")
     if atomics not in (None, "float", "cas"):
         raise EvsplatError(f"rasterize: atomics={atomics!r} must be 'float', 'cas' or None")
-    cam = _Camera(int(width), int(height), float(near), float(far), atomics, profile)
+    work = {} if count_work else None
+    cam = _Camera(int(width), int(height), float(near), float(far), atomics, profile, work)
     means2d_grad = torch.zeros(n, 2)
     image, depth, alpha, radii, means2d, depths = _Rasterize.apply(
         means, quats, scales, opacities, features, viewmat, K, background, cam, means2d_grad
@@ -203,4 +212,6 @@ def rasterize(
         "visible": radii > 0,
         "means2d_grad": means2d_grad,
     }
+    if work is not None:
+        meta["work"] = work
     return image, depth, alpha, meta

@@ -48,10 +48,11 @@ fn times_dict<'py>(py: Python<'py>, times: &PassTimes) -> PyResult<Bound<'py, Py
 }
 
 /// Forward render. Arrays are flat float32; returns image (H*W*D), depth, alpha, radii, means2d,
-/// depths, intersections, id and (when `profile`) per-pass host times in seconds.
+/// depths, intersections, id, (when `profile`) per-pass host times in seconds and (when
+/// `count_work`) the compositing pass's step counts, else None.
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
-#[pyo3(signature = (means, quats, scales, opacities, features, d, background, viewmat, k, width, height, near, far, profile=false))]
+#[pyo3(signature = (means, quats, scales, opacities, features, d, background, viewmat, k, width, height, near, far, profile=false, count_work=false))]
 fn rasterize_forward<'py>(
     py: Python<'py>,
     means: F32<'py>,
@@ -68,6 +69,7 @@ fn rasterize_forward<'py>(
     near: f32,
     far: f32,
     profile: bool,
+    count_work: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let g = Gaussians {
         means: means.as_slice()?,
@@ -87,7 +89,7 @@ fn rasterize_forward<'py>(
     let mut times = PassTimes::new();
     let out = py.detach(|| {
         let ctx = context()?;
-        gpu_forward(ctx, &g, &cam, profile.then_some(&mut times)).map_err(raster_err)
+        gpu_forward(ctx, &g, &cam, profile.then_some(&mut times), count_work).map_err(raster_err)
     })?;
     let r = PyDict::new(py);
     r.set_item("image", PyArray1::from_vec(py, out.image))?;
@@ -99,6 +101,18 @@ fn rasterize_forward<'py>(
     r.set_item("intersections", out.intersections)?;
     r.set_item("id", out.id)?;
     r.set_item("times", times_dict(py, &times)?)?;
+    let work = match out.work {
+        Some(w) => {
+            let d = PyDict::new(py);
+            d.set_item("pairs", w.pairs)?;
+            d.set_item("evaluated", w.evaluated)?;
+            d.set_item("contributed", w.contributed)?;
+            d.set_item("saturated", w.saturated)?;
+            Some(d)
+        }
+        None => None,
+    };
+    r.set_item("work", work)?;
     Ok(r)
 }
 

@@ -8,6 +8,7 @@ pub use context::{dispatch_dims, AdapterChoice, AtomicMode, GpuContext, GpuError
 pub use scan::{exclusive_scan_u32, ScanScratch};
 pub use splat::{
     rasterize_backward, rasterize_forward, Camera, ForwardOutput, Gaussians, Gradients, PassTimes,
+    WorkCounts,
 };
 
 #[cfg(test)]

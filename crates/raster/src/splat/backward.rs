@@ -67,7 +67,7 @@ pub fn run(
         // Another render replaced this one's per-pixel state: render it again (no readback).
         ctx.queue
             .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(&g.pack()));
-        forward::encode(ctx, st, &p, &mut rec)?;
+        forward::encode(ctx, st, &p, &mut rec, false)?;
         st.current = Some(id);
     }
     let mut packed = Vec::with_capacity(grad_out.iter().map(|s| s.len()).sum());

@@ -74,11 +74,16 @@ pub struct Buffers {
     pub grads: Grow,
     pub param_grads: Grow,
     pub params: wgpu::Buffer,
+    /// Workgroup counts (x, y, z) of the passes over the live tile keys, written by emit_keys.
+    pub live_blocks: wgpu::Buffer,
     pub staging: wgpu::Buffer,
     staging_cap: u64,
 }
 
 pub const SORT_BLOCK: u64 = 256;
+/// u32 words of `counters`: the tile-pair count, the tile passes' disagreement flag, then three
+/// 64-bit work counters as (low, high) words (rasterize_fwd.wgsl's counting build).
+pub const COUNTER_WORDS: u64 = 8;
 /// Floats per Gaussian in `inputs`: mean 3, quaternion 4, scale 3, opacity 1 (features follow).
 pub const INPUT_FLOATS: u64 = 11;
 /// Floats per Gaussian in the gradient accumulator before the features (see rasterize_bwd.wgsl).
@@ -113,6 +118,12 @@ impl Buffers {
                 usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             }),
+            live_blocks: ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("live tile-key blocks"),
+                size: 16,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDIRECT,
+                mapped_at_creation: false,
+            }),
             staging: Self::staging_buffer(ctx, 16),
             staging_cap: 16,
         }
@@ -135,12 +146,12 @@ impl Buffers {
         grown |= self
             .inputs
             .ensure(ctx, f * (s.n * (INPUT_FLOATS + s.d) + s.d))?;
-        grown |= self.counters.ensure(ctx, f * 4)?;
+        grown |= self.counters.ensure(ctx, 4 * COUNTER_WORDS)?;
         grown |= self.proj.ensure(ctx, f * 8 * s.n)?;
         for b in self.depth_keys.iter_mut().chain(self.depth_vals.iter_mut()) {
             grown |= b.ensure(ctx, f * s.n)?;
         }
-        grown |= self.offsets.ensure(ctx, f * s.n)?;
+        grown |= self.offsets.ensure(ctx, f * (s.n + 1))?;
         for b in self.tile_keys.iter_mut().chain(self.tile_vals.iter_mut()) {
             grown |= b.ensure(ctx, f * s.isect)?;
         }
@@ -153,7 +164,7 @@ impl Buffers {
         grown |= self.grad_in.ensure(ctx, f * s.pixels * (s.d + 2))?;
         grown |= self.grads.ensure(ctx, f * s.n * (GRAD_HEAD + s.d))?;
         grown |= self.param_grads.ensure(ctx, f * s.n * PARAM_GRADS)?;
-        let download = (f * (s.pixels * (s.d + 2) + 8 * s.n + 4))
+        let download = (f * (s.pixels * (s.d + 2) + 8 * s.n) + 4 * COUNTER_WORDS)
             .max(f * s.n * (GRAD_HEAD + s.d + PARAM_GRADS));
         if download > self.staging_cap {
             let cap = download.next_power_of_two();

@@ -2,8 +2,13 @@
 
 use std::time::Instant;
 
-use super::buffers::{Buffers, SORT_BLOCK};
-use super::{pipeline, pipeline_d, Camera, ForwardOutput, Gaussians, Params, PassTimes, State};
+use std::cell::OnceCell;
+
+use super::buffers::{Buffers, COUNTER_WORDS, SORT_BLOCK};
+use super::{
+    pipeline, pipeline_d, Camera, ForwardOutput, Gaussians, Params, PassTimes, State, WorkCounts,
+    COUNTING,
+};
 use crate::context::{dispatch_dims, GpuContext, GpuError};
 use crate::ScanScratch;
 
@@ -92,6 +97,19 @@ pub fn dispatch(
     pass.dispatch_workgroups(dims.0, dims.1, 1);
 }
 
+/// A dispatch whose workgroup counts a previous pass wrote into `args` (x, y, z).
+fn dispatch_indirect(
+    enc: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    group: &wgpu::BindGroup,
+    args: &wgpu::Buffer,
+) {
+    let mut pass = enc.begin_compute_pass(&Default::default());
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, group, &[]);
+    pass.dispatch_workgroups_indirect(args, 0);
+}
+
 /// Bind groups of the forward passes (rebuilt only after buffers grew).
 pub struct Binds {
     project: wgpu::BindGroup,
@@ -104,6 +122,34 @@ pub struct Binds {
     /// Indexed by which ping-pong buffer holds the tile-sorted lists.
     ranges: [wgpu::BindGroup; 2],
     raster: [wgpu::BindGroup; 2],
+    /// The counting build's, made on the first render that counts.
+    raster_count: OnceCell<[wgpu::BindGroup; 2]>,
+}
+
+/// The compositing pass's bind groups (one per ping-pong buffer) for `raster_p`.
+fn raster_binds(
+    ctx: &GpuContext,
+    b: &Buffers,
+    raster_p: &wgpu::ComputePipeline,
+) -> [wgpu::BindGroup; 2] {
+    [0, 1].map(|k| {
+        bind(
+            ctx,
+            raster_p,
+            &[
+                (0, &b.params),
+                (1, &b.inputs.buf),
+                (2, &b.proj.buf),
+                (3, &b.tile_vals[k].buf),
+                (4, &b.ranges.buf),
+                (5, &b.image.buf),
+                (6, &b.depth.buf),
+                (7, &b.alpha.buf),
+                (8, &b.aux.buf),
+                (9, &b.counters.buf),
+            ],
+        )
+    })
 }
 
 fn sort_binds(
@@ -187,6 +233,7 @@ impl Binds {
                 (4, &b.tile_keys[0].buf),
                 (5, &b.tile_vals[0].buf),
                 (6, &b.counters.buf),
+                (7, &b.live_blocks),
             ],
         );
         let ranges_p = pipeline(ctx, "tile_ranges.wgsl", "main");
@@ -203,23 +250,7 @@ impl Binds {
                 ],
             )
         });
-        let raster = [0, 1].map(|k| {
-            bind(
-                ctx,
-                &raster_p,
-                &[
-                    (0, &b.params),
-                    (1, &b.inputs.buf),
-                    (2, &b.proj.buf),
-                    (3, &b.tile_vals[k].buf),
-                    (4, &b.ranges.buf),
-                    (5, &b.image.buf),
-                    (6, &b.depth.buf),
-                    (7, &b.alpha.buf),
-                    (8, &b.aux.buf),
-                ],
-            )
-        });
+        let raster = raster_binds(ctx, b, &raster_p);
         Self {
             project,
             depth_hist,
@@ -230,6 +261,7 @@ impl Binds {
             tile_scatter,
             ranges,
             raster,
+            raster_count: OnceCell::new(),
         }
     }
 }
@@ -244,6 +276,9 @@ pub fn tile_passes(tiles: u32) -> usize {
     bits.div_ceil(4) as usize
 }
 
+/// The radix passes of one sort. The depth sort runs over all `elements`; the tile sort only
+/// over the live tile keys, with the block counts emit_keys.wgsl wrote into `live` (its
+/// histogram keeps the capacity's layout, so the blocks not run are cleared to zero counts).
 #[allow(clippy::too_many_arguments)]
 fn encode_sort(
     ctx: &GpuContext,
@@ -254,6 +289,7 @@ fn encode_sort(
     scatter_binds: &[wgpu::BindGroup],
     scans: &mut [ScanScratch],
     elements: u64,
+    live: Option<&wgpu::Buffer>,
 ) -> Result<(), GpuError> {
     let hist = pipeline(ctx, "sort.wgsl", "histogram");
     let scatter = pipeline(ctx, "sort.wgsl", "scatter");
@@ -261,20 +297,31 @@ fn encode_sort(
     let dims = dispatch_dims(blocks);
     for ((hb, sb), scan) in hist_binds.iter().zip(scatter_binds).zip(scans.iter_mut()) {
         rec.step(name, |enc| {
-            dispatch(enc, &hist, hb, dims);
+            match live {
+                Some(args) => {
+                    enc.clear_buffer(&b.hist.buf, 0, Some(4 * 16 * blocks as u64));
+                    dispatch_indirect(enc, &hist, hb, args);
+                }
+                None => dispatch(enc, &hist, hb, dims),
+            }
             scan.encode(ctx, enc, &b.hist.buf, 16 * blocks);
-            dispatch(enc, &scatter, sb, dims);
+            match live {
+                Some(args) => dispatch_indirect(enc, &scatter, sb, args),
+                None => dispatch(enc, &scatter, sb, dims),
+            }
         })?;
     }
     Ok(())
 }
 
-/// Encode the whole forward render (no readback).
+/// Encode the whole forward render (no readback); `count_work` picks the counting build of the
+/// compositing pass.
 pub fn encode(
     ctx: &GpuContext,
     st: &mut State,
     p: &Params,
     rec: &mut Recorder,
+    count_work: bool,
 ) -> Result<(), GpuError> {
     if st.binds.is_none() {
         st.binds = Some(Binds::new(ctx, &st.bufs, &st.sort_passes, p.d));
@@ -316,16 +363,18 @@ pub fn encode(
             &binds.depth_scatter,
             depth_scans,
             n as u64,
+            None,
         )?;
         let (count_scan, tile_scans) = rest.split_at_mut(1);
         rec.step("tiles: count, scan, emit", |enc| {
+            // n + 1 counts (the last is 0), so the scan leaves every Gaussian's end and the total.
             dispatch(
                 enc,
                 &pipeline(ctx, "count_tiles.wgsl", "main"),
                 &binds.count,
-                per_gaussian,
+                dispatch_dims((n + 1).div_ceil(256)),
             );
-            count_scan[0].encode(ctx, enc, &b.offsets.buf, n);
+            count_scan[0].encode(ctx, enc, &b.offsets.buf, n + 1);
             dispatch(
                 enc,
                 &pipeline(ctx, "emit_keys.wgsl", "main"),
@@ -342,23 +391,33 @@ pub fn encode(
             &binds.tile_scatter[..t_passes],
             tile_scans,
             *isect_cap,
+            Some(&b.live_blocks),
         )?;
         let sorted = t_passes % 2;
         rec.step("tile ranges", |enc| {
-            dispatch(
+            dispatch_indirect(
                 enc,
                 &pipeline(ctx, "tile_ranges.wgsl", "main"),
                 &binds.ranges[sorted],
-                dispatch_dims((*isect_cap / 256) as u32),
+                &b.live_blocks,
             )
         })?;
     }
     let sorted = t_passes % 2;
+    let (shader, groups) = if count_work {
+        let counting = pipeline_d(ctx, COUNTING, "main", p.d);
+        let groups = binds
+            .raster_count
+            .get_or_init(|| raster_binds(ctx, b, &counting));
+        (COUNTING, groups)
+    } else {
+        ("rasterize_fwd.wgsl", &binds.raster)
+    };
     rec.step("rasterize", |enc| {
         dispatch(
             enc,
-            &pipeline_d(ctx, "rasterize_fwd.wgsl", "main", p.d),
-            &binds.raster[sorted],
+            &pipeline_d(ctx, shader, "main", p.d),
+            &groups[sorted],
             (p.tiles_x, p.tiles_y),
         )
     })?;
@@ -379,6 +438,7 @@ pub fn run(
     cam: &Camera,
     id: u64,
     mut profile: Option<&mut PassTimes>,
+    count_work: bool,
 ) -> Result<ForwardOutput, GpuError> {
     let packed = g.pack();
     loop {
@@ -386,7 +446,7 @@ pub fn run(
         ctx.queue
             .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(&packed));
         let mut rec = Recorder::new(ctx, profile.as_deref_mut());
-        encode(ctx, st, &p, &mut rec)?;
+        encode(ctx, st, &p, &mut rec, count_work)?;
         let (n, d) = (g.len() as u64, g.d as u64);
         let pixels = cam.width as u64 * cam.height as u64;
         let b = &st.bufs;
@@ -395,7 +455,7 @@ pub fn run(
             (&b.depth.buf, 4 * pixels),
             (&b.alpha.buf, 4 * pixels),
             (&b.proj.buf, 4 * 8 * n),
-            (&b.counters.buf, 16),
+            (&b.counters.buf, 4 * COUNTER_WORDS),
         ];
         let mut at = 0;
         for (src, bytes) in parts {
@@ -407,8 +467,17 @@ pub fn run(
         let raw = rec.finish(&b.staging, at)?;
         let all = floats(&raw);
         let (pixels, n, d) = (pixels as usize, n as usize, d as usize);
-        let counters = &raw[raw.len() - 16..];
-        let m = u32::from_le_bytes([counters[0], counters[1], counters[2], counters[3]]);
+        let counters: Vec<u32> =
+            bytemuck::pod_collect_to_vec(&raw[raw.len() - 4 * COUNTER_WORDS as usize..]);
+        let m = counters[0];
+        if counters[1] != 0 {
+            return Err(GpuError::Invalid(
+                "rasterize: the tile count and tile key passes disagree on which tiles a \
+                 Gaussian reaches (a shader compiler broke their shared test); please report it \
+                 with the adapter's name"
+                    .into(),
+            ));
+        }
         if m as u64 > st.isect_cap {
             // Render again with room for every intersection (rare: the capacity follows the
             // counts of earlier renders).
@@ -436,6 +505,16 @@ pub fn run(
             means2d: proj.chunks_exact(8).flat_map(|q| [q[0], q[1]]).collect(),
             depths: proj.chunks_exact(8).map(|q| q[3]).collect(),
             intersections: m,
+            work: count_work.then(|| {
+                let wide =
+                    |k: usize| counters[2 + 2 * k] as u64 | (counters[3 + 2 * k] as u64) << 32;
+                WorkCounts {
+                    pairs: m as u64,
+                    evaluated: wide(0),
+                    contributed: wide(1),
+                    saturated: wide(2),
+                }
+            }),
             id,
         });
     }

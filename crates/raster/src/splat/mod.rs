@@ -103,6 +103,9 @@ fn sources() -> &'static HashMap<String, String> {
                 let cas = cas_variant(&full).unwrap_or_else(|e| format!("// {e}"));
                 map.insert("rasterize_bwd_cas.wgsl".to_string(), cas);
             }
+            if full.contains(COUNT_OFF) {
+                map.insert(COUNTING.to_string(), full.replace(COUNT_OFF, COUNT_ON));
+            }
             map.insert(name.to_string(), full);
         }
         map
@@ -115,6 +118,11 @@ fn pipeline(ctx: &GpuContext, name: &str, entry: &str) -> std::sync::Arc<wgpu::C
 }
 
 const D_DECL: &str = "const D: u32 = 32u;";
+/// The forward compositing pass counts its pixel-Gaussian steps only in this build (see
+/// `WorkCounts`), so the normal build carries no counting code.
+const COUNT_OFF: &str = "const COUNT_WORK: bool = false;";
+const COUNT_ON: &str = "const COUNT_WORK: bool = true;";
+const COUNTING: &str = "rasterize_fwd_count.wgsl";
 
 /// `name` built for `d` feature channels (the per-pixel channel loops then unroll); each
 /// (pass, d) source is assembled once.
@@ -338,8 +346,24 @@ pub struct ForwardOutput {
     pub depths: Vec<f32>,
     /// Tile intersections rendered.
     pub intersections: u32,
+    /// Pixel-Gaussian step counts, when the render was asked to count them.
+    pub work: Option<WorkCounts>,
     /// Identifies this render to [`rasterize_backward`].
     pub id: u64,
+}
+
+/// What the forward compositing pass did, per render (summed over the image's pixels).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct WorkCounts {
+    /// (tile, Gaussian) pairs in the tile lists.
+    pub pairs: u64,
+    /// Pixel-Gaussian steps evaluated (the pixel still open: transmittance above the cut-off).
+    pub evaluated: u64,
+    /// Evaluated steps that were composited (alpha >= 1/255 inside 3 sigma).
+    pub contributed: u64,
+    /// Steps of pixels already closed (transmittance below the cut-off) that their invocation
+    /// still walked because its other pixels were open.
+    pub saturated: u64,
 }
 
 /// Gradients of a scalar loss with respect to every input.
@@ -499,12 +523,14 @@ fn lock() -> std::sync::MutexGuard<'static, Pool> {
     pool().lock().unwrap_or_else(|p| p.into_inner())
 }
 
-/// Render `g` from `cam`. With `profile`, each pass is submitted and timed on its own.
+/// Render `g` from `cam`. With `profile`, each pass is submitted and timed on its own; with
+/// `count_work`, the compositing pass is the (slower) build that fills [`ForwardOutput::work`].
 pub fn rasterize_forward(
     ctx: &GpuContext,
     g: &Gaussians,
     cam: &Camera,
     profile: Option<&mut PassTimes>,
+    count_work: bool,
 ) -> Result<ForwardOutput, GpuError> {
     g.check()?;
     cam.check()?;
@@ -513,7 +539,7 @@ pub fn rasterize_forward(
     pool.next_id += 1;
     let st = pool.for_forward(ctx, g.d as u64);
     st.spent = false;
-    forward::run(ctx, st, g, cam, id, profile)
+    forward::run(ctx, st, g, cam, id, profile, count_work)
 }
 
 /// Gradients of a loss given its gradients with respect to the outputs of render `id` (which is
@@ -594,6 +620,9 @@ mod tests {
             }
             if full.contains(D_DECL) {
                 validate(name, &full.replace(D_DECL, "const D: u32 = 1u;"));
+            }
+            if full.contains(COUNT_OFF) {
+                validate(COUNTING, &full.replace(COUNT_OFF, COUNT_ON));
             }
         }
     }
