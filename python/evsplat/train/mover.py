@@ -226,9 +226,10 @@ def find_path(
     ring_uv, ring_radius, border_uv = fit_rings(maps, blob_radius, seen)
     uv, radius, seen, is_round = prefer_ring(ring_uv, ring_radius, blob_uv, blob_radius, seen)
     step = AGREE * float(radius[0])
-    found = connected(uv, seen, step)
     if is_round:
         uv, found = chain_circles(np.stack([ring_uv, border_uv], axis=1), seen, step)
+    else:
+        found = connected(uv, seen, step)
     return MoverPath(
         times_us=starts + length // 2,
         uv=uv,
