@@ -6,8 +6,8 @@ from __future__ import annotations
 import argparse
 
 import evsplat.bench.skips as skips
+from evsplat.config import TrainConfig
 from evsplat.sweep import SweepResult
-from evsplat.train.config import TrainConfig
 
 
 def _fake_row(cell) -> dict:

@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 
 from evsplat.cli import main
+from evsplat.config import preset
 from evsplat.errors import EvsplatError
 from evsplat.sweep import Cell, SweepOptions, code_version, run_sweep, store
-from evsplat.train.config import preset
 
 ITERS = 6
 
@@ -49,11 +49,11 @@ def test_the_key_names_scene_config_seed_and_code_but_not_the_labels():
 def test_local_sweep_scores_like_a_direct_run_and_a_rerun_executes_nothing(
     tiny_scene, tmp_path, capsys
 ):
+    from evsplat.config import TrainConfig
     from evsplat.data.dataset import load_dataset
     from evsplat.eval import evaluate
     from evsplat.render import Renderer
     from evsplat.train import train
-    from evsplat.train.config import TrainConfig
 
     data = tiny_scene("ball")
     cells = [Cell("ball", data, tiny_config(), seed=s, labels={"seed_label": s}) for s in (0, 1)]

@@ -14,9 +14,9 @@ from pathlib import Path
 import pytest
 
 from evsplat.cli import main
+from evsplat.config import preset
 from evsplat.sweep import Cell, SweepOptions, code_version, run_sweep, store
 from evsplat.sweep.backends import LOCAL_CLUSTER, import_ray, start_local_cluster
-from evsplat.train.config import preset
 
 ON_RAY = SweepOptions(ray=LOCAL_CLUSTER, max_retries=2, progress=False)
 # Fields that depend on where and when a cell ran, not on what it computed.

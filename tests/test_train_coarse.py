@@ -7,14 +7,13 @@ import numpy as np
 import pytest
 import torch
 
-from evsplat.config import SkipConfig
+from evsplat.config import SkipConfig, preset
 from evsplat.data.dataset import load_dataset
 from evsplat.data.events import bayer_channel_map
 from evsplat.data.simulator import simulate_dataset
 from evsplat.model.gaussians import GaussianModel
 from evsplat.render import Renderer
 from evsplat.train.coarse import bin_events, coarse_due, half_renderer
-from evsplat.train.config import preset
 from evsplat.train.loop import Trainer
 from evsplat.train.stages import stage_at
 

@@ -15,6 +15,7 @@ import pytest
 import torch
 
 from evsplat.cli import main
+from evsplat.config import preset
 from evsplat.data.simulator import simulate_dataset
 from evsplat.errors import EvsplatError
 from evsplat.eval import evaluate
@@ -23,7 +24,6 @@ from evsplat.raster import rasterize
 from evsplat.render import Renderer
 from evsplat.train import train
 from evsplat.train.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint
-from evsplat.train.config import preset
 
 ITERS = 40
 

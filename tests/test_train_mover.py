@@ -9,11 +9,10 @@ import pytest
 import torch
 
 from evsplat.camera import project_points, viewmat
-from evsplat.config import ModelConfig, MoverConfig
+from evsplat.config import ModelConfig, MoverConfig, preset
 from evsplat.data.dataset import load_dataset
 from evsplat.model.deform import DeformationMLP, deformed
 from evsplat.model.gaussians import GaussianModel
-from evsplat.train.config import preset
 from evsplat.train.loop import Trainer
 from evsplat.train.mover import (
     MoverPath,

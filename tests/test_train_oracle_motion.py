@@ -19,11 +19,11 @@ import pytest
 import torch
 
 from evsplat.camera import project_points, viewmat
+from evsplat.config import preset
 from evsplat.data.dataset import load_dataset
 from evsplat.model.deform import deformed
 from evsplat.model.gaussians import SH_C0
 from evsplat.scenes import get_scene
-from evsplat.train.config import preset
 from evsplat.train.loop import Trainer
 
 HORIZON_US = 60_000

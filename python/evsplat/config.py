@@ -1,15 +1,24 @@
-"""Configuration: one plain dataclass per concern, with the paper's values as defaults.
+"""Configuration, all of it: one plain dataclass per concern, composed into ``TrainConfig``,
+and the named presets as data.
 
-FastEventDGS (the paper) names its losses and schedule but defers hyperparameters to a
-supplementary that is not available; where it gives no value the default is a documented
-choice taken from 3DGS, Deformable-3DGS or EventNeRF practice, and the comment says so.
-Times are fractions of the sequence duration and iteration counts fractions of the run, so a
-short run keeps the proportions of the paper's 30k-iteration schedule.
+``TrainConfig()`` *is* the default preset; the presets ``tiny`` and ``paper`` are overrides
+of it (``PRESETS``), and a run writes its resolved config to ``config.json``. FastEventDGS (the
+paper) names its losses and schedule but defers hyperparameters to a supplementary that is not
+available; where it gives no value the default is a documented choice taken from 3DGS,
+Deformable-3DGS or EventNeRF practice, and the comment says so; where a value was measured,
+the comment names the section of docs/results.md that holds the measurements. Times are
+fractions of the sequence duration and iteration counts fractions of the run, so a short run
+keeps the proportions of the paper's 30k-iteration schedule.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from evsplat.errors import EvsplatError
 
 
 @dataclass
@@ -19,9 +28,11 @@ class ModelConfig:
     sh_degree: int = 0  # documented choice: events carry little view dependence; 3DGS uses 3
     init_depth_range: tuple[float, float] = (0.5, 10.0)  # documented choice: random-init depths
     init_opacity: float = 0.1  # 3DGS §5.1: initial opacity 0.1
-    mlp_width: int = 256  # Deformable-3DGS / paper §3.2: 8x256 ReLU MLP
-    mlp_depth: int = 8  # Deformable-3DGS: 8 layers
-    mlp_skip: int = 4  # Deformable-3DGS: input concatenated again at layer 4
+    # The deformation MLP: 6x128 with the input again at layer 3 (documented choice: the
+    # `paper` preset has Deformable-3DGS's 8x256 with the input again at layer 4, paper §3.2).
+    mlp_width: int = 128
+    mlp_depth: int = 6
+    mlp_skip: int = 3
     pe_x: int = 10  # Deformable-3DGS: positional encoding frequencies of x (synthetic scenes)
     pe_t: int = 6  # Deformable-3DGS: positional encoding frequencies of t
     means_lr: float = 1.6e-4  # 3DGS: position lr (times the scene extent) ...
@@ -34,21 +45,16 @@ class ModelConfig:
     mlp_lr_final: float = 1.6e-6  # ... decaying exponentially to this
     mlp_lr_horizon: int = 40_000  # authors' code: the decay spans 40k iterations from iteration 0
     # Time-local opacity (not in the paper): each Gaussian's opacity is modulated by a Gaussian
-    # in time, so an object can be drawn by different Gaussians at different times. Off by
-    # default: with the event-based mover initialisation the MLP carries the motion (demo:
-    # tracking error 40 -> 8 px, path ratio 0.06 -> 0.88, moving mask 17.2 -> 17.6 dB against
-    # time-local opacity without it; docs/results.md, session 12). `--temporal-opacity` turns
-    # it on; never on for a static run (deform=False).
+    # in time, so an object can be drawn by different Gaussians at different times. Off: the
+    # MLP carries the motion (measured: docs/results.md, session 12). `--temporal-opacity`
+    # turns it on; never on for a static run (deform=False).
     temporal_opacity: bool = False
-    # Learning rates of the time centre (units of the sequence) and of the log-width in time.
-    # Documented choice, measured (docs/results.md, session 8, demo configuration, one run
-    # each): (1e-2, 2e-2) / (3e-2, 6e-2) / (3.3e-3, 6.7e-3) / (1e-3, 2e-3) gave moving-mask PSNR
-    # 14.9-15.0 / 12.7 / 17.3 / 17.2 dB: fast time parameters let Gaussians flicker in time.
+    # Learning rates of the time centre (units of the sequence) and of the log-width in time:
+    # slow, or Gaussians flicker in time (measured: docs/results.md, session 8).
     t_mean_lr: float = 3e-3
     t_scale_lr: float = 6e-3
-    # (fraction, width): Gaussians that start time-local, and their width in normalised time.
-    # Documented choice, measured (docs/results.md, session 7: moving-mask PSNR 13.9 -> 14.3 dB
-    # on the tiny ball; (0.5, 0.03) gave 14.3 at -0.01 SSIM). The others start at width 1.
+    # (fraction, width): Gaussians that start time-local, and their width in normalised time
+    # (measured: docs/results.md, session 7). The others start at width 1.
     init_time_local: tuple[float, float] = (0.3, 0.05)
 
 
@@ -90,16 +96,14 @@ class LossConfig:
 
     lambda_ssim: float = 0.2  # eq. 9 λ_e; documented choice: 3DGS's D-SSIM weight 0.2
     window_min: float = 0.02  # eq. 7 Δt_k, shortest L_e window; documented choice (EventNeRF)
-    # eq. 7 Δt_k, longest L_e window; documented choice, measured (docs/results.md, session 7:
-    # on the tiny ball 0.05 / 0.1 / 0.2 / 0.3 / 0.5 gave moving-mask PSNR 12.7 / 14.3 / 14.7 /
-    # 15.0 / 14.7 dB): long windows tie each time to more of the sequence's brightness.
+    # eq. 7 Δt_k, longest L_e window: long windows tie each time to more of the sequence's
+    # brightness (measured: docs/results.md, session 7).
     window_max: float = 0.3
     views: int = 2  # renders per step; L_e on every pair of them (2: the paper's one window)
     flow_window: float = 0.005  # eq. 13 Δτ, short window for L_ef; documented choice
-    # Whether L_ef's gradient reaches the Gaussian flow (the MLP's motion). Documented choice,
-    # measured: off, as in the authors' code; on, it drove the ball's Gaussians away from the
-    # true path in the oracle test (15 -> 21-25 px; docs/results.md, session 11). L_ef then
-    # trains appearance and depth (the image gradient and the camera flow).
+    # Whether L_ef's gradient reaches the Gaussian flow (the MLP's motion): off, as in the
+    # authors' code; on, it drove the ball's Gaussians off their path in the oracle test
+    # (docs/results.md, session 11). L_ef then trains appearance and depth.
     flow_moves_gaussians: bool = False
     motion_window: float = 0.02  # §4.3 Δt split into m sub-windows for L_m; documented choice
     patch_n: int = 128  # §4.3 n sampled Gaussians; documented choice
@@ -195,14 +199,9 @@ class SkipConfig:
     # change, both averaged over `static_scene_pool` px squares; skips.unexplained_events).
     # A moving object leaves its region's events unexplained, while the MLP learning no motion
     # does not show that nothing moves (it found the moving `ball` static). 1 or more turns the
-    # evidence off. Documented choices, measured on the tiny scenes (96 px, seed 0 unless
-    # said): after 200 of 300 iterations the worst region of `still` leaves 0.20-0.26 (3
-    # training seeds, 5 window draws), of the moving scenes 0.49-0.84 (clock 0.49-0.65, ball
-    # 0.64-0.72, duck 0.78, butterfly 0.84); after 667 and 1333 of 2000, `still` 0.14 and 0.12,
-    # the moving scenes 0.70-0.88; the true scene frozen in time (the simulator's) 0.13 on
-    # `still`, 0.60-0.94 on the others. Short windows separate best: a frozen model's error on
-    # the static scene grows with the camera's motion over the window, the moving object's
-    # does not (with L_e's 2-30% windows clock left 0.37, `still` 0.21, after 200 of 300).
+    # evidence off. Documented choices between `still`'s worst region (0.12-0.26) and the
+    # moving scenes' (0.49-0.94), with short windows, which separate best (measured:
+    # docs/results.md, "How the skips decide").
     static_scene_unexplained: float = 0.35
     static_scene_windows: int = 32  # 64 renders, once per run; documented choice
     static_scene_window_lengths: tuple[float, float] = (0.02, 0.1)  # fractions of the sequence
@@ -221,3 +220,143 @@ class SkipConfig:
     # preset's run, so a run stops only when the held-out loss is truly flat.
     early_stop_patience: int = 10
     early_stop_min_delta: float = 1e-3  # relative improvement that counts; documented choice
+
+
+@dataclass
+class ScheduleConfig:
+    """Iterations and stage boundaries, as fractions so short runs keep the paper's proportions."""
+
+    iterations: int = 6000  # documented choice; the `paper` preset has paper §5's 30k
+    warmup_fraction: float = 0.1  # paper §5: warm-up 3k of 30k (static Gaussians, L_e only)
+    refine_fraction: float = 2 / 3  # paper §5: refinement from 20k of 30k (+L_d, L_ne, L_sp)
+    checkpoint_every: int = 500  # iterations between atomic checkpoints
+    log_every: int = 10  # iterations between loss-log lines
+    keep_checkpoints: int = 2  # older complete checkpoints are deleted
+    # Iterations between logs of each loss's gradient norm on the MLP (0 = never): one extra
+    # backward pass per loss, ~1% of a tiny run at 100.
+    grad_norms_every: int = 100
+
+    @property
+    def warmup_end(self) -> int:
+        return int(round(self.iterations * self.warmup_fraction))
+
+    @property
+    def refine_start(self) -> int:
+        return int(round(self.iterations * self.refine_fraction))
+
+
+@dataclass
+class TrainConfig:
+    """Everything a run needs besides the data; saved with every checkpoint. The defaults are
+    the `default` preset."""
+
+    preset: str = "default"
+    seed: int = 0
+    num_gaussians: int = 20_000  # initial random Gaussians (documented: no SfM/RGB available)
+    background: float = 0.5  # grey background intensity where no Gaussian covers a pixel
+    threads: int = 0  # torch intra-op threads (0 = torch's default)
+    deform: bool = True  # False: a static scene, no deformation MLP at all (also a baseline)
+    # Seconds from the recording's start (meta.json t_start_us) to train on; None = that end.
+    time_range: tuple[float | None, float | None] | None = None
+    schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    skips: SkipConfig = field(default_factory=SkipConfig)
+    mover: MoverConfig = field(default_factory=MoverConfig)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrainConfig:
+        """A config from ``to_dict``'s form (a run's config.json)."""
+        return TrainConfig(
+            preset=d["preset"],
+            seed=d["seed"],
+            num_gaussians=d["num_gaussians"],
+            background=d["background"],
+            threads=d.get("threads", 0),
+            deform=d.get("deform", True),
+            time_range=tuple(d["time_range"]) if d.get("time_range") else None,
+            schedule=ScheduleConfig(**d["schedule"]),
+            model=ModelConfig(**d["model"]),
+            densify=DensifyConfig(**d["densify"]),
+            loss=LossConfig(**d["loss"]),
+            skips=_known(SkipConfig, d.get("skips", {})),
+            # Runs saved before the mover initialisation existed trained without it; settings
+            # added to it later take their defaults.
+            mover=_known(MoverConfig, d["mover"]) if "mover" in d else MoverConfig(enabled=False),
+        )
+
+
+def _known(kind: type, d: dict):
+    """``kind`` from the settings of ``d`` it still has; settings added since ``d`` was saved
+    take their defaults and renamed ones are dropped. Only for skips and the mover: skips
+    change speed, not what a checkpoint holds, and the mover acts once, before training."""
+    known = {f.name for f in dataclasses.fields(kind)}
+    return kind(**{k: v for k, v in d.items() if k in known})
+
+
+# The presets, as overrides of TrainConfig() (nested dicts follow its fields).
+PRESETS: dict[str, dict] = {
+    "default": {},
+    # The tiny built-in scenes (96 px) on 2 CPU cores with lavapipe in minutes. A short
+    # schedule needs larger colour and scale learning rates than 3DGS's 30k-iteration ones
+    # (documented choice: 10x and 2x). One torch thread: at 96x96 torch's ops gain nothing
+    # from more, and on a CPU adapter idle workers spin on the cores lavapipe needs
+    # (docs/benchmarks.md).
+    "tiny": {
+        "num_gaussians": 1500,
+        "threads": 1,
+        "schedule": {"iterations": 2000},
+        "model": {
+            "mlp_width": 64,
+            "mlp_depth": 4,
+            "mlp_skip": 2,
+            "colors_lr": 0.025,
+            "scales_lr": 0.01,
+        },
+        "densify": {"max_gaussians": 6000},
+    },
+    # The paper's schedule (§5) and Deformable-3DGS's MLP (8x256, input again at layer 4).
+    "paper": {
+        "num_gaussians": 50_000,
+        "schedule": {"iterations": 30_000, "checkpoint_every": 1000},
+        "model": {"mlp_width": 256, "mlp_depth": 8, "mlp_skip": 4},
+    },
+}
+
+
+def _merged(base: dict, over: dict) -> dict:
+    """``base`` with the values of ``over`` (nested dicts merged); a key of ``over`` that
+    ``base`` lacks is an error, so a misspelt preset setting cannot pass unnoticed."""
+    unknown = set(over) - set(base)
+    if unknown:
+        raise KeyError(f"not a setting: {', '.join(sorted(unknown))}")
+    return {
+        k: _merged(v, over.get(k, {})) if isinstance(v, dict) else over.get(k, v)
+        for k, v in base.items()
+    }
+
+
+def preset(name: str) -> TrainConfig:
+    """The named preset; unknown names are a one-line error listing the choices."""
+    if name not in PRESETS:
+        raise EvsplatError(f"unknown preset {name!r}; choose one of {', '.join(sorted(PRESETS))}")
+    over = PRESETS[name] | {"preset": name}
+    return TrainConfig.from_dict(_merged(TrainConfig().to_dict(), over))
+
+
+def load_config(path: str | Path) -> TrainConfig:
+    """A TrainConfig from a JSON file such as a run's config.json."""
+    path = Path(path)
+    try:
+        return TrainConfig.from_dict(json.loads(path.read_text()))
+    except FileNotFoundError:
+        raise EvsplatError(f"{path}: config file not found") from None
+    except (ValueError, KeyError, TypeError) as e:
+        raise EvsplatError(
+            f"{path}: not a TrainConfig JSON ({type(e).__name__}: {e}); start from a run's "
+            "config.json"
+        ) from None

@@ -98,7 +98,7 @@ class Renderer:
     @classmethod
     def from_state(cls, state: dict) -> Renderer:
         """Rebuild a renderer from a checkpoint's state (see ``evsplat.train``)."""
-        from evsplat.train.config import TrainConfig
+        from evsplat.config import TrainConfig
 
         cfg = TrainConfig.from_dict(state["config"])
         model = GaussianModel.from_checkpoint(state["gaussians"])

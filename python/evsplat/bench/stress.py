@@ -38,7 +38,7 @@ import torch
 from evsplat.errors import EvsplatError
 
 if TYPE_CHECKING:
-    from evsplat.train.config import TrainConfig
+    from evsplat.config import TrainConfig
 
 HELP = "property-based stress of every numeric component (NaN/Inf, crashes) and SIGKILL trials"
 
@@ -623,7 +623,7 @@ KILL_GAUSSIANS = 300  # the tiny preset with fewer Gaussians: crash safety, not 
 
 def kill_config() -> TrainConfig:
     """The tiny preset shrunk so that a killed run and its resume take seconds."""
-    from evsplat.train.config import preset
+    from evsplat.config import preset
 
     cfg = preset("tiny")
     cfg.num_gaussians = KILL_GAUSSIANS

@@ -150,7 +150,7 @@ def bench_cell(
     """One run of the grid: the preset's config changed by ``apply`` (default: the named entry
     of ``VARIANTS``) and ``cli`` as extra `evsplat train` arguments. The sweep trains it in its
     own process (so peak memory is per run) and scores it on the held-out frames."""
-    from evsplat.train.config import preset
+    from evsplat.config import preset
 
     cfg = preset(spec["train_preset"])
     (apply or VARIANTS[variant])(cfg)

@@ -10,7 +10,7 @@ HELP = "train a deformable Gaussian scene on a dataset folder (events + poses)"
 
 def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     """--preset, --config and --iters (shared with `evsplat train-many`)."""
-    from evsplat.train.config import PRESETS
+    from evsplat.config import PRESETS
 
     parser.add_argument("--preset", default="default", help=f"one of {', '.join(PRESETS)}")
     parser.add_argument(
@@ -21,7 +21,7 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
 
 def config_from_args(args: argparse.Namespace):
     """The TrainConfig that --config or --preset names."""
-    from evsplat.train.config import load_config, preset
+    from evsplat.config import load_config, preset
 
     return load_config(args.config) if args.config is not None else preset(args.preset)
 

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 from evsplat.errors import EvsplatError
 
 if TYPE_CHECKING:
-    from evsplat.train.config import TrainConfig
+    from evsplat.config import TrainConfig
     from evsplat.train.loop import TrainStats
 
 __all__ = ["train"]
@@ -37,9 +37,9 @@ def train(
     # Imported here so `evsplat.train.checkpoint` & co. load without the data/model stack.
     import torch
 
+    from evsplat.config import TrainConfig, preset
     from evsplat.data.dataset import load_dataset
     from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint
-    from evsplat.train.config import TrainConfig, preset
     from evsplat.train.depth_prior import make_depth_prior
     from evsplat.train.loop import Trainer
 

@@ -13,8 +13,8 @@ import dataclasses
 import torch
 from torch import Tensor
 
+from evsplat.config import TrainConfig
 from evsplat.render import Renderer
-from evsplat.train.config import TrainConfig
 from evsplat.train.stages import Stage
 
 

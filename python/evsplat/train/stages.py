@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import enum
 
-from evsplat.train.config import ScheduleConfig
+from evsplat.config import ScheduleConfig
 
 
 class Stage(enum.Enum):
