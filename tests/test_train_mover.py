@@ -324,7 +324,7 @@ def test_seeded_gaussians_follow_the_balls_true_path(tiny_scene, tmp_path):
     simulator's ball centre over the whole sequence while the ball crosses the image."""
     trainer = _warmed_up(tiny_scene("ball"), tmp_path / "run")
     data = trainer.data
-    logged = trainer._seed_mover()
+    logged = trainer.seed_mover()
     assert logged["mover_found"] >= trainer.cfg.mover.min_found
     dynamic = ~trainer.renderer.static_mask
     assert 0 < int(dynamic.sum()) < trainer.model.num_gaussians
@@ -335,13 +335,13 @@ def test_seeded_gaussians_follow_the_balls_true_path(tiny_scene, tmp_path):
         for t in np.linspace(data.t_start_us, data.t_end_us, 25):
             means = deformed(trainer.model, trainer.mlp, trainer.renderer.time(t))[0][dynamic]
             truth = np.array([np.interp(t, track.times_us, track.centres[:, j]) for j in range(3)])
-            w2c = viewmat(trainer._pose(t)).double().numpy()
+            w2c = viewmat(trainer.views.pose(t)).double().numpy()
             z = means.double().numpy() @ w2c[2, :3] + w2c[2, 3]
             depth_ratio.append(float(np.median(z)) / float(truth @ w2c[2, :3] + w2c[2, 3]))
             pts = torch.tensor(
                 np.stack([means.mean(0).double().numpy(), truth]), dtype=torch.float32
             )
-            uv = project_points(pts, viewmat(trainer._pose(t)), K)
+            uv = project_points(pts, viewmat(trainer.views.pose(t)), K)
             if 0 <= float(uv[1, 0]) < data.width and 0 <= float(uv[1, 1]) < data.height:
                 errors.append(float((uv[0] - uv[1]).norm()))
                 travel.append(uv[1].numpy())
@@ -358,7 +358,7 @@ def test_seeded_gaussians_follow_the_balls_true_path(tiny_scene, tmp_path):
 
 def test_no_mover_is_found_in_a_static_scene(tiny_scene, tmp_path):
     trainer = _warmed_up(tiny_scene("still"), tmp_path / "run")
-    logged = trainer._seed_mover()
+    logged = trainer.seed_mover()
     assert logged == {"mover_found": pytest.approx(logged["mover_found"])}
     assert logged["mover_found"] < trainer.cfg.mover.min_found
     assert trainer.renderer.static_mask is None  # nothing changed: the static check decides

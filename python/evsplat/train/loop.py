@@ -16,43 +16,25 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsplat.camera import project_points, viewmat
+from evsplat.camera import viewmat
 from evsplat.config import TrainConfig
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset
 from evsplat.data.events import bayer_channel_map
 from evsplat.data.poses import read_tum
 from evsplat.errors import EvsplatError
-from evsplat.losses.depth import silog
-from evsplat.losses.event import bayer_select, event_loss, log_intensity
-from evsplat.losses.flow import (
-    camera_flow,
-    event_flow_loss,
-    gaussian_flow_features,
-    linearized_brightness_change,
-)
-from evsplat.losses.patch import patch_motion_loss, select_visible
-from evsplat.losses.reg import non_event_loss, spatial_gradient_loss
-from evsplat.model.deform import DeformationMLP, deformed_means
+from evsplat.losses.event import event_loss
+from evsplat.losses.flow import gaussian_flow_features
+from evsplat.model.deform import DeformationMLP
 from evsplat.model.densify import Densifier
 from evsplat.model.gaussians import GaussianModel
-from evsplat.render import Renderer, RenderOut
+from evsplat.render import Renderer
 from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
-from evsplat.train.coarse import bin_events, coarse_due, half_renderer
+from evsplat.train.coarse import coarse_due, half_renderer
 from evsplat.train.depth_prior import DepthPrior
-from evsplat.train.mover import (
-    MoverPath,
-    MoverTrack,
-    disc_depth,
-    disc_inside,
-    find_path,
-    fit_mlp_to_path,
-    interp_rows,
-    lift,
-    near_path,
-    place_on_mover,
-    unexplained,
-)
+from evsplat.train.mover import MoverTrack
+from evsplat.train.objective import motion_losses, refine_losses, track_loss
+from evsplat.train.seeding import seed_mover
 from evsplat.train.skips import (
     Plateau,
     Window,
@@ -66,11 +48,10 @@ from evsplat.train.skips import (
     static_due,
     unexplained_events,
 )
-from evsplat.train.spin import SpinSettings, find_spin, integrate
 from evsplat.train.stages import Stage, stage_at
+from evsplat.train.views import Views
 
 MAX_BAD_STEPS = 20  # consecutive non-finite steps before training stops
-FIT_GRID = 121  # times on which the MLP is fitted to the mover's path and turn
 
 
 @dataclass
@@ -168,10 +149,11 @@ class Trainer:
             t_end_us=data.t_end_us,
             background=cfg.background,
         )
-        self.channel_map = None
+        channel_map = None
         if self.channels == 3:
             cmap = bayer_channel_map(data.bayer, data.width, data.height)
-            self.channel_map = torch.from_numpy(cmap.astype(np.int64))
+            channel_map = torch.from_numpy(cmap.astype(np.int64))
+        self.views = Views(data, self.renderer, channel_map)
         # The measured poses travel with every checkpoint so renders need no dataset.
         self.pose_samples = read_tum(data.root / "poses.txt")
         self.stats = TrainStats()
@@ -182,53 +164,18 @@ class Trainer:
         self.holdout: list[Window] = []
         if sk.early_stop:
             self.holdout = holdout_windows(
-                self._esi, data.t_start_us, data.t_end_us, cfg.loss, sk.early_stop_windows, cfg.seed
+                self.views.esi,
+                data.t_start_us,
+                data.t_end_us,
+                cfg.loss,
+                sk.early_stop_windows,
+                cfg.seed,
             )
         self.plateau = Plateau()
         self.static_scene = False  # set when the static classification finds no motion
         self.mover_track: MoverTrack | None = None  # set by the mover's seeding
 
     # ---- one iteration -------------------------------------------------------------------
-
-    def _log_image(self, out: RenderOut, coarse: bool = False) -> torch.Tensor:
-        """Log intensity each pixel's sensor sees: its own Bayer channel, or the one channel.
-        A coarse colour render keeps all three channels ``[3,h,w]``, as its binned events do."""
-        img = out.image
-        if self.channel_map is None:
-            return log_intensity(img[..., 0])
-        if coarse:
-            return log_intensity(img).permute(2, 0, 1)
-        return log_intensity(bayer_select(img, self.channel_map))
-
-    def _linearized_change(self, out: RenderOut, flow: torch.Tensor, coarse: bool) -> torch.Tensor:
-        """-∇L·F (eq. 13) in the sensor's channels. A colour render is differentiated per
-        channel before each pixel keeps its Bayer channel: differences across a mosaic mix
-        colours, and drove the MLP's motion backwards in the oracle test (docs/results.md)."""
-        if self.channel_map is None:
-            return linearized_brightness_change(log_intensity(out.image[..., 0]), flow)
-        change = linearized_brightness_change(log_intensity(out.image).permute(2, 0, 1), flow)
-        if coarse:
-            return change
-        return bayer_select(change.permute(1, 2, 0), self.channel_map)
-
-    def _esi(
-        self, t0: int, t1: int, coarse: bool = False
-    ) -> tuple[torch.Tensor, torch.Tensor, int]:
-        """(ESI, event mask, event count) of [t0, t1), 2x2-binned for a coarse render."""
-        ev = self.data.events.read(t0, t1)
-        esi, mask = ev.esi_and_mask(0, len(ev), self.data.c_pos, self.data.c_neg)
-        esi, mask = torch.from_numpy(esi), torch.from_numpy(mask)
-        if coarse:
-            esi, mask = bin_events(esi, mask, self.channel_map)
-        return esi, mask, len(ev)
-
-    def _pose(self, t_us: float) -> np.ndarray:
-        return self.data.trajectory.pose(float(t_us))
-
-    def _log_image_at(self, t_us: int, view: Renderer | None = None) -> torch.Tensor:
-        """Render at ``t_us`` with ``view`` (default the full-resolution renderer) and log it."""
-        view = view or self.renderer
-        return self._log_image(view.render(t_us, self._pose(t_us)), view is not self.renderer)
 
     def step(self, iteration: int) -> StepResult:
         cfg, lc = self.cfg, self.cfg.loss
@@ -245,7 +192,7 @@ class Trainer:
         seeded = {}
         # Right after the warm-up (none: no static model to find a mover against).
         if motion_stage and cfg.mover.enabled and iteration == cfg.schedule.warmup_end > 0:
-            seeded = self._seed_mover()
+            seeded = self.seed_mover()
         moving = motion_stage and not self.static_scene
         self.renderer.mlp = self.mlp if moving else None
         coarse = coarse_due(cfg, iteration, stage)
@@ -263,11 +210,11 @@ class Trainer:
         t1 = int(rng.integers(self.data.t_start_us + span, self.data.t_end_us - dtau + 1))
         times = [t1 - sum(gaps[k:]) for k in range(lc.views - 1)] + [t1]
         pairs = [(i, j) for j in range(lc.views) for i in range(j)]
-        windows = [self._esi(times[i], times[j], coarse) for i, j in pairs]
+        windows = [self.views.esi(times[i], times[j], coarse) for i, j in pairs]
         if all(count == 0 for _, _, count in windows):
             return StepResult({}, stage, skipped="no events in window")
 
-        pose1 = self._pose(t1)
+        pose1 = self.views.pose(t1)
         g1 = view.gaussians_at(t1)
         extra = None
         if moving and lc.w_flow > 0:
@@ -277,8 +224,8 @@ class Trainer:
             if not lc.flow_moves_gaussians:
                 extra = extra.detach()
         out1 = view.render(t1, pose1, extra=extra, gaussians=g1)
-        logs = [self._log_image_at(t, view) for t in times[:-1]]
-        log1 = self._log_image(out1, coarse)
+        logs = [self.views.log_image_at(t, view) for t in times[:-1]]
+        log1 = self.views.log_image(out1, coarse)
         logs.append(log1)
         terms = [
             event_loss(logs[j] - logs[i], esi, mask, lc.lambda_ssim)
@@ -287,13 +234,18 @@ class Trainer:
         ]
         losses: dict[str, torch.Tensor] = {"e": torch.stack(terms).mean()}
         if moving:
-            losses.update(self._motion_losses(view, t1, dtau, pose1, out1, rng))
-            track = self._track_loss(g1[0], t1)
+            losses.update(
+                motion_losses(
+                    self.views, view, self.model, self.mlp, lc, t1, dtau, pose1, out1, rng
+                )
+            )
+            track = track_loss(self.mover_track, self.renderer, self.model, g1[0], t1)
             if track is not None:
                 losses["tr"] = track
         if stage is Stage.REFINE:
             # The refinement losses see the last window (pairs end with (views-2, views-1)).
-            losses.update(self._refine_losses(t1, out1, logs[-1] - logs[-2], windows[-1][1]))
+            delta, mask = logs[-1] - logs[-2], windows[-1][1]
+            losses.update(refine_losses(self.data, lc, self.depth_prior, t1, out1, delta, mask))
 
         weights = {
             "e": 1.0,
@@ -336,169 +288,15 @@ class Trainer:
         values["gaussians"] = float(self.model.means.shape[0])
         return StepResult(values, stage)
 
-    def _seed_mover(self) -> dict[str, float]:
-        """After the warm-up: find a fast mover from the events the static model leaves
-        unexplained, re-place on it (at the time it is seen best) the Gaussians that smear it
-        along its path and then the faintest, fit the MLP to carry them along its path (turning
-        them with its spin when it is round), and mark every other Gaussian static (the
-        background's gradients drowned the mover's in a shared MLP: docs/results.md, session
-        11). Returns numbers for the log; nothing changes when no mover is found."""
-        mc, data, cfg = self.cfg.mover, self.data, self.cfg
-        self.renderer.mlp = None  # the warm-up's static model
-
-        def residual_of(t0: int, t1: int) -> torch.Tensor:
-            esi = self._esi(t0, t1)[0]
-            return unexplained(esi, self._log_image_at(t1) - self._log_image_at(t0), mc.pool)
-
-        with torch.no_grad():
-            path = find_path(residual_of, data.t_start_us, data.t_end_us, mc)
-        # Whether there is a mover: the windows that saw one (contrast); its path: the found
-        # windows, fewer (mover.prefer_ring and mover.connected drop the fits that disagree).
-        found = float((path.contrast >= mc.min_contrast).mean())
-        if found < mc.min_found or not path.found.any():
-            return {"mover_found": found}
-        # The reference: the clearest window well inside the image, with its own radius (the
-        # median radius placed a mover twice as large that the model did not move: session 12).
-        k = path.reference(data.width, data.height)
-        radius_px = float(path.radius_px[k])
-        times = path.times_us[path.found]
-        depth = self._mover_depth(path)
-        poses = self.data.trajectory.pose(times.astype(np.float64))
-        points = lift(path.uv[path.found], np.full(len(times), depth), poses, data.K)
-        ref = points[int(np.count_nonzero(path.found[:k]))]  # k is a found window
-        radius = radius_px * depth / float(data.K[0, 0])
-        n = self.model.num_gaussians
-        # The warm-up drew the mover as a static smear along its path: those Gaussians go on
-        # the mover first (they would keep drawing it where it is not), then the faintest.
-        swept = near_path(self.model.means.detach(), points, radius)
-        faintest = torch.argsort(self.model.opacities().detach())
-        faintest = faintest[~swept[faintest]]
-        m = max(1, int(mc.fraction * n), int(swept.sum()))
-        rows = torch.cat([torch.nonzero(swept).reshape(-1), faintest[: m - int(swept.sum())]])
-        place_on_mover(self.model, self.optimizer, rows, ref, radius, mc.opacity, cfg.seed)
-        # The fit follows the path on a grid of times (the spin needs more than the windows).
-        grid = np.linspace(data.t_start_us, data.t_end_us, FIT_GRID).astype(np.int64)
-        t_ref = int(path.times_us[k])
-        turns, spin = self._mover_spin(path, times, points, radius, t_ref, grid)
-        t_norm = torch.tensor([self.renderer.time(int(t)) for t in grid], dtype=torch.float32)
-        offsets = torch.from_numpy((interp_rows(grid, times, points) - ref).astype(np.float32))
-        rms = fit_mlp_to_path(
-            self.mlp,
-            self.model.means[rows],
-            t_norm,
-            offsets,
-            None if turns is None else torch.from_numpy(turns.astype(np.float32)),
-            ref,
-            mc.fit_steps,
-            mc.fit_lr,
-            cfg.seed,
+    def seed_mover(self) -> dict[str, float]:
+        """After the warm-up: the mover's seeding (``seeding.seed_mover``); numbers for the log."""
+        seeding = seed_mover(
+            self.views, self.model, self.optimizer, self.mlp, self.cfg, self.depth_range
         )
-        self.mlp_optimizer = self._mlp_adam()  # the fit's moments are not training's
-        if mc.track_weight > 0:
-            reach = int(mc.track_reach * (data.t_end_us - data.t_start_us))
-            self.mover_track = MoverTrack(times, points, radius, reach)
-        static = torch.ones(n, dtype=torch.bool)
-        static[rows] = False
-        self.renderer.static_mask = static
-        return {
-            "mover_found": found,
-            "mover_depth": depth,
-            "mover_radius_px": radius_px,
-            "mover_fit_rms": rms,
-            "mover_gaussians": float(m),
-            "mover_swept": float(swept.sum()),
-        } | spin
-
-    def _track_loss(self, means: torch.Tensor, t_us: int) -> torch.Tensor | None:
-        """The track prior on the mover's deformed ``means`` [N,3] (all rows) at ``t_us``."""
-        static = self.renderer.static_mask
-        if self.mover_track is None or static is None:
-            return None
-        moving = ~static
-        opacities = self.model.opacities(self.renderer.time(t_us))[moving]
-        return self.mover_track.loss(means[moving], opacities, t_us)
-
-    def _mover_spin(
-        self,
-        path: MoverPath,
-        times: np.ndarray,
-        points: np.ndarray,
-        radius: float,
-        t_ref: int,
-        grid: np.ndarray,
-    ) -> tuple[np.ndarray | None, dict[str, float]]:
-        """The mover's turn from ``t_ref`` to each ``grid`` time [G,3,3], from the angular
-        velocities its events show (``evsplat.train.spin``) in the windows where its disc is
-        inside the image; None when it is off, the mover is not round (the events are
-        back-projected onto a sphere: on the duck that found 10 rad/s for a body turning less
-        than 2, docs/results.md, session 16) or no window shows a spin. Numbers for the log."""
-        mc, data = self.cfg.mover, self.data
-        if not mc.spin or not path.round:
-            return None, {}
-        duration = data.t_end_us - data.t_start_us
-        half = max(int(mc.spin_window * duration) // 2, 1)
-        centres = np.arange(data.t_start_us + half, data.t_end_us - half + 1, 2 * half)
-        centres = centres[(centres >= times[0]) & (centres <= times[-1])]
-        r_px = float(np.median(path.radius_px[path.found]))
-        centres = centres[disc_inside(path.at(centres), r_px, data.width, data.height)]
-        if len(centres) == 0:
-            return None, {"spin_windows": 0.0}
-
-        def events_in(t0: int, t1: int) -> tuple[np.ndarray, np.ndarray]:
-            ev = data.events.read(t0, t1)
-            return np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5, ev.t
-
-        settings = SpinSettings(
-            mc.spin_rim,
-            mc.spin_events,
-            mc.spin_max_rate,
-            mc.spin_min_gain,
-            mc.spin_steps,
-            self.cfg.seed,
-        )
-        omegas, gains = find_spin(
-            events_in,
-            lambda t: interp_rows(t, times, points),
-            lambda t: data.trajectory.pose(np.asarray(t, dtype=np.float64)),
-            radius,
-            data.K,
-            (data.width, data.height),
-            centres,
-            half,
-            settings,
-        )
-        used = gains >= mc.spin_min_gain
-        stats = {"spin_windows": float(used.sum()), "spin_gain": float(np.nanmedian(gains))}
-        if not used.any():
-            return None, stats
-        rate = np.linalg.norm(omegas[used], axis=1)
-        stats["spin_rate"] = float(np.median(rate))
-        turns = integrate(centres[used], omegas[used], t_ref, grid)
-        return turns, stats
-
-    @torch.no_grad()
-    def _mover_depth(self, path: MoverPath) -> float:
-        """The mover's camera depth: per found window, a near quantile of the static model's
-        rendered depth in the mover's disc (the warm-up drew the mover there as a smear, partly
-        in front of the background it passes), then the median over the windows. One window's
-        median depth lay up to 1.1 m behind the ball and put the mover behind the wall
-        (docs/results.md, session 14). It reads the mover's front surface, not its centre;
-        placing the centre one radius further made training drift the mover deeper still
-        (session 15). The depth range's middle when no disc was drawn."""
-        found = []
-        for k in np.flatnonzero(path.found):
-            t = int(path.times_us[k])
-            out = self.renderer.render(t, self._pose(t))
-            d = disc_depth(
-                out.depth,
-                out.alpha,
-                path.uv[k],
-                float(path.radius_px[k]),
-                self.cfg.mover.depth_quantile,
-            )
-            if d is not None:
-                found.append(d)
-        return float(np.median(found)) if found else float(np.mean(self.depth_range))
+        if seeding.seeded:
+            self.mlp_optimizer = self._mlp_adam()  # the fit's moments are not training's
+            self.mover_track = seeding.track
+        return seeding.stats
 
     def _mlp_adam(self) -> torch.optim.Adam:
         return torch.optim.Adam(self.mlp.parameters(), lr=self.cfg.model.mlp_lr)
@@ -536,11 +334,11 @@ class Trainer:
         no window has events."""
         data, sk = self.data, self.cfg.skips
         windows = evidence_windows(
-            self._esi, data.t_start_us, data.t_end_us, self.cfg.loss, sk, self.cfg.seed
+            self.views.esi, data.t_start_us, data.t_end_us, self.cfg.loss, sk, self.cfg.seed
         )
 
         def log_image_at(t_scene: int, t_pose: int) -> torch.Tensor:
-            return self._log_image(self.renderer.render(t_scene, self._pose(t_pose)))
+            return self.views.log_image(self.renderer.render(t_scene, self.views.pose(t_pose)))
 
         mlp, self.renderer.mlp = self.renderer.mlp, self.mlp
         try:
@@ -548,72 +346,6 @@ class Trainer:
         finally:
             self.renderer.mlp = mlp
         return float(share.max()) if share.numel() else 0.0
-
-    def _motion_losses(self, view, t1, dtau, pose1, out1, rng) -> dict[str, torch.Tensor]:
-        """L_ef and L_m for the render ``out1`` that ``view`` (full or coarse) made at ``t1``."""
-        lc, data = self.cfg.loss, self.data
-        coarse = view is not self.renderer
-        out: dict[str, torch.Tensor] = {}
-        # L_ef (eq. 13): linearised event model over [t1, t1 + dtau].
-        window = self._esi(t1, t1 + dtau, coarse) if lc.w_flow > 0 else (None, None, 0)
-        short, _, count = window
-        if count > 0:
-            flow_cam = camera_flow(
-                out1.depth, view.K, viewmat(pose1), viewmat(self._pose(t1 + dtau))
-            )
-            pred = self._linearized_change(out1, flow_cam + out1.extra, coarse)
-            out["ef"] = event_flow_loss(short, pred)
-        # L_m (eq. 15): patches of m equal-count sub-windows around the moving centres.
-        if lc.w_motion <= 0:
-            return out
-        span = int(lc.motion_window * (data.t_end_us - data.t_start_us))
-        ev = data.events.read(t1, min(t1 + span, data.t_end_us))
-        if len(ev) >= lc.patch_m:
-            gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
-            idx = select_visible(
-                out1.meta["means2d"],
-                out1.meta["depths"],
-                out1.depth.detach(),
-                lc.patch_n,
-                lc.depth_tolerance,
-                gen,
-            )
-            if idx.numel() > 0:
-                bounds = ev.split_equal_count(0, len(ev), lc.patch_m)
-                frames, centres = [], []
-                for j in range(lc.patch_m):
-                    a, b = int(bounds[j]), int(bounds[j + 1])
-                    frames.append(torch.from_numpy(ev.esi(a, b, data.c_pos, data.c_neg)))
-                    t_mid = 0.5 * (int(ev.t[a]) + int(ev.t[max(b - 1, a)]))
-                    means = deformed_means(
-                        self.model,
-                        self.mlp,
-                        self.renderer.time(t_mid),
-                        idx,
-                        self.renderer.static_mask,
-                    )
-                    centres.append(
-                        project_points(means, viewmat(self._pose(t_mid)), self.renderer.K)
-                    )
-                out["m"] = patch_motion_loss(
-                    torch.stack(frames), torch.stack(centres, dim=1), lc.patch_side
-                )
-        return out
-
-    def _refine_losses(self, t1, out1, delta, mask) -> dict[str, torch.Tensor]:
-        lc = self.cfg.loss
-        out = {}
-        if lc.w_non_event > 0:
-            out["ne"] = non_event_loss(delta, mask, min(self.data.c_pos, self.data.c_neg))
-        if lc.w_spatial > 0:
-            out["sp"] = spatial_gradient_loss(out1.image)
-        if self.depth_prior is not None and lc.w_depth > 0:
-            prior = self.depth_prior.depth(t1, out1.image.detach())
-            if prior is not None:
-                valid = (prior > 0) & (out1.alpha.detach() > lc.depth_min_alpha)
-                if bool(valid.any()):
-                    out["d"] = silog(out1.depth, prior, valid)
-        return out
 
     def _grad_norms_due(self, iteration: int) -> bool:
         every = self.cfg.schedule.grad_norms_every
@@ -827,7 +559,7 @@ class Trainer:
         """Evaluate and log the held-out L_e after ``done`` iterations; True when it has not
         improved for ``early_stop_patience`` evaluations."""
         self.renderer.mlp = self.mlp if self._mlp_active(done) else None
-        value = holdout_loss(self.holdout, self._log_image_at, self.cfg.loss.lambda_ssim)
+        value = holdout_loss(self.holdout, self.views.log_image_at, self.cfg.loss.lambda_ssim)
         stop = self.plateau.update(value, done, self.cfg.skips)
         entry = {"iteration": done, "stage": stage.value, "holdout_e": value}
         self.stats.history.append({**entry, "holdout_best": self.plateau.best})

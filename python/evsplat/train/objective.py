@@ -1,0 +1,123 @@
+"""The objective's terms beyond L_e, assembled per step by the training loop: the motion
+losses (L_ef, L_m; paper §4.2-4.3), the refinement losses (L_d, L_ne, L_sp; §4.4) and the
+mover's track prior (not in the paper; ``mover.MoverTrack``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from evsplat.camera import project_points, viewmat
+from evsplat.config import LossConfig
+from evsplat.data.dataset import Dataset
+from evsplat.losses.depth import silog
+from evsplat.losses.flow import camera_flow, event_flow_loss
+from evsplat.losses.patch import patch_motion_loss, select_visible
+from evsplat.losses.reg import non_event_loss, spatial_gradient_loss
+from evsplat.model.deform import DeformationMLP, deformed_means
+from evsplat.model.gaussians import GaussianModel
+from evsplat.render import Renderer, RenderOut
+from evsplat.train.depth_prior import DepthPrior
+from evsplat.train.mover import MoverTrack
+from evsplat.train.views import Views
+
+
+def motion_losses(
+    views: Views,
+    view: Renderer,
+    model: GaussianModel,
+    mlp: DeformationMLP,
+    lc: LossConfig,
+    t1: int,
+    dtau: int,
+    pose1: np.ndarray,
+    out1: RenderOut,
+    rng: np.random.Generator,
+) -> dict[str, torch.Tensor]:
+    """L_ef and L_m for the render ``out1`` that ``view`` (full or coarse) made at ``t1``."""
+    data, renderer = views.data, views.renderer
+    coarse = view is not renderer
+    out: dict[str, torch.Tensor] = {}
+    # L_ef (eq. 13): linearised event model over [t1, t1 + dtau].
+    window = views.esi(t1, t1 + dtau, coarse) if lc.w_flow > 0 else (None, None, 0)
+    short, _, count = window
+    if count > 0:
+        flow_cam = camera_flow(out1.depth, view.K, viewmat(pose1), viewmat(views.pose(t1 + dtau)))
+        pred = views.linearized_change(out1, flow_cam + out1.extra, coarse)
+        out["ef"] = event_flow_loss(short, pred)
+    # L_m (eq. 15): patches of m equal-count sub-windows around the moving centres.
+    if lc.w_motion <= 0:
+        return out
+    span = int(lc.motion_window * (data.t_end_us - data.t_start_us))
+    ev = data.events.read(t1, min(t1 + span, data.t_end_us))
+    if len(ev) >= lc.patch_m:
+        gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
+        idx = select_visible(
+            out1.meta["means2d"],
+            out1.meta["depths"],
+            out1.depth.detach(),
+            lc.patch_n,
+            lc.depth_tolerance,
+            gen,
+        )
+        if idx.numel() > 0:
+            bounds = ev.split_equal_count(0, len(ev), lc.patch_m)
+            frames, centres = [], []
+            for j in range(lc.patch_m):
+                a, b = int(bounds[j]), int(bounds[j + 1])
+                frames.append(torch.from_numpy(ev.esi(a, b, data.c_pos, data.c_neg)))
+                t_mid = 0.5 * (int(ev.t[a]) + int(ev.t[max(b - 1, a)]))
+                means = deformed_means(
+                    model,
+                    mlp,
+                    renderer.time(t_mid),
+                    idx,
+                    renderer.static_mask,
+                )
+                centres.append(project_points(means, viewmat(views.pose(t_mid)), renderer.K))
+            out["m"] = patch_motion_loss(
+                torch.stack(frames), torch.stack(centres, dim=1), lc.patch_side
+            )
+    return out
+
+
+def refine_losses(
+    data: Dataset,
+    lc: LossConfig,
+    depth_prior: DepthPrior | None,
+    t1: int,
+    out1: RenderOut,
+    delta: torch.Tensor,
+    mask: torch.Tensor,
+) -> dict[str, torch.Tensor]:
+    """L_ne and L_sp (eq. 17-18) on the render ``out1`` at ``t1`` and its window's predicted
+    log change ``delta`` against the event ``mask``, and L_d (eq. 16) where a depth prior
+    exists."""
+    out = {}
+    if lc.w_non_event > 0:
+        out["ne"] = non_event_loss(delta, mask, min(data.c_pos, data.c_neg))
+    if lc.w_spatial > 0:
+        out["sp"] = spatial_gradient_loss(out1.image)
+    if depth_prior is not None and lc.w_depth > 0:
+        prior = depth_prior.depth(t1, out1.image.detach())
+        if prior is not None:
+            valid = (prior > 0) & (out1.alpha.detach() > lc.depth_min_alpha)
+            if bool(valid.any()):
+                out["d"] = silog(out1.depth, prior, valid)
+    return out
+
+
+def track_loss(
+    track: MoverTrack | None,
+    renderer: Renderer,
+    model: GaussianModel,
+    means: torch.Tensor,
+    t_us: int,
+) -> torch.Tensor | None:
+    """The track prior on the mover's deformed ``means`` [N,3] (all rows) at ``t_us``."""
+    static = renderer.static_mask
+    if track is None or static is None:
+        return None
+    moving = ~static
+    opacities = model.opacities(renderer.time(t_us))[moving]
+    return track.loss(means[moving], opacities, t_us)

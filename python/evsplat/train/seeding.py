@@ -1,0 +1,212 @@
+"""The mover's seeding after the warm-up (not in the paper): its path from the events the
+static model leaves unexplained (``evsplat.train.mover``), its depth from the static model's
+render, its spin from its own events (``evsplat.train.spin``); Gaussians placed on it and the
+deformation MLP fitted to carry them. See ``seed_mover``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from evsplat.config import TrainConfig
+from evsplat.data.dataset import Dataset
+from evsplat.model.deform import DeformationMLP
+from evsplat.model.gaussians import GaussianModel
+from evsplat.train.mover import (
+    MoverPath,
+    MoverTrack,
+    disc_depth,
+    disc_inside,
+    find_path,
+    fit_mlp_to_path,
+    interp_rows,
+    lift,
+    near_path,
+    place_on_mover,
+    unexplained,
+)
+from evsplat.train.spin import SpinSettings, find_spin, integrate
+from evsplat.train.views import Views
+
+FIT_GRID = 121  # times on which the MLP is fitted to the mover's path and turn
+
+
+@dataclass
+class Seeding:
+    """What the seeding did: numbers for the log, whether it placed a mover (then the MLP was
+    fitted, and its optimizer's moments are stale), and the track prior it leaves."""
+
+    stats: dict[str, float]
+    seeded: bool
+    track: MoverTrack | None
+
+
+def seed_mover(
+    views: Views,
+    model: GaussianModel,
+    optimizer: torch.optim.Optimizer,
+    mlp: DeformationMLP,
+    cfg: TrainConfig,
+    depth_range: tuple[float, float],
+) -> Seeding:
+    """After the warm-up: find a fast mover from the events the static model leaves
+    unexplained, re-place on it (at the time it is seen best) the Gaussians that smear it
+    along its path and then the faintest, fit the MLP to carry them along its path (turning
+    them with its spin when it is round), and mark every other Gaussian static (the
+    background's gradients drowned the mover's in a shared MLP: docs/results.md, session
+    11). Nothing changes when no mover is found, except that the renderer draws the static model."""
+    mc, data, renderer = cfg.mover, views.data, views.renderer
+    renderer.mlp = None  # the warm-up's static model
+
+    def residual_of(t0: int, t1: int) -> torch.Tensor:
+        esi = views.esi(t0, t1)[0]
+        return unexplained(esi, views.log_image_at(t1) - views.log_image_at(t0), mc.pool)
+
+    with torch.no_grad():
+        path = find_path(residual_of, data.t_start_us, data.t_end_us, mc)
+    # Whether there is a mover: the windows that saw one (contrast); its path: the found
+    # windows, fewer (mover.prefer_ring and mover.connected drop the fits that disagree).
+    found = float((path.contrast >= mc.min_contrast).mean())
+    if found < mc.min_found or not path.found.any():
+        return Seeding({"mover_found": found}, seeded=False, track=None)
+    # The reference: the clearest window well inside the image, with its own radius (the
+    # median radius placed a mover twice as large that the model did not move: session 12).
+    k = path.reference(data.width, data.height)
+    radius_px = float(path.radius_px[k])
+    times = path.times_us[path.found]
+    depth = mover_depth(views, path, mc.depth_quantile, depth_range)
+    poses = data.trajectory.pose(times.astype(np.float64))
+    points = lift(path.uv[path.found], np.full(len(times), depth), poses, data.K)
+    ref = points[int(np.count_nonzero(path.found[:k]))]  # k is a found window
+    radius = radius_px * depth / float(data.K[0, 0])
+    n = model.num_gaussians
+    # The warm-up drew the mover as a static smear along its path: those Gaussians go on
+    # the mover first (they would keep drawing it where it is not), then the faintest.
+    swept = near_path(model.means.detach(), points, radius)
+    faintest = torch.argsort(model.opacities().detach())
+    faintest = faintest[~swept[faintest]]
+    m = max(1, int(mc.fraction * n), int(swept.sum()))
+    rows = torch.cat([torch.nonzero(swept).reshape(-1), faintest[: m - int(swept.sum())]])
+    place_on_mover(model, optimizer, rows, ref, radius, mc.opacity, cfg.seed)
+    # The fit follows the path on a grid of times (the spin needs more than the windows).
+    grid = np.linspace(data.t_start_us, data.t_end_us, FIT_GRID).astype(np.int64)
+    t_ref = int(path.times_us[k])
+    turns, spin = mover_spin(data, cfg, path, times, points, radius, t_ref, grid)
+    t_norm = torch.tensor([renderer.time(int(t)) for t in grid], dtype=torch.float32)
+    offsets = torch.from_numpy((interp_rows(grid, times, points) - ref).astype(np.float32))
+    rms = fit_mlp_to_path(
+        mlp,
+        model.means[rows],
+        t_norm,
+        offsets,
+        None if turns is None else torch.from_numpy(turns.astype(np.float32)),
+        ref,
+        mc.fit_steps,
+        mc.fit_lr,
+        cfg.seed,
+    )
+    track = None
+    if mc.track_weight > 0:
+        reach = int(mc.track_reach * (data.t_end_us - data.t_start_us))
+        track = MoverTrack(times, points, radius, reach)
+    static = torch.ones(n, dtype=torch.bool)
+    static[rows] = False
+    renderer.static_mask = static
+    stats = {
+        "mover_found": found,
+        "mover_depth": depth,
+        "mover_radius_px": radius_px,
+        "mover_fit_rms": rms,
+        "mover_gaussians": float(m),
+        "mover_swept": float(swept.sum()),
+    } | spin
+    return Seeding(stats, seeded=True, track=track)
+
+
+def mover_spin(
+    data: Dataset,
+    cfg: TrainConfig,
+    path: MoverPath,
+    times: np.ndarray,
+    points: np.ndarray,
+    radius: float,
+    t_ref: int,
+    grid: np.ndarray,
+) -> tuple[np.ndarray | None, dict[str, float]]:
+    """The mover's turn from ``t_ref`` to each ``grid`` time [G,3,3], from the angular
+    velocities its events show (``evsplat.train.spin``) in the windows where its disc is
+    inside the image; None when it is off, the mover is not round (the events are
+    back-projected onto a sphere: on the duck that found 10 rad/s for a body turning less
+    than 2, docs/results.md, session 16) or no window shows a spin. Numbers for the log."""
+    mc = cfg.mover
+    if not mc.spin or not path.round:
+        return None, {}
+    duration = data.t_end_us - data.t_start_us
+    half = max(int(mc.spin_window * duration) // 2, 1)
+    centres = np.arange(data.t_start_us + half, data.t_end_us - half + 1, 2 * half)
+    centres = centres[(centres >= times[0]) & (centres <= times[-1])]
+    r_px = float(np.median(path.radius_px[path.found]))
+    centres = centres[disc_inside(path.at(centres), r_px, data.width, data.height)]
+    if len(centres) == 0:
+        return None, {"spin_windows": 0.0}
+
+    def events_in(t0: int, t1: int) -> tuple[np.ndarray, np.ndarray]:
+        ev = data.events.read(t0, t1)
+        return np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5, ev.t
+
+    settings = SpinSettings(
+        mc.spin_rim,
+        mc.spin_events,
+        mc.spin_max_rate,
+        mc.spin_min_gain,
+        mc.spin_steps,
+        cfg.seed,
+    )
+    omegas, gains = find_spin(
+        events_in,
+        lambda t: interp_rows(t, times, points),
+        lambda t: data.trajectory.pose(np.asarray(t, dtype=np.float64)),
+        radius,
+        data.K,
+        (data.width, data.height),
+        centres,
+        half,
+        settings,
+    )
+    used = gains >= mc.spin_min_gain
+    stats = {"spin_windows": float(used.sum()), "spin_gain": float(np.nanmedian(gains))}
+    if not used.any():
+        return None, stats
+    rate = np.linalg.norm(omegas[used], axis=1)
+    stats["spin_rate"] = float(np.median(rate))
+    turns = integrate(centres[used], omegas[used], t_ref, grid)
+    return turns, stats
+
+
+@torch.no_grad()
+def mover_depth(
+    views: Views, path: MoverPath, quantile: float, depth_range: tuple[float, float]
+) -> float:
+    """The mover's camera depth: per found window, a near quantile of the static model's
+    rendered depth in the mover's disc (the warm-up drew the mover there as a smear, partly
+    in front of the background it passes), then the median over the windows. One window's
+    median depth lay up to 1.1 m behind the ball and put the mover behind the wall
+    (docs/results.md, session 14). It reads the mover's front surface, not its centre;
+    placing the centre one radius further made training drift the mover deeper still
+    (session 15). The depth range's middle when no disc was drawn."""
+    found = []
+    for k in np.flatnonzero(path.found):
+        t = int(path.times_us[k])
+        out = views.renderer.render(t, views.pose(t))
+        d = disc_depth(
+            out.depth,
+            out.alpha,
+            path.uv[k],
+            float(path.radius_px[k]),
+            quantile,
+        )
+        if d is not None:
+            found.append(d)
+    return float(np.median(found)) if found else float(np.mean(depth_range))

@@ -1,0 +1,63 @@
+"""What training compares: the dataset's event windows and the model's renders, in the
+sensor's channels (one, or each pixel's Bayer channel of a colour render)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from evsplat.data.dataset import Dataset
+from evsplat.losses.event import bayer_select, log_intensity
+from evsplat.losses.flow import linearized_brightness_change
+from evsplat.render import Renderer, RenderOut
+from evsplat.train.coarse import bin_events
+
+
+@dataclass
+class Views:
+    """Event windows of ``data`` and log renders of ``renderer`` (the full-resolution one; a
+    coarse renderer is passed as ``view`` where a method takes one)."""
+
+    data: Dataset
+    renderer: Renderer
+    channel_map: torch.Tensor | None  # [h,w] Bayer channel per pixel; None for a mono sensor
+
+    def log_image(self, out: RenderOut, coarse: bool = False) -> torch.Tensor:
+        """Log intensity each pixel's sensor sees: its own Bayer channel, or the one channel.
+        A coarse colour render keeps all three channels ``[3,h,w]``, as its binned events do."""
+        img = out.image
+        if self.channel_map is None:
+            return log_intensity(img[..., 0])
+        if coarse:
+            return log_intensity(img).permute(2, 0, 1)
+        return log_intensity(bayer_select(img, self.channel_map))
+
+    def linearized_change(self, out: RenderOut, flow: torch.Tensor, coarse: bool) -> torch.Tensor:
+        """-∇L·F (eq. 13) in the sensor's channels. A colour render is differentiated per
+        channel before each pixel keeps its Bayer channel: differences across a mosaic mix
+        colours, and drove the MLP's motion backwards in the oracle test (docs/results.md)."""
+        if self.channel_map is None:
+            return linearized_brightness_change(log_intensity(out.image[..., 0]), flow)
+        change = linearized_brightness_change(log_intensity(out.image).permute(2, 0, 1), flow)
+        if coarse:
+            return change
+        return bayer_select(change.permute(1, 2, 0), self.channel_map)
+
+    def esi(self, t0: int, t1: int, coarse: bool = False) -> tuple[torch.Tensor, torch.Tensor, int]:
+        """(ESI, event mask, event count) of [t0, t1), 2x2-binned for a coarse render."""
+        ev = self.data.events.read(t0, t1)
+        esi, mask = ev.esi_and_mask(0, len(ev), self.data.c_pos, self.data.c_neg)
+        esi, mask = torch.from_numpy(esi), torch.from_numpy(mask)
+        if coarse:
+            esi, mask = bin_events(esi, mask, self.channel_map)
+        return esi, mask, len(ev)
+
+    def pose(self, t_us: float) -> np.ndarray:
+        return self.data.trajectory.pose(float(t_us))
+
+    def log_image_at(self, t_us: int, view: Renderer | None = None) -> torch.Tensor:
+        """Render at ``t_us`` with ``view`` (default the full-resolution renderer) and log it."""
+        view = view or self.renderer
+        return self.log_image(view.render(t_us, self.pose(t_us)), view is not self.renderer)
