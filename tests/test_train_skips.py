@@ -349,7 +349,7 @@ def test_a_scene_is_static_only_when_its_events_show_nothing_moving(
     try:
         for it in range(200):  # the classification is due at the start of iteration 200
             trainer.step(it)
-        share = trainer._unexplained_events()
+        share = trainer.unexplained_events()
         trainer.step(200)
     finally:
         torch.set_num_threads(threads)

@@ -38,15 +38,12 @@ from evsplat.train.seeding import seed_mover
 from evsplat.train.skips import (
     Plateau,
     Window,
-    bake,
-    classify_static,
-    evidence_windows,
     follow_rows,
     holdout_loss,
     holdout_windows,
-    pixels_per_unit,
+    scene_unexplained,
     static_due,
-    unexplained_events,
+    update_static,
 )
 from evsplat.train.stages import Stage, stage_at
 from evsplat.train.views import Views
@@ -302,50 +299,17 @@ class Trainer:
         return torch.optim.Adam(self.mlp.parameters(), lr=self.cfg.model.mlp_lr)
 
     def _classify_static(self) -> None:
-        """Mark the dynamic Gaussians that stopped moving static and bake their deformation;
-        static ones stay static, so only the dynamic ones go through the MLP."""
-        first = self.renderer.static_mask is None
-        n = self.model.num_gaussians
-        old = torch.zeros(n, dtype=torch.bool) if first else self.renderer.static_mask
-        dynamic = torch.nonzero(~old).reshape(-1)
-        means = self.model.means[dynamic]
+        """Mark the dynamic Gaussians that stopped moving static (``skips.update_static``);
+        the first classification may find the whole scene static."""
         centre = torch.from_numpy(self.pose_samples[1][:, :3, 3].mean(0).astype(np.float32))
-        scale = pixels_per_unit(means, centre, float(self.data.K[0, 0]), 1e-2)
-        sk = self.cfg.skips
-        static, scene_static, mean = classify_static(self.mlp, means, scale, sk)
-        if first and float(scene_static.float().mean()) >= sk.static_scene_fraction:
-            # The MLP learned no motion, which does not show that nothing moves (time-local
-            # opacity may carry the moving object): the scene is static, with nothing left for
-            # the MLP or the motion losses to explain, only when its events agree.
-            if sk.static_scene_unexplained >= 1 or (
-                self._unexplained_events() <= sk.static_scene_unexplained
-            ):
-                static[:] = True
-                self.static_scene = True
-        bake(self.model, dynamic[static], mean.select(static))
-        new = old.clone()
-        new[dynamic[static]] = True
-        self.renderer.static_mask = new
-
-    def _unexplained_events(self) -> float:
-        """The largest share of one region's events that the scene frozen at each evidence
-        window's middle time (deformation and time-local opacity evaluated there) leaves
-        unexplained, seen from the poses at the window's ends (skips.unexplained_events); 0 when
-        no window has events."""
-        data, sk = self.data, self.cfg.skips
-        windows = evidence_windows(
-            self.views.esi, data.t_start_us, data.t_end_us, self.cfg.loss, sk, self.cfg.seed
+        whole = update_static(
+            self.model, self.mlp, self.renderer, centre, self.cfg.skips, self.unexplained_events
         )
+        self.static_scene = self.static_scene or whole
 
-        def log_image_at(t_scene: int, t_pose: int) -> torch.Tensor:
-            return self.views.log_image(self.renderer.render(t_scene, self.views.pose(t_pose)))
-
-        mlp, self.renderer.mlp = self.renderer.mlp, self.mlp
-        try:
-            share = unexplained_events(windows, log_image_at, sk)
-        finally:
-            self.renderer.mlp = mlp
-        return float(share.max()) if share.numel() else 0.0
+    def unexplained_events(self) -> float:
+        """The static-scene evidence for the model as it is now (``skips.scene_unexplained``)."""
+        return scene_unexplained(self.views, self.mlp, self.cfg.loss, self.cfg.skips, self.cfg.seed)
 
     def _grad_norms_due(self, iteration: int) -> bool:
         every = self.cfg.schedule.grad_norms_every

@@ -17,6 +17,8 @@ from evsplat.config import LossConfig, SkipConfig
 from evsplat.losses.event import event_loss
 from evsplat.model.deform import DeformationMLP
 from evsplat.model.gaussians import GaussianModel, normalize_quats
+from evsplat.render import Renderer
+from evsplat.train.views import Views
 
 CHUNK = 65_536  # Gaussians per MLP pass when classifying: bounds the activations' memory
 HOLDOUT_STREAM = 2**40  # RNG stream of the held-out windows; no iteration's seed reaches it
@@ -257,3 +259,61 @@ class Plateau:
         self.best = float(state["best"])
         self.since_best = int(state["since_best"])
         self.stopped_at = state["stopped_at"]
+
+
+# ---- applying the classification during training -------------------------------------------
+
+
+def update_static(
+    model: GaussianModel,
+    mlp: DeformationMLP,
+    renderer: Renderer,
+    centre: Tensor,
+    cfg: SkipConfig,
+    scene_unexplained: Callable[[], float],
+) -> bool:
+    """Mark the dynamic Gaussians that stopped moving static in ``renderer.static_mask`` and
+    bake their deformation; static ones stay static, so only the dynamic ones go through the
+    MLP. ``centre`` [3] is the mean camera position (Gaussians' motion is measured in pixels
+    from there). True when this first classification finds the whole scene static, which also
+    needs ``scene_unexplained()`` (the events' evidence) to agree: the MLP having learned no
+    motion does not show that nothing moves (time-local opacity may carry the moving object)."""
+    first = renderer.static_mask is None
+    old = torch.zeros(model.num_gaussians, dtype=torch.bool) if first else renderer.static_mask
+    dynamic = torch.nonzero(~old).reshape(-1)
+    means = model.means[dynamic]
+    scale = pixels_per_unit(means, centre, float(renderer.K[0, 0]), 1e-2)
+    static, scene_static, mean = classify_static(mlp, means, scale, cfg)
+    whole = False
+    if first and float(scene_static.float().mean()) >= cfg.static_scene_fraction:
+        if cfg.static_scene_unexplained >= 1 or (
+            scene_unexplained() <= cfg.static_scene_unexplained
+        ):
+            static[:] = True
+            whole = True
+    bake(model, dynamic[static], mean.select(static))
+    new = old.clone()
+    new[dynamic[static]] = True
+    renderer.static_mask = new
+    return whole
+
+
+def scene_unexplained(
+    views: Views, mlp: DeformationMLP, loss: LossConfig, cfg: SkipConfig, seed: int
+) -> float:
+    """The largest share of one region's events that the scene frozen at each evidence
+    window's middle time (deformation and time-local opacity evaluated there) leaves
+    unexplained, seen from the poses at the window's ends (``unexplained_events``); 0 when no
+    window has events."""
+    data, renderer = views.data, views.renderer
+    windows = evidence_windows(views.esi, data.t_start_us, data.t_end_us, loss, cfg, seed)
+
+    def log_image_at(t_scene: int, t_pose: int) -> Tensor:
+        return views.log_image(renderer.render(t_scene, views.pose(t_pose)))
+
+    kept, renderer.mlp = renderer.mlp, mlp
+    try:
+        share = unexplained_events(windows, log_image_at, cfg)
+    finally:
+        renderer.mlp = kept
+    return float(share.max()) if share.numel() else 0.0
