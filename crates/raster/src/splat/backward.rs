@@ -2,24 +2,25 @@
 
 use super::buffers::{Buffers, GRAD_HEAD, PARAM_GRADS};
 use super::forward::{bind, dispatch, Recorder};
-use super::{forward, pipeline, pipeline_d, Camera, Gaussians, Gradients, PassTimes, State};
-use crate::context::{dispatch_dims, AtomicMode, GpuContext, GpuError};
+use super::{forward, Camera, Gaussians, Gradients, PassTimes, State};
+use crate::context::{AtomicMode, GpuContext, GpuError};
+use crate::Kernel;
 
 pub struct Binds {
     raster: [wgpu::BindGroup; 2],
     project: wgpu::BindGroup,
 }
 
-fn raster_shader(mode: AtomicMode) -> &'static str {
+fn raster_kernel(mode: AtomicMode) -> Kernel {
     match mode {
-        AtomicMode::Float => "rasterize_bwd.wgsl",
-        AtomicMode::Cas => "rasterize_bwd_cas.wgsl",
+        AtomicMode::Float => Kernel::RasterizeBwd,
+        AtomicMode::Cas => Kernel::RasterizeBwdCas,
     }
 }
 
 impl Binds {
     fn new(ctx: &GpuContext, b: &Buffers, mode: AtomicMode, d: u32) -> Self {
-        let raster_p = pipeline_d(ctx, raster_shader(mode), "main", d);
+        let raster_p = ctx.pipeline(raster_kernel(mode), d);
         let raster = [0, 1].map(|k| {
             bind(
                 ctx,
@@ -38,7 +39,7 @@ impl Binds {
         });
         let project = bind(
             ctx,
-            &pipeline(ctx, "project_bwd.wgsl", "main"),
+            &ctx.pipeline(Kernel::ProjectBwd, d),
             &[
                 (0, &b.params),
                 (1, &b.inputs.buf),
@@ -95,7 +96,7 @@ pub fn run(
         }
         dispatch(
             enc,
-            &pipeline_d(ctx, raster_shader(mode), "main", p.d),
+            &ctx.pipeline(raster_kernel(mode), p.d),
             &binds.raster[sorted],
             (p.tiles_x, p.tiles_y),
         );
@@ -104,9 +105,9 @@ pub fn run(
         rec.step("backward project", |enc| {
             dispatch(
                 enc,
-                &pipeline(ctx, "project_bwd.wgsl", "main"),
+                &ctx.pipeline(Kernel::ProjectBwd, p.d),
                 &binds.project,
-                dispatch_dims((n as u32).div_ceil(256)),
+                Kernel::ProjectBwd.groups_for(n as u32),
             )
         })?;
     }

@@ -5,12 +5,10 @@ use std::time::Instant;
 use std::cell::OnceCell;
 
 use super::buffers::{Buffers, COUNTER_WORDS, SORT_BLOCK};
-use super::{
-    pipeline, pipeline_d, Camera, ForwardOutput, Gaussians, Params, PassTimes, State, WorkCounts,
-    COUNTING,
-};
+use super::{Camera, ForwardOutput, Gaussians, Params, PassTimes, State, WorkCounts};
 use crate::context::{dispatch_dims, GpuContext, GpuError};
-use crate::ScanScratch;
+use crate::wgsl::DIGITS;
+use crate::{Kernel, ScanScratch};
 
 /// Scans per render: one for the tile counts, up to 8 per radix sort (depth, tile).
 pub const SCANS: usize = 17;
@@ -159,8 +157,8 @@ fn sort_binds(
     keys: &[super::buffers::Grow; 2],
     vals: &[super::buffers::Grow; 2],
 ) -> (Vec<wgpu::BindGroup>, Vec<wgpu::BindGroup>) {
-    let hist = pipeline(ctx, "sort.wgsl", "histogram");
-    let scatter = pipeline(ctx, "sort.wgsl", "scatter");
+    let hist = ctx.pipeline(Kernel::SortHistogram, 0);
+    let scatter = ctx.pipeline(Kernel::SortScatter, 0);
     let mut hs = Vec::new();
     let mut ss = Vec::new();
     for (p, uniform) in passes.iter().enumerate() {
@@ -198,7 +196,7 @@ impl Binds {
     fn new(ctx: &GpuContext, b: &Buffers, sort_passes: &[wgpu::Buffer], d: u32) -> Self {
         let project = bind(
             ctx,
-            &pipeline(ctx, "project.wgsl", "main"),
+            &ctx.pipeline(Kernel::Project, d),
             &[
                 (0, &b.params),
                 (1, &b.inputs.buf),
@@ -214,7 +212,7 @@ impl Binds {
         // DEPTH_PASSES is even: the depth-sorted ids end in depth_vals[0].
         let count = bind(
             ctx,
-            &pipeline(ctx, "count_tiles.wgsl", "main"),
+            &ctx.pipeline(Kernel::CountTiles, d),
             &[
                 (0, &b.params),
                 (1, &b.proj.buf),
@@ -224,7 +222,7 @@ impl Binds {
         );
         let emit = bind(
             ctx,
-            &pipeline(ctx, "emit_keys.wgsl", "main"),
+            &ctx.pipeline(Kernel::EmitKeys, d),
             &[
                 (0, &b.params),
                 (1, &b.proj.buf),
@@ -236,8 +234,8 @@ impl Binds {
                 (7, &b.live_blocks),
             ],
         );
-        let ranges_p = pipeline(ctx, "tile_ranges.wgsl", "main");
-        let raster_p = pipeline_d(ctx, "rasterize_fwd.wgsl", "main", d);
+        let ranges_p = ctx.pipeline(Kernel::TileRanges, d);
+        let raster_p = ctx.pipeline(Kernel::RasterizeFwd, d);
         let ranges = [0, 1].map(|k| {
             bind(
                 ctx,
@@ -291,20 +289,20 @@ fn encode_sort(
     elements: u64,
     live: Option<&wgpu::Buffer>,
 ) -> Result<(), GpuError> {
-    let hist = pipeline(ctx, "sort.wgsl", "histogram");
-    let scatter = pipeline(ctx, "sort.wgsl", "scatter");
+    let hist = ctx.pipeline(Kernel::SortHistogram, 0);
+    let scatter = ctx.pipeline(Kernel::SortScatter, 0);
     let blocks = elements.div_ceil(SORT_BLOCK) as u32;
     let dims = dispatch_dims(blocks);
     for ((hb, sb), scan) in hist_binds.iter().zip(scatter_binds).zip(scans.iter_mut()) {
         rec.step(name, |enc| {
             match live {
                 Some(args) => {
-                    enc.clear_buffer(&b.hist.buf, 0, Some(4 * 16 * blocks as u64));
+                    enc.clear_buffer(&b.hist.buf, 0, Some(4 * DIGITS as u64 * blocks as u64));
                     dispatch_indirect(enc, &hist, hb, args);
                 }
                 None => dispatch(enc, &hist, hb, dims),
             }
-            scan.encode(ctx, enc, &b.hist.buf, 16 * blocks);
+            scan.encode(ctx, enc, &b.hist.buf, DIGITS * blocks);
             match live {
                 Some(args) => dispatch_indirect(enc, &scatter, sb, args),
                 None => dispatch(enc, &scatter, sb, dims),
@@ -337,7 +335,6 @@ pub fn encode(
         return Err(GpuError::Invalid("rasterize: bind groups missing".into()));
     };
     let n = p.n;
-    let per_gaussian = dispatch_dims(n.div_ceil(256));
     let tiles = p.tiles_x * p.tiles_y;
     let t_passes = tile_passes(tiles);
     rec.step("clear", |enc| {
@@ -348,9 +345,9 @@ pub fn encode(
         rec.step("project", |enc| {
             dispatch(
                 enc,
-                &pipeline(ctx, "project.wgsl", "main"),
+                &ctx.pipeline(Kernel::Project, p.d),
                 &binds.project,
-                per_gaussian,
+                Kernel::Project.groups_for(n),
             )
         })?;
         let (depth_scans, rest) = scans.split_at_mut(DEPTH_PASSES);
@@ -370,16 +367,16 @@ pub fn encode(
             // n + 1 counts (the last is 0), so the scan leaves every Gaussian's end and the total.
             dispatch(
                 enc,
-                &pipeline(ctx, "count_tiles.wgsl", "main"),
+                &ctx.pipeline(Kernel::CountTiles, p.d),
                 &binds.count,
-                dispatch_dims((n + 1).div_ceil(256)),
+                Kernel::CountTiles.groups_for(n + 1),
             );
             count_scan[0].encode(ctx, enc, &b.offsets.buf, n + 1);
             dispatch(
                 enc,
-                &pipeline(ctx, "emit_keys.wgsl", "main"),
+                &ctx.pipeline(Kernel::EmitKeys, p.d),
                 &binds.emit,
-                per_gaussian,
+                Kernel::EmitKeys.groups_for(n),
             );
         })?;
         encode_sort(
@@ -397,26 +394,26 @@ pub fn encode(
         rec.step("tile ranges", |enc| {
             dispatch_indirect(
                 enc,
-                &pipeline(ctx, "tile_ranges.wgsl", "main"),
+                &ctx.pipeline(Kernel::TileRanges, p.d),
                 &binds.ranges[sorted],
                 &b.live_blocks,
             )
         })?;
     }
     let sorted = t_passes % 2;
-    let (shader, groups) = if count_work {
-        let counting = pipeline_d(ctx, COUNTING, "main", p.d);
+    let (kernel, groups) = if count_work {
+        let counting = ctx.pipeline(Kernel::RasterizeFwdCount, p.d);
         let groups = binds
             .raster_count
             .get_or_init(|| raster_binds(ctx, b, &counting));
-        (COUNTING, groups)
+        (Kernel::RasterizeFwdCount, groups)
     } else {
-        ("rasterize_fwd.wgsl", &binds.raster)
+        (Kernel::RasterizeFwd, &binds.raster)
     };
     rec.step("rasterize", |enc| {
         dispatch(
             enc,
-            &pipeline_d(ctx, shader, "main", p.d),
+            &ctx.pipeline(kernel, p.d),
             &groups[sorted],
             (p.tiles_x, p.tiles_y),
         )

@@ -13,168 +13,12 @@ use std::collections::HashMap;
 use std::sync::{Mutex, OnceLock};
 
 use crate::context::{AtomicMode, GpuContext, GpuError};
+use crate::wgsl::{self, Params};
 use buffers::{Buffers, Sizes, INPUT_FLOATS};
 
-/// Feature channels the shaders hold per pixel (MAX_D in splat_common.wgsl).
-pub const MAX_FEATURES: usize = 32;
-pub const TILE: u32 = 16;
-
-macro_rules! shader {
-    ($name:literal) => {
-        include_str!(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../shaders/",
-            $name
-        ))
-    };
-}
-
-/// Every WGSL file a splatting pass may name as a prelude, and the passes themselves.
-const FILES: &[(&str, &str)] = &[
-    ("splat_common.wgsl", shader!("splat_common.wgsl")),
-    ("splat_project.wgsl", shader!("splat_project.wgsl")),
-    ("project.wgsl", shader!("project.wgsl")),
-    ("sort.wgsl", shader!("sort.wgsl")),
-    ("count_tiles.wgsl", shader!("count_tiles.wgsl")),
-    ("emit_keys.wgsl", shader!("emit_keys.wgsl")),
-    ("tile_ranges.wgsl", shader!("tile_ranges.wgsl")),
-    ("rasterize_fwd.wgsl", shader!("rasterize_fwd.wgsl")),
-    ("rasterize_bwd.wgsl", shader!("rasterize_bwd.wgsl")),
-    ("project_bwd.wgsl", shader!("project_bwd.wgsl")),
-];
-
-/// `source` with the files named on its first line (`// prelude: a.wgsl b.wgsl`) prepended.
-pub fn with_preludes(
-    source: &str,
-    lookup: impl Fn(&str) -> Option<String>,
-) -> Result<String, String> {
-    let mut out = String::new();
-    if let Some(list) = source
-        .lines()
-        .next()
-        .and_then(|l| l.strip_prefix("// prelude:"))
-    {
-        for name in list.split_whitespace() {
-            out.push_str(&lookup(name).ok_or_else(|| format!("prelude {name} not found"))?);
-            out.push('\n');
-        }
-    }
-    out.push_str(source);
-    Ok(out)
-}
-
-const FLOAT_ATOMIC_DECL: &str = "array<atomic<f32>>";
-const FLOAT_ATOMIC_ADD: &str = "    atomicAdd(&grads[i], v);\n";
-const CAS_ATOMIC_ADD: &str = "    var old = atomicLoad(&grads[i]);
-    loop {
-        let r = atomicCompareExchangeWeak(&grads[i], old, bitcast<u32>(bitcast<f32>(old) + v));
-        if (r.exchanged) {
-            break;
-        }
-        old = r.old_value;
-    }
-";
-
-/// The compare-and-swap build of rasterize_bwd.wgsl: `atomic<u32>` words and a CAS loop in
-/// `grad_add` instead of the float32 atomicAdd.
-pub fn cas_variant(source: &str) -> Result<String, String> {
-    if !source.contains(FLOAT_ATOMIC_DECL) || !source.contains(FLOAT_ATOMIC_ADD) {
-        return Err("rasterize_bwd.wgsl: grad_add no longer matches the CAS substitution".into());
-    }
-    Ok(source
-        .replace(FLOAT_ATOMIC_DECL, "array<atomic<u32>>")
-        .replace(FLOAT_ATOMIC_ADD, CAS_ATOMIC_ADD))
-}
-
-fn file(name: &str) -> Option<&'static str> {
-    FILES.iter().find(|(n, _)| *n == name).map(|(_, s)| *s)
-}
-
-/// Full sources of the passes (preludes resolved), built once.
-fn sources() -> &'static HashMap<String, String> {
-    static SOURCES: OnceLock<HashMap<String, String>> = OnceLock::new();
-    SOURCES.get_or_init(|| {
-        let lookup = |n: &str| file(n).map(str::to_string);
-        let mut map = HashMap::new();
-        for (name, src) in FILES.iter().filter(|(n, _)| !n.starts_with("splat_")) {
-            // The files are compiled in; a broken prelude line fails the unit tests.
-            let full = with_preludes(src, lookup).unwrap_or_else(|e| format!("// {e}"));
-            if *name == "rasterize_bwd.wgsl" {
-                let cas = cas_variant(&full).unwrap_or_else(|e| format!("// {e}"));
-                map.insert("rasterize_bwd_cas.wgsl".to_string(), cas);
-            }
-            if full.contains(COUNT_OFF) {
-                map.insert(COUNTING.to_string(), full.replace(COUNT_OFF, COUNT_ON));
-            }
-            map.insert(name.to_string(), full);
-        }
-        map
-    })
-}
-
-fn pipeline(ctx: &GpuContext, name: &str, entry: &str) -> std::sync::Arc<wgpu::ComputePipeline> {
-    let src = sources().get(name).map(String::as_str).unwrap_or("");
-    ctx.pipeline(name, src, entry)
-}
-
-const D_DECL: &str = "const D: u32 = 32u;";
-/// The forward compositing pass counts its pixel-Gaussian steps only in this build (see
-/// `WorkCounts`), so the normal build carries no counting code.
-const COUNT_OFF: &str = "const COUNT_WORK: bool = false;";
-const COUNT_ON: &str = "const COUNT_WORK: bool = true;";
-const COUNTING: &str = "rasterize_fwd_count.wgsl";
-
-/// `name` built for `d` feature channels (the per-pixel channel loops then unroll); each
-/// (pass, d) source is assembled once.
-fn pipeline_d(
-    ctx: &GpuContext,
-    name: &str,
-    entry: &str,
-    d: u32,
-) -> std::sync::Arc<wgpu::ComputePipeline> {
-    static BUILT: OnceLock<Mutex<HashMap<String, String>>> = OnceLock::new();
-    let key = format!("{name}#d{d}");
-    let mut built = BUILT
-        .get_or_init(Default::default)
-        .lock()
-        .unwrap_or_else(|p| p.into_inner());
-    let src = built.entry(key.clone()).or_insert_with(|| {
-        let template = sources().get(name).map(String::as_str).unwrap_or("");
-        template.replace(D_DECL, &format!("const D: u32 = {d}u;"))
-    });
-    ctx.pipeline(&key, src, entry)
-}
-
-/// The uniform every pass reads (`Params` in splat_common.wgsl).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct Params {
-    view: [f32; 16],
-    fx: f32,
-    fy: f32,
-    cx: f32,
-    cy: f32,
-    near: f32,
-    far: f32,
-    lim_x_pos: f32,
-    lim_x_neg: f32,
-    lim_y_pos: f32,
-    lim_y_neg: f32,
-    width: u32,
-    height: u32,
-    n: u32,
-    d: u32,
-    tiles_x: u32,
-    tiles_y: u32,
-    cap: u32,
-    off_quats: u32,
-    off_scales: u32,
-    off_opac: u32,
-    off_feat: u32,
-    off_bg: u32,
-    grad_stride: u32,
-    _pad: u32,
-}
+/// Feature channels a render may have (MAX_D in splat_common.wgsl).
+pub const MAX_FEATURES: usize = wgsl::MAX_D as usize;
+pub use wgsl::TILE;
 
 /// Pinhole camera: world->camera `viewmat` (row-major 4x4), intrinsics `k` (row-major 3x3).
 #[derive(Clone, Copy, Debug)]
@@ -463,15 +307,22 @@ fn pool() -> &'static Mutex<Pool> {
 impl State {
     fn new(ctx: &GpuContext) -> Self {
         let sort_passes = (0..2u32)
-            .flat_map(|which| (0..8u32).map(move |p| [4 * p, which, 0, 0]))
-            .map(|words| {
+            .flat_map(|which| {
+                (0..8u32).map(move |p| wgsl::SortPass {
+                    shift: 4 * p,
+                    which,
+                    _pad0: 0,
+                    _pad1: 0,
+                })
+            })
+            .map(|pass| {
                 let b = ctx.device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some("sort pass"),
                     size: 16,
                     usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
                     mapped_at_creation: false,
                 });
-                ctx.queue.write_buffer(&b, 0, bytemuck::cast_slice(&words));
+                ctx.queue.write_buffer(&b, 0, bytemuck::bytes_of(&pass));
                 b
             })
             .collect();
@@ -589,46 +440,4 @@ pub fn rasterize_backward(
         mode,
         profile,
     )
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn lookup(n: &str) -> Option<String> {
-        file(n).map(str::to_string)
-    }
-
-    fn validate(name: &str, src: &str) {
-        let module = naga::front::wgsl::parse_str(src)
-            .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));
-        naga::valid::Validator::new(
-            naga::valid::ValidationFlags::all(),
-            naga::valid::Capabilities::all(),
-        )
-        .validate(&module)
-        .unwrap_or_else(|e| panic!("{name}: {e:?}"));
-    }
-
-    #[test]
-    fn every_pass_and_the_cas_build_validate_with_naga() {
-        for (name, src) in FILES.iter().filter(|(n, _)| !n.starts_with("splat_")) {
-            let full = with_preludes(src, lookup).unwrap();
-            validate(name, &full);
-            if *name == "rasterize_bwd.wgsl" {
-                validate("rasterize_bwd (CAS)", &cas_variant(&full).unwrap());
-            }
-            if full.contains(D_DECL) {
-                validate(name, &full.replace(D_DECL, "const D: u32 = 1u;"));
-            }
-            if full.contains(COUNT_OFF) {
-                validate(COUNTING, &full.replace(COUNT_OFF, COUNT_ON));
-            }
-        }
-    }
-
-    #[test]
-    fn params_struct_matches_the_wgsl_uniform_size() {
-        assert_eq!(std::mem::size_of::<Params>(), 160);
-    }
 }
