@@ -4,7 +4,7 @@
 // 2-D mean, conic, opacity, camera z and features per Gaussian, then adds them with one atomic
 // each.
 // `grads` and grad_add come from grads_float.wgsl (float32 atomicAdd) or grads_cas.wgsl
-// (compare-and-swap), one kernel each (crates/raster/build.rs), so both paths share this source.
+// (compare-and-swap), one kernel each (crates/raster/build/main.rs): both share this source.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> inputs: array<f32>;

@@ -17,8 +17,8 @@
 // Words 2..8: the work counters, (low, high) pairs, of the counting build.
 @group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>>;
 
-// True only in the counting build (its own pipeline, crates/raster/build.rs), which tallies pixel
-// steps evaluated, composited and walked after the pixel closed; false compiles the tallies away.
+// True only in the counting build (its own kernel, crates/raster/build/main.rs), which tallies
+// pixel steps evaluated, composited and walked after the pixel closed; false compiles them away.
 override COUNT_WORK: bool = false;
 
 // Adds the four lanes of `lanes` to 64-bit counter k, carrying into its high word when the low

@@ -1,4 +1,4 @@
-// Shared by every splatting pass: crates/raster/build.rs puts it before each pass's own files
+// Shared by every splatting pass: crates/raster/build/main.rs puts it before each pass's own files
 // (its KERNELS table). It holds the per-call parameters and the numerical guards, each named once;
 // the host's `Params` struct and constants are generated from this file. Every pass binds `params`.
 

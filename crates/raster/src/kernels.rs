@@ -1,4 +1,4 @@
-//! The compute kernels, as crates/raster/build.rs assembled, validated and reflected them from
+//! The compute kernels, as crates/raster/build/main.rs assembled, validated and reflected them from
 //! shaders/*.wgsl; `GpuContext::pipeline` builds their pipelines.
 
 include!(concat!(env!("OUT_DIR"), "/kernels.rs"));
@@ -15,7 +15,7 @@ mod tests {
     use super::*;
     use crate::GpuContext;
 
-    /// build.rs validated each source with naga; wgpu also builds every pipeline (overrides
+    /// The build script validated each source with naga; wgpu also builds every pipeline (overrides
     /// applied) for the extreme channel counts, and an invalid one panics the device.
     #[test]
     fn every_kernel_builds_a_pipeline_for_one_and_max_channels() {
