@@ -15,6 +15,6 @@ pub use context::{dispatch_dims, AdapterChoice, AtomicMode, GpuContext, GpuError
 pub use kernels::Kernel;
 pub use scan::{exclusive_scan_u32, ScanScratch};
 pub use splat::{
-    rasterize_backward, rasterize_forward, Camera, ForwardOutput, Gaussians, Gradients, PassTimes,
-    WorkCounts,
+    rasterize_backward, rasterize_forward, Camera, ForwardOutput, Gaussians, Gradients,
+    OutputGrads, PassTimes, Render, WorkCounts,
 };

@@ -130,6 +130,29 @@ impl Buffers {
         }
     }
 
+    /// The buffer that every kernel binding it names `name` (the ping-pong buffers and those
+    /// named by their role in one kernel are given to the bind group by that role instead).
+    pub fn named(&self, name: &str) -> Option<&wgpu::Buffer> {
+        Some(match name {
+            "params" => &self.params,
+            "live_blocks" => &self.live_blocks,
+            "inputs" => &self.inputs.buf,
+            "counters" => &self.counters.buf,
+            "proj" => &self.proj.buf,
+            "offsets" => &self.offsets.buf,
+            "hist" => &self.hist.buf,
+            "ranges" => &self.ranges.buf,
+            "out_image" => &self.image.buf,
+            "out_depth" => &self.depth.buf,
+            "out_alpha" => &self.alpha.buf,
+            "aux" => &self.aux.buf,
+            "grad_in" => &self.grad_in.buf,
+            "grads" => &self.grads.buf,
+            "param_grads" => &self.param_grads.buf,
+            _ => return None,
+        })
+    }
+
     fn staging_buffer(ctx: &GpuContext, bytes: u64) -> wgpu::Buffer {
         ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("splat readback"),
