@@ -11,11 +11,12 @@ use evsplat_raster::{
     Gaussians, GpuError, OutputGrads, PassTimes, Render,
 };
 
+use crate::errors::value_err;
 use crate::gpu::context;
 
 fn raster_err(e: GpuError) -> PyErr {
     match e {
-        GpuError::Invalid(m) => PyValueError::new_err(m),
+        GpuError::Invalid(m) => value_err(m),
         other => crate::gpu::gpu_err(other),
     }
 }

@@ -6,7 +6,7 @@ the inputs and turns core errors into one-line ``EvsplatError``s.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, TypeVar, Union
 
 import numpy as np
@@ -136,8 +136,9 @@ class EventStream:
         ta = _one_dim(t, "t", source)
         ts = np.ascontiguousarray(ta) if ta.dtype == np.int64 else _as_int64(ta, "t", source)
         ps = _polarity_int8(p, source)
-        mapped = _core_call(source, _core.validate_events, xs, ys, ts, ps, width, height)
-        return cls(xs, ys, ts, ps if mapped is None else mapped, width, height, source)
+        stream = cls(xs, ys, ts, ps, width, height, source)
+        mapped = _core_call(source, _core.validate_events, stream)
+        return stream if mapped is None else replace(stream, p=mapped)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -181,11 +182,7 @@ class EventStream:
         """The images named in ``want`` ("esi", "count", "mask") from one counting pass."""
         return self._call(
             _core.accumulate,
-            self.x,
-            self.y,
-            self.p,
-            self.width,
-            self.height,
+            self,
             int(i0),
             int(i1),
             self._contrast(c_pos, "c_pos"),
@@ -211,9 +208,7 @@ class EventStream:
 
     def event_mask(self, i0: int, i1: int) -> np.ndarray:
         """bool[H, W]: True where at least one event fired in [i0, i1)."""
-        return self._call(
-            _core.event_mask, self.x, self.y, self.p, self.width, self.height, int(i0), int(i1)
-        )
+        return self._call(_core.event_mask, self, int(i0), int(i1))
 
     def esi_by_channel(
         self, i0: int, i1: int, c_pos: Contrast, c_neg: Contrast, pattern: str
@@ -223,11 +218,7 @@ class EventStream:
         C = 1 for "mono"."""
         return self._call(
             _core.esi_by_channel,
-            self.x,
-            self.y,
-            self.p,
-            self.width,
-            self.height,
+            self,
             int(i0),
             int(i1),
             self._contrast(c_pos, "c_pos"),
@@ -265,11 +256,7 @@ class EventStream:
             )
         values, valid = self._call(
             _core.patches,
-            self.x,
-            self.y,
-            self.p,
-            self.width,
-            self.height,
+            self,
             b,
             np.ascontiguousarray(c, np.float32).reshape(-1),
             c.ndim == 3,
@@ -286,18 +273,7 @@ class EventStream:
         """float32[bins, H, W]: each event adds p·max(0, 1 − |tn − b|) to bin b, with
         tn = (bins − 1)(t − t_first)/(t_last − t_first) over the window (0 if all t equal).
         Time is made window-relative in integers first, so absolute offsets do not matter."""
-        return self._call(
-            _core.voxel_grid,
-            self.x,
-            self.y,
-            self.t,
-            self.p,
-            self.width,
-            self.height,
-            int(i0),
-            int(i1),
-            int(bins),
-        )
+        return self._call(_core.voxel_grid, self, int(i0), int(i1), int(bins))
 
     def slice(self, i0: int, i1: int) -> EventStream:
         """Events [i0, i1) as a new stream sharing this one's memory (no copy, no re-check)."""
