@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from evsplat import _core
-from evsplat.errors import EvsplatError
+from evsplat.errors import EvsplatError, core_call
 
 MAX_FEATURES = 32
 
@@ -70,10 +70,9 @@ def _args(means, quats, scales, opacities, features, viewmat, K, background, cam
 
 
 def _core_call(fn, *args, **kwargs) -> dict:
+    """GPU failures (RuntimeError) get the "rasterize:" prefix the core's input errors carry."""
     try:
-        return fn(*args, **kwargs)
-    except ValueError as e:
-        raise EvsplatError(str(e)) from None
+        return core_call(None, fn, *args, **kwargs)
     except RuntimeError as e:
         raise EvsplatError(f"rasterize: {e}") from None
 
