@@ -192,3 +192,42 @@ impl Backward {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::super::buffers::Sizes;
+    use super::*;
+    use crate::wgsl::{Params, SortPass};
+
+    /// Every binding of every splat kernel resolves to a buffer by its WGSL name (a mismatch
+    /// panics in `bind`), and wgpu accepts the groups.
+    #[test]
+    fn every_splat_binding_resolves_by_name() {
+        let ctx = GpuContext::global().expect("a Vulkan adapter (lavapipe in CI) is required");
+        let mut b = Buffers::new(ctx, std::mem::size_of::<Params>() as u64);
+        let sizes = Sizes {
+            n: 1,
+            d: 1,
+            pixels: 1,
+            tiles: 1,
+            isect: super::super::forward::MIN_ISECT_CAP,
+        };
+        b.ensure(ctx, sizes).expect("room for one Gaussian");
+        let passes: Vec<wgpu::Buffer> = (0..16)
+            .map(|_| {
+                ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: None,
+                    size: std::mem::size_of::<SortPass>() as u64,
+                    usage: wgpu::BufferUsages::UNIFORM,
+                    mapped_at_creation: false,
+                })
+            })
+            .collect();
+        Forward::new(ctx, &b, &passes, 1).raster(ctx, &b, true, 1);
+        Backward::new(ctx, &b, AtomicMode::Cas, 1);
+        if ctx.float_atomics {
+            Backward::new(ctx, &b, AtomicMode::Float, 1);
+        }
+        ctx.wait().expect("the device survives");
+    }
+}
