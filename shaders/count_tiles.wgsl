@@ -1,4 +1,3 @@
-// prelude: splat_common.wgsl
 // Tiles each Gaussian reaches (tile_hit), in depth order (one thread per sorted rank), plus a 0
 // after the last rank; scanned in place afterwards into the offsets at which emit_keys.wgsl
 // writes that Gaussian's tile keys (offsets[n] is the total).

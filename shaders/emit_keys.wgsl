@@ -1,4 +1,3 @@
-// prelude: splat_common.wgsl
 // One (tile, Gaussian) pair per tile a Gaussian reaches, written at its scanned offset. Ranks are
 // in depth order, so a stable sort by tile alone leaves every tile's list front to back.
 // Rank 0 records the total count and the live keys' workgroup counts; pairs beyond the capacity are dropped and the host grows the

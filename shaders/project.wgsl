@@ -1,4 +1,3 @@
-// prelude: splat_common.wgsl splat_project.wgsl
 // Pass 1, one thread per Gaussian: 3-D mean, scale, rotation -> 2-D mean, conic, depth, 3-sigma
 // radius (0 = culled), and the depth sort key (float bits of camera z; culled ones sort last).
 

@@ -1,4 +1,3 @@
-// prelude: splat_common.wgsl splat_project.wgsl
 // Projection backward, one thread per Gaussian: gradients of the 2-D mean, conic and camera z
 // (accumulated by rasterize_bwd.wgsl) -> gradients of the 3-D mean, quaternion and scales.
 // Writes 10 floats per Gaussian: mean (3), quaternion (4), scale (3).
@@ -14,10 +13,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (i >= params.n) {
         return;
     }
-    let ob = 10u * i;
+    let ob = PARAM_GRADS * i;
     let pr = project_gaussian(i);
     if (!pr.valid) {
-        for (var k = 0u; k < 10u; k = k + 1u) {
+        for (var k = 0u; k < PARAM_GRADS; k = k + 1u) {
             param_grads[ob + k] = 0.0;
         }
         return;

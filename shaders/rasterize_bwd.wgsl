@@ -1,11 +1,10 @@
-// prelude: splat_common.wgsl
 // Backward compositing, one 16x4 workgroup per 16x16 tile, four pixels per invocation (vec4 lanes,
 // see splat_common.wgsl): each pixel replays its list back to front from the stored final
 // transmittance and last contributor (as 3DGS); an invocation sums its pixels' gradients of the
 // 2-D mean, conic, opacity, camera z and features per Gaussian, then adds them with one atomic
 // each.
-// grad_add is the float32 atomicAdd; the compare-and-swap build replaces its body (see
-// crates/raster/src/splat/mod.rs), so both paths come from this one source.
+// `grads` and grad_add come from grads_float.wgsl (float32 atomicAdd) or grads_cas.wgsl
+// (compare-and-swap), one kernel each (crates/raster/build/main.rs): both share this source.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> inputs: array<f32>;
@@ -15,13 +14,6 @@
 @group(0) @binding(5) var<storage, read> aux: array<vec4<f32>>;
 // dL/dimage (H*W*D), then dL/ddepth (H*W), then dL/dalpha (H*W).
 @group(0) @binding(6) var<storage, read> grad_in: array<f32>;
-// Per Gaussian (grad_stride = 8 + D floats): mean2d x, y, conic a, b, c, opacity, z, unused,
-// then the D features.
-@group(0) @binding(7) var<storage, read_write> grads: array<atomic<f32>>;
-
-fn grad_add(i: u32, v: f32) {
-    atomicAdd(&grads[i], v);
-}
 
 @compute @workgroup_size(16, 4)
 fn main(
@@ -105,7 +97,7 @@ fn main(
         for (var c = 0u; c < D; c = c + 1u) {
             let f = inputs[fb + c];
             g_alpha = g_alpha + g_img[c] * (f * t - after[c] / one_minus);
-            grad_add(gb + 8u + c, dot(g_img[c], w));
+            grad_add(gb + GRAD_HEAD + c, dot(g_img[c], w));
             after[c] = after[c] + f * w;
         }
         g_alpha = g_alpha + g_z * (mo.w * t - after_z / one_minus);

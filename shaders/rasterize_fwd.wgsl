@@ -1,4 +1,3 @@
-// prelude: splat_common.wgsl
 // Forward compositing, one 16x4 workgroup per 16x16 tile, four pixels per invocation (vec4 lanes,
 // see splat_common.wgsl): each pixel blends the tile's depth-sorted Gaussians front to back until
 // its transmittance would fall below T_MIN; the invocation stops when all four have.
@@ -18,9 +17,9 @@
 // Words 2..8: the work counters, (low, high) pairs, of the counting build.
 @group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>>;
 
-// True only in the counting build (crates/raster/src/splat/mod.rs), which tallies pixel steps
-// evaluated, composited and walked after the pixel closed; false compiles the tallies away.
-const COUNT_WORK: bool = false;
+// True only in the counting build (its own kernel, crates/raster/build/main.rs), which tallies
+// pixel steps evaluated, composited and walked after the pixel closed; false compiles them away.
+override COUNT_WORK: bool = false;
 
 // Adds the four lanes of `lanes` to 64-bit counter k, carrying into its high word when the low
 // word wraps.

@@ -1,4 +1,3 @@
-// prelude: splat_common.wgsl
 // One 4-bit pass of a stable LSD radix sort of (key, value) u32 pairs.
 // histogram: per-workgroup digit counts, stored digit-major (hist[digit * blocks + block]) so
 // that one exclusive scan (scan.wgsl) turns them into global destinations.
@@ -20,10 +19,11 @@ struct SortPass {
 @group(0) @binding(6) var<storage, read_write> keys_out: array<u32>;
 @group(0) @binding(7) var<storage, read_write> vals_out: array<u32>;
 
-const WG: u32 = 256u;
-var<workgroup> local_hist: array<atomic<u32>, 16>;
-var<workgroup> block_digits: array<u32, 256>;
-var<workgroup> block_ranks: array<u32, 256>;
+const SORT_BLOCK: u32 = 256u;
+const DIGITS: u32 = 16u; // of 4 bits
+var<workgroup> local_hist: array<atomic<u32>, DIGITS>;
+var<workgroup> block_digits: array<u32, SORT_BLOCK>;
+var<workgroup> block_ranks: array<u32, SORT_BLOCK>;
 
 fn live_count() -> u32 {
     if (pass_info.which == 0u) {
@@ -35,16 +35,16 @@ fn live_count() -> u32 {
 // Blocks in the histogram layout: fixed by the buffer capacity, not by the live count.
 fn num_blocks() -> u32 {
     if (pass_info.which == 0u) {
-        return (params.n + WG - 1u) / WG;
+        return (params.n + SORT_BLOCK - 1u) / SORT_BLOCK;
     }
-    return (params.cap + WG - 1u) / WG;
+    return (params.cap + SORT_BLOCK - 1u) / SORT_BLOCK;
 }
 
 fn digit(key: u32) -> u32 {
-    return (key >> pass_info.shift) & 15u;
+    return (key >> pass_info.shift) & (DIGITS - 1u);
 }
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(SORT_BLOCK)
 fn histogram(
     @builtin(local_invocation_index) lid: u32,
     @builtin(workgroup_id) wid: vec3<u32>,
@@ -56,40 +56,40 @@ fn histogram(
     // run (an indirect dispatch; the host clears the rest). A block with no live element (no
     // keys at all) only writes its zero counts (whole workgroup, so the barriers below stay in
     // uniform control flow).
-    if (block * WG >= live_count()) {
-        if (lid < 16u && block < nb) {
+    if (block * SORT_BLOCK >= live_count()) {
+        if (lid < DIGITS && block < nb) {
             hist[lid * nb + block] = 0u;
         }
         return;
     }
-    if (lid < 16u) {
+    if (lid < DIGITS) {
         atomicStore(&local_hist[lid], 0u);
     }
     workgroupBarrier();
-    let i = block * WG + lid;
+    let i = block * SORT_BLOCK + lid;
     if (i < live_count()) {
         atomicAdd(&local_hist[digit(keys_in[i])], 1u);
     }
     workgroupBarrier();
-    if (lid < 16u && block < nb) {
+    if (lid < DIGITS && block < nb) {
         hist[lid * nb + block] = atomicLoad(&local_hist[lid]);
     }
 }
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(SORT_BLOCK)
 fn scatter(
     @builtin(local_invocation_index) lid: u32,
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(num_workgroups) nwg: vec3<u32>,
 ) {
     let block = wid.x + wid.y * nwg.x;
-    if (block * WG >= live_count()) {
+    if (block * SORT_BLOCK >= live_count()) {
         return; // nothing live in this block (see histogram)
     }
-    let i = block * WG + lid;
+    let i = block * SORT_BLOCK + lid;
     let live = i < live_count();
     var key = 0u;
-    var d = 16u; // no digit: not a live element
+    var d = DIGITS; // no digit: not a live element
     if (live) {
         key = keys_in[i];
         d = digit(key);
@@ -99,10 +99,10 @@ fn scatter(
     // Stable ranks within the block: one serial walk of 256 digits (cheap next to a parallel
     // scan of 16 counters, which spills registers on CPU and GPU alike).
     if (lid == 0u) {
-        var counts: array<u32, 16>;
-        for (var j = 0u; j < WG; j = j + 1u) {
+        var counts: array<u32, DIGITS>;
+        for (var j = 0u; j < SORT_BLOCK; j = j + 1u) {
             let dj = block_digits[j];
-            if (dj < 16u) {
+            if (dj < DIGITS) {
                 block_ranks[j] = counts[dj];
                 counts[dj] = counts[dj] + 1u;
             }

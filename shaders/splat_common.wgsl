@@ -1,6 +1,6 @@
-// Shared by every splatting pass: crates/raster/src/splat/mod.rs prepends the files a pass
-// names on its first line ("// prelude: splat_common.wgsl ..."). This one holds the per-call
-// parameters and the numerical guards, each named once. Every pass binds `params`.
+// Shared by every splatting pass: crates/raster/build/main.rs puts it before each pass's own files
+// (its KERNELS table). It holds the per-call parameters and the numerical guards, each named once;
+// the host's `Params` struct and constants are generated from this file. Every pass binds `params`.
 
 struct Params {
     view: mat4x4<f32>, // world -> camera, column-major
@@ -31,10 +31,14 @@ struct Params {
 }
 
 const TILE: u32 = 16u;
-// Feature channels. The pipelines are built once per channel count with this constant set to it
-// (crates/raster/src/splat/mod.rs), so per-pixel channel loops unroll into registers; 32 (the
-// maximum) is what the file says for validation.
-const D: u32 = 32u;
+// Feature channels: the compositing passes use `D`, which the host declares per pipeline
+// (crates/raster/src/kernels.rs) as the render's channel count, 1 to MAX_D, so per-pixel channel
+// loops unroll into registers.
+const MAX_D: u32 = 32u;
+// Floats per Gaussian in the gradient accumulator before the D features (rasterize_bwd.wgsl), and
+// floats per Gaussian written by project_bwd.wgsl (mean 3, quaternion 4, scale 3).
+const GRAD_HEAD: u32 = 8u;
+const PARAM_GRADS: u32 = 10u;
 // 3DGS guards.
 const LOW_PASS: f32 = 0.3; // px^2 added to the 2-D covariance diagonal (anti-aliasing, det > 0)
 const ALPHA_MIN: f32 = 0.00392156862745098; // 1/255: fainter fragments are skipped

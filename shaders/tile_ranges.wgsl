@@ -1,4 +1,3 @@
-// prelude: splat_common.wgsl
 // [start, end) of each tile's run in the tile-sorted intersection list (ranges cleared to 0 first).
 
 @group(0) @binding(0) var<uniform> params: Params;

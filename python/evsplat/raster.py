@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from evsplat import _core
-from evsplat.errors import EvsplatError
+from evsplat.errors import EvsplatError, core_call
 
 MAX_FEATURES = 32
 
@@ -69,11 +69,10 @@ def _args(means, quats, scales, opacities, features, viewmat, K, background, cam
     )
 
 
-def _core_call(fn, **kwargs) -> dict:
+def _core_call(fn, *args, **kwargs) -> dict:
+    """GPU failures (RuntimeError) get the "rasterize:" prefix the core's input errors carry."""
     try:
-        return fn(**kwargs)
-    except ValueError as e:
-        raise EvsplatError(str(e)) from None
+        return core_call(None, fn, *args, **kwargs)
     except RuntimeError as e:
         raise EvsplatError(f"rasterize: {e}") from None
 
@@ -100,26 +99,26 @@ class _Rasterize(torch.autograd.Function):
         radii = torch.from_numpy(out["radii"])
         means2d = torch.from_numpy(out["means2d"]).reshape(n, 2)
         depths = torch.from_numpy(out["depths"])
-        ctx.save_for_backward(means, quats, scales, opacities, features, viewmat, K, background)
+        # The render's state (its inputs included) is all the backward needs.
+        ctx.render = out["state"]
         ctx.cam = cam
-        ctx.render_id = out["id"]
+        ctx.shape = (n, d)
         ctx.means2d_grad = means2d_grad
         ctx.mark_non_differentiable(radii, means2d, depths)
         return image, depth, alpha, radii, means2d, depths
 
     @staticmethod
     def backward(ctx, g_image, g_depth, g_alpha, _r, _m, _d):
-        means, quats, scales, opacities, features, viewmat, K, background = ctx.saved_tensors
         cam: _Camera = ctx.cam
-        h, w, d = cam.height, cam.width, features.shape[1]
+        n, d = ctx.shape
+        h, w = cam.height, cam.width
 
         def grad(g, shape):
             return np.zeros(int(np.prod(shape)), np.float32) if g is None else _flat(g.float())
 
         out = _core_call(
             _core.rasterize_backward,
-            **_args(means, quats, scales, opacities, features, viewmat, K, background, cam),
-            id=ctx.render_id,
+            ctx.render,
             grad_image=grad(g_image, (h, w, d)),
             grad_depth=grad(g_depth, (h, w)),
             grad_alpha=grad(g_alpha, (h, w)),
@@ -128,7 +127,6 @@ class _Rasterize(torch.autograd.Function):
         )
         if cam.profile is not None:
             cam.profile["backward"] = dict(out["times"])
-        n = means.shape[0]
         ctx.means2d_grad.copy_(torch.from_numpy(out["means2d"]).reshape(n, 2))
         return (
             torch.from_numpy(out["means"]).reshape(n, 3),

@@ -8,12 +8,9 @@ use numpy::{
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
+use crate::errors::value_err;
 use evsplat_camera::distortion::{self, undistort_pixels};
-use evsplat_camera::{Distortion, Se3, SplineError, SplineSe3};
-
-fn spline_err(e: SplineError) -> PyErr {
-    PyValueError::new_err(e.to_string())
-}
+use evsplat_camera::{Distortion, Se3, SplineSe3};
 
 /// (angular, linear) body velocities, [N,3] each.
 type Velocities<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>);
@@ -53,7 +50,7 @@ impl SplineTrajectory {
             .collect();
         let inner = py
             .detach(|| SplineSe3::fit(&times, &poses, knot_interval))
-            .map_err(spline_err)?;
+            .map_err(value_err)?;
         Ok(SplineTrajectory { inner })
     }
 
@@ -79,7 +76,7 @@ impl SplineTrajectory {
         times: PyReadonlyArray1<'py, f64>,
     ) -> PyResult<Bound<'py, PyArray3<f64>>> {
         let t = times.as_slice()?;
-        let mats = py.detach(|| self.inner.poses(t)).map_err(spline_err)?;
+        let mats = py.detach(|| self.inner.poses(t)).map_err(value_err)?;
         let rows: Vec<Vec<Vec<f64>>> = mats
             .iter()
             .map(|m| {
@@ -101,7 +98,7 @@ impl SplineTrajectory {
         times: PyReadonlyArray1<'py, f64>,
     ) -> PyResult<Velocities<'py>> {
         let t = times.as_slice()?;
-        let vel = py.detach(|| self.inner.velocities(t)).map_err(spline_err)?;
+        let vel = py.detach(|| self.inner.velocities(t)).map_err(value_err)?;
         let w: Vec<Vec<f64>> = vel.iter().map(|(w, _)| w.to_array().to_vec()).collect();
         let v: Vec<Vec<f64>> = vel.iter().map(|(_, v)| v.to_array().to_vec()).collect();
         if vel.is_empty() {
@@ -115,7 +112,7 @@ impl SplineTrajectory {
 }
 
 fn lens(model: &str, coeffs: Vec<f64>) -> PyResult<Distortion> {
-    Distortion::new(model, &coeffs).map_err(|e| PyValueError::new_err(e.to_string()))
+    Distortion::new(model, &coeffs).map_err(value_err)
 }
 
 /// Undistorts pixel `points` [N,2] (x, y) of a camera with intrinsics `k` = [fx, fy, cx, cy] and
@@ -141,7 +138,7 @@ fn undistort_points<'py>(
     let n = pts.len();
     let out = py
         .detach(|| undistort_pixels(&d, k, &pts))
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        .map_err(value_err)?;
     let flat: Vec<f64> = out.into_iter().flatten().collect();
     PyArray1::from_vec(py, flat).reshape([n, 2])
 }
@@ -160,7 +157,7 @@ fn rectification_map<'py>(
     let d = lens(model, coeffs)?;
     let map = py
         .detach(|| distortion::rectification_map(&d, k, width, height))
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        .map_err(value_err)?;
     let flat: Vec<f64> = map.into_iter().flatten().collect();
     PyArray1::from_vec(py, flat).reshape([height, width, 2])
 }

@@ -6,12 +6,10 @@ use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
+use crate::errors::value_err;
+
 use evsplat_events as ev;
 use evsplat_events::{Contrast, EventError, EventSlice, Sensor, Threshold};
-
-fn err(e: EventError) -> PyErr {
-    PyValueError::new_err(e.to_string())
-}
 
 /// A contrast threshold from Python: a float, or a contiguous float32 array with one value per
 /// pixel (flattened row-major).
@@ -30,21 +28,49 @@ impl ThresholdArg<'_> {
     }
 }
 
-/// The validated events `[i0, i1)` of a stream.
-fn events<'a>(
+/// An `EventStream` (python/evsplat/data/events.py), read by attribute: its arrays borrowed
+/// without copying, and its sensor size.
+#[derive(FromPyObject)]
+struct Stream<'py> {
+    x: PyReadonlyArray1<'py, u16>,
+    y: PyReadonlyArray1<'py, u16>,
+    t: PyReadonlyArray1<'py, i64>,
+    p: PyReadonlyArray1<'py, i8>,
+    width: u64,
+    height: u64,
+}
+
+/// A stream's arrays as slices, with its checked sensor.
+struct Arrays<'a> {
     x: &'a [u16],
     y: &'a [u16],
+    t: &'a [i64],
     p: &'a [i8],
     sensor: Sensor,
-    i0: i64,
-    i1: i64,
-) -> Result<EventSlice<'a>, EventError> {
-    let (a, b) = ev::check_range(i0, i1, x.len())?;
-    EventSlice::new(&x[a..b], &y[a..b], &p[a..b], sensor)
+}
+
+impl Stream<'_> {
+    fn arrays(&self) -> PyResult<Arrays<'_>> {
+        Ok(Arrays {
+            sensor: sensor(self.width, self.height)?,
+            x: self.x.as_slice()?,
+            y: self.y.as_slice()?,
+            t: self.t.as_slice()?,
+            p: self.p.as_slice()?,
+        })
+    }
+}
+
+impl<'a> Arrays<'a> {
+    /// The validated events `[i0, i1)`.
+    fn window(&self, i0: i64, i1: i64) -> Result<EventSlice<'a>, EventError> {
+        let (a, b) = ev::check_range(i0, i1, self.x.len())?;
+        EventSlice::new(&self.x[a..b], &self.y[a..b], &self.p[a..b], self.sensor)
+    }
 }
 
 fn sensor(width: u64, height: u64) -> PyResult<Sensor> {
-    Sensor::new(width, height).map_err(err)
+    Sensor::new(width, height).map_err(value_err)
 }
 
 /// Validates a stream in canonical dtypes. Returns the polarity mapped to ±1 when the input
@@ -52,22 +78,18 @@ fn sensor(width: u64, height: u64) -> PyResult<Sensor> {
 #[pyfunction]
 fn validate_events<'py>(
     py: Python<'py>,
-    x: PyReadonlyArray1<'py, u16>,
-    y: PyReadonlyArray1<'py, u16>,
-    t: PyReadonlyArray1<'py, i64>,
-    p: PyReadonlyArray1<'py, i8>,
-    width: u64,
-    height: u64,
+    events: Stream<'py>,
 ) -> PyResult<Option<Bound<'py, PyArray1<i8>>>> {
-    let s = sensor(width, height)?;
-    let (x, y, t, p) = (x.as_slice()?, y.as_slice()?, t.as_slice()?, p.as_slice()?);
+    let a = events.arrays()?;
     let mapped = py.detach(|| {
-        ev::validate(x, y, t, p, s).map(|c| match c {
+        ev::validate(a.x, a.y, a.t, a.p, a.sensor).map(|c| match c {
             std::borrow::Cow::Owned(v) => Some(v),
             std::borrow::Cow::Borrowed(_) => None,
         })
     });
-    Ok(mapped.map_err(err)?.map(|v| PyArray1::from_vec(py, v)))
+    Ok(mapped
+        .map_err(value_err)?
+        .map(|v| PyArray1::from_vec(py, v)))
 }
 
 /// Polarities given as integers of any width, mapped to ±1 (i8).
@@ -77,7 +99,7 @@ fn polarity_from_int64<'py>(
     p: PyReadonlyArray1<'py, i64>,
 ) -> PyResult<Bound<'py, PyArray1<i8>>> {
     let p = p.as_slice()?;
-    let out = py.detach(|| ev::polarity_from_i64(p)).map_err(err)?;
+    let out = py.detach(|| ev::polarity_from_i64(p)).map_err(value_err)?;
     Ok(PyArray1::from_vec(py, out))
 }
 
@@ -90,7 +112,7 @@ fn float_to_int64<'py>(
 ) -> PyResult<Bound<'py, PyArray1<i64>>> {
     let name = static_name(name);
     let v = values.as_slice()?;
-    let out = py.detach(|| ev::float_to_i64(v, name)).map_err(err)?;
+    let out = py.detach(|| ev::float_to_i64(v, name)).map_err(value_err)?;
     Ok(PyArray1::from_vec(py, out))
 }
 
@@ -110,7 +132,7 @@ fn coords_to_uint16<'py>(
     let v = values.as_slice()?;
     let out = py
         .detach(|| ev::coords_to_u16(v, axis, dim, limit))
-        .map_err(err)?;
+        .map_err(value_err)?;
     Ok(PyArray1::from_vec(py, out))
 }
 
@@ -141,7 +163,7 @@ fn window_by_time(
 /// Index range of `count` events from `start`, clipped to a stream of `len` events.
 #[pyfunction]
 fn window_by_count(len: usize, start: i64, count: i64) -> PyResult<(usize, usize)> {
-    ev::window_by_count(len, start, count).map_err(err)
+    ev::window_by_count(len, start, count).map_err(value_err)
 }
 
 /// `m + 1` boundaries splitting `[i0, i1)` of a stream of `len` events into equal counts.
@@ -153,33 +175,27 @@ fn split_equal_count<'py>(
     i1: i64,
     m: usize,
 ) -> PyResult<Bound<'py, PyArray1<i64>>> {
-    let (a, b) = ev::check_range(i0, i1, len).map_err(err)?;
+    let (a, b) = ev::check_range(i0, i1, len).map_err(value_err)?;
     Ok(PyArray1::from_vec(
         py,
-        ev::split_equal_count(a, b, m).map_err(err)?,
+        ev::split_equal_count(a, b, m).map_err(value_err)?,
     ))
 }
 
 /// ESI, event count and event mask of `[i0, i1)` from one counting pass; `want` selects which
 /// ("esi", "count", "mask"), so unused outputs cost nothing.
 #[pyfunction]
-#[allow(clippy::too_many_arguments)]
-#[pyo3(signature = (x, y, p, width, height, i0, i1, c_pos, c_neg, want))]
 fn accumulate<'py>(
     py: Python<'py>,
-    x: PyReadonlyArray1<'py, u16>,
-    y: PyReadonlyArray1<'py, u16>,
-    p: PyReadonlyArray1<'py, i8>,
-    width: u64,
-    height: u64,
+    events: Stream<'py>,
     i0: i64,
     i1: i64,
     c_pos: ThresholdArg<'py>,
     c_neg: ThresholdArg<'py>,
     want: Vec<String>,
 ) -> PyResult<Vec<Bound<'py, PyAny>>> {
-    let s = sensor(width, height)?;
-    let (x, y, p) = (x.as_slice()?, y.as_slice()?, p.as_slice()?);
+    let a = events.arrays()?;
+    let s = a.sensor;
     let c = Contrast {
         pos: c_pos.get()?,
         neg: c_neg.get()?,
@@ -187,9 +203,9 @@ fn accumulate<'py>(
     let counts = py
         .detach(|| {
             c.check(s)?;
-            ev::polarity_counts(&events(x, y, p, s, i0, i1)?)
+            ev::polarity_counts(&a.window(i0, i1)?)
         })
-        .map_err(err)?;
+        .map_err(value_err)?;
     let shape = [s.height as usize, s.width as usize];
     want.iter()
         .map(|w| {
@@ -215,22 +231,17 @@ fn accumulate<'py>(
 
 /// Event mask of `[i0, i1)` alone (no counts: a smaller image to scatter into).
 #[pyfunction]
-#[allow(clippy::too_many_arguments)]
 fn event_mask<'py>(
     py: Python<'py>,
-    x: PyReadonlyArray1<'py, u16>,
-    y: PyReadonlyArray1<'py, u16>,
-    p: PyReadonlyArray1<'py, i8>,
-    width: u64,
-    height: u64,
+    events: Stream<'py>,
     i0: i64,
     i1: i64,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let s = sensor(width, height)?;
-    let (x, y, p) = (x.as_slice()?, y.as_slice()?, p.as_slice()?);
+    let a = events.arrays()?;
+    let s = a.sensor;
     let mask = py
-        .detach(|| ev::event_mask(&events(x, y, p, s, i0, i1)?))
-        .map_err(err)?;
+        .detach(|| ev::event_mask(&a.window(i0, i1)?))
+        .map_err(value_err)?;
     Ok(PyArray1::from_vec(py, mask)
         .reshape([s.height as usize, s.width as usize])?
         .into_any())
@@ -238,23 +249,18 @@ fn event_mask<'py>(
 
 /// ESI of `[i0, i1)` split by colour-filter channel: (C, H, W), C = 3 for Bayer, 1 for mono.
 #[pyfunction]
-#[allow(clippy::too_many_arguments)]
 fn esi_by_channel<'py>(
     py: Python<'py>,
-    x: PyReadonlyArray1<'py, u16>,
-    y: PyReadonlyArray1<'py, u16>,
-    p: PyReadonlyArray1<'py, i8>,
-    width: u64,
-    height: u64,
+    events: Stream<'py>,
     i0: i64,
     i1: i64,
     c_pos: ThresholdArg<'py>,
     c_neg: ThresholdArg<'py>,
     pattern: &str,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let s = sensor(width, height)?;
-    let bayer = ev::Bayer::parse(pattern).map_err(err)?;
-    let (x, y, p) = (x.as_slice()?, y.as_slice()?, p.as_slice()?);
+    let a = events.arrays()?;
+    let s = a.sensor;
+    let bayer = ev::Bayer::parse(pattern).map_err(value_err)?;
     let c = Contrast {
         pos: c_pos.get()?,
         neg: c_neg.get()?,
@@ -262,10 +268,10 @@ fn esi_by_channel<'py>(
     let out = py
         .detach(|| {
             c.check(s)?;
-            let esi = ev::polarity_counts(&events(x, y, p, s, i0, i1)?)?.esi(&c);
-            Ok(bayer.split(&esi, s))
+            let esi = ev::polarity_counts(&a.window(i0, i1)?)?.esi(&c);
+            Ok::<_, EventError>(bayer.split(&esi, s))
         })
-        .map_err(err)?;
+        .map_err(value_err)?;
     Ok(PyArray1::from_vec(py, out)
         .reshape([bayer.channels(), s.height as usize, s.width as usize])?
         .into_any())
@@ -280,7 +286,7 @@ fn bayer_channel_map<'py>(
     height: u64,
 ) -> PyResult<Bound<'py, PyAny>> {
     let s = sensor(width, height)?;
-    let map = ev::Bayer::parse(pattern).map_err(err)?.channel_map(s);
+    let map = ev::Bayer::parse(pattern).map_err(value_err)?.channel_map(s);
     Ok(PyArray1::from_vec(py, map)
         .reshape([s.height as usize, s.width as usize])?
         .into_any())
@@ -291,11 +297,7 @@ fn bayer_channel_map<'py>(
 #[allow(clippy::too_many_arguments)]
 fn patches<'py>(
     py: Python<'py>,
-    x: PyReadonlyArray1<'py, u16>,
-    y: PyReadonlyArray1<'py, u16>,
-    p: PyReadonlyArray1<'py, i8>,
-    width: u64,
-    height: u64,
+    events: Stream<'py>,
     bounds: PyReadonlyArray1<'py, i64>,
     centres: PyReadonlyArray1<'py, f32>,
     per_window: bool,
@@ -304,9 +306,8 @@ fn patches<'py>(
     c_neg: ThresholdArg<'py>,
     mode: &str,
 ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-    let s = sensor(width, height)?;
-    let mode = ev::Sampling::parse(mode).map_err(err)?;
-    let (x, y, p) = (x.as_slice()?, y.as_slice()?, p.as_slice()?);
+    let a = events.arrays()?;
+    let mode = ev::Sampling::parse(mode).map_err(value_err)?;
     let (bounds, centres) = (bounds.as_slice()?, centres.as_slice()?);
     let c = Contrast {
         pos: c_pos.get()?,
@@ -314,10 +315,10 @@ fn patches<'py>(
     };
     let out = py
         .detach(|| {
-            let all = EventSlice::new(x, y, p, s)?;
+            let all = EventSlice::new(a.x, a.y, a.p, a.sensor)?;
             ev::extract_patches(&all, bounds, centres, per_window, side, &c, mode)
         })
-        .map_err(err)?;
+        .map_err(value_err)?;
     let m = bounds.len() - 1;
     let n = if m == 0 {
         0
@@ -335,28 +336,22 @@ fn patches<'py>(
 
 /// Voxel grid (bins, H, W) of `[i0, i1)`, polarity bilinear in normalised time.
 #[pyfunction]
-#[allow(clippy::too_many_arguments)]
 fn voxel_grid<'py>(
     py: Python<'py>,
-    x: PyReadonlyArray1<'py, u16>,
-    y: PyReadonlyArray1<'py, u16>,
-    t: PyReadonlyArray1<'py, i64>,
-    p: PyReadonlyArray1<'py, i8>,
-    width: u64,
-    height: u64,
+    events: Stream<'py>,
     i0: i64,
     i1: i64,
     bins: usize,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let s = sensor(width, height)?;
-    let (x, y, t, p) = (x.as_slice()?, y.as_slice()?, t.as_slice()?, p.as_slice()?);
+    let a = events.arrays()?;
+    let s = a.sensor;
     let out = py
         .detach(|| {
-            let e = events(x, y, p, s, i0, i1)?;
-            let (a, b) = ev::check_range(i0, i1, t.len())?;
-            ev::voxel_grid(&e, &t[a..b], bins)
+            let e = a.window(i0, i1)?;
+            let (lo, hi) = ev::check_range(i0, i1, a.t.len())?;
+            ev::voxel_grid(&e, &a.t[lo..hi], bins)
         })
-        .map_err(err)?;
+        .map_err(value_err)?;
     Ok(PyArray1::from_vec(py, out)
         .reshape([bins, s.height as usize, s.width as usize])?
         .into_any())

@@ -6,11 +6,8 @@ use numpy::{PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods, ToPyArray};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use evsplat_io::{FloatImage, IoError};
-
-fn io_err(e: IoError) -> PyErr {
-    PyValueError::new_err(e.to_string())
-}
+use crate::errors::value_err;
+use evsplat_io::FloatImage;
 
 fn to_numpy<'py>(py: Python<'py>, img: FloatImage) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
     let shape: Vec<usize> = if img.channels == 1 {
@@ -18,8 +15,7 @@ fn to_numpy<'py>(py: Python<'py>, img: FloatImage) -> PyResult<Bound<'py, PyArra
     } else {
         vec![img.height, img.width, img.channels]
     };
-    let arr = numpy::ndarray::ArrayD::from_shape_vec(shape, img.data)
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let arr = numpy::ndarray::ArrayD::from_shape_vec(shape, img.data).map_err(value_err)?;
     Ok(arr.to_pyarray(py))
 }
 
@@ -44,13 +40,15 @@ fn write_png(
     let (h, w, c) = dims(img.shape())?;
     let data = img.as_slice()?;
     py.detach(|| evsplat_io::write_png(&path, data, w, h, c, bits16))
-        .map_err(io_err)
+        .map_err(value_err)
 }
 
 /// Read a PNG as float32 in [0,1]: [H,W] for grey, [H,W,3] for colour.
 #[pyfunction]
 fn read_png<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-    let img = py.detach(|| evsplat_io::read_png(&path)).map_err(io_err)?;
+    let img = py
+        .detach(|| evsplat_io::read_png(&path))
+        .map_err(value_err)?;
     to_numpy(py, img)
 }
 
@@ -66,13 +64,15 @@ fn write_exr(py: Python<'_>, path: PathBuf, depth: PyReadonlyArrayDyn<'_, f32>) 
     }
     let data = depth.as_slice()?;
     py.detach(|| evsplat_io::write_exr(&path, data, w, h))
-        .map_err(io_err)
+        .map_err(value_err)
 }
 
 /// Read the depth channel of an EXR as [H,W] float32.
 #[pyfunction]
 fn read_exr<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-    let img = py.detach(|| evsplat_io::read_exr(&path)).map_err(io_err)?;
+    let img = py
+        .detach(|| evsplat_io::read_exr(&path))
+        .map_err(value_err)?;
     to_numpy(py, img)
 }
 

@@ -4,6 +4,7 @@
 use pyo3::prelude::*;
 
 mod camera;
+mod errors;
 mod events;
 mod gpu;
 mod io;

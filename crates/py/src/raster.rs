@@ -8,19 +8,24 @@ use pyo3::types::PyDict;
 
 use evsplat_raster::{
     rasterize_backward as gpu_backward, rasterize_forward as gpu_forward, AtomicMode, Camera,
-    Gaussians, GpuError, PassTimes,
+    Gaussians, GpuError, OutputGrads, PassTimes, Render,
 };
 
+use crate::errors::value_err;
 use crate::gpu::context;
 
 fn raster_err(e: GpuError) -> PyErr {
     match e {
-        GpuError::Invalid(m) => PyValueError::new_err(m),
+        GpuError::Invalid(m) => value_err(m),
         other => crate::gpu::gpu_err(other),
     }
 }
 
 type F32<'py> = PyReadonlyArray1<'py, f32>;
+
+/// One forward render, as `rasterize_backward` needs it; returned by `rasterize_forward`.
+#[pyclass(frozen, module = "evsplat._core")]
+struct RenderState(Render);
 
 fn camera(viewmat: &[f32], k: &[f32], size: (u32, u32), range: (f32, f32)) -> PyResult<Camera> {
     let viewmat: [f32; 16] = viewmat
@@ -48,7 +53,7 @@ fn times_dict<'py>(py: Python<'py>, times: &PassTimes) -> PyResult<Bound<'py, Py
 }
 
 /// Forward render. Arrays are flat float32; returns image (H*W*D), depth, alpha, radii, means2d,
-/// depths, intersections, id, (when `profile`) per-pass host times in seconds and (when
+/// depths, intersections, state (for the backward), (when `profile`) per-pass host times in seconds and (when
 /// `count_work`) the compositing pass's step counts, else None.
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
@@ -99,7 +104,7 @@ fn rasterize_forward<'py>(
     r.set_item("means2d", PyArray1::from_vec(py, out.means2d))?;
     r.set_item("depths", PyArray1::from_vec(py, out.depths))?;
     r.set_item("intersections", out.intersections)?;
-    r.set_item("id", out.id)?;
+    r.set_item("state", Bound::new(py, RenderState(out.render))?)?;
     r.set_item("times", times_dict(py, &times)?)?;
     let work = match out.work {
         Some(w) => {
@@ -116,49 +121,20 @@ fn rasterize_forward<'py>(
     Ok(r)
 }
 
-/// Backward of render `id`: the loss gradients w.r.t. image, depth and alpha (flat float32) in;
-/// gradients of means, quats, scales, opacities, features and means2d out. `atomics` is
-/// "float", "cas" or None (the adapter's default, `EVSPLAT_ATOMICS=cas` forces CAS).
+/// Backward of the render `state`: the loss gradients w.r.t. its image, depth and alpha (flat
+/// float32) in; gradients of means, quats, scales, opacities, features and means2d out.
+/// `atomics` is "float", "cas" or None (the adapter's default, `EVSPLAT_ATOMICS=cas` forces CAS).
 #[pyfunction]
-#[allow(clippy::too_many_arguments)]
-#[pyo3(signature = (means, quats, scales, opacities, features, d, background, viewmat, k, width, height, near, far, id, grad_image, grad_depth, grad_alpha, atomics=None, profile=false))]
+#[pyo3(signature = (state, grad_image, grad_depth, grad_alpha, atomics=None, profile=false))]
 fn rasterize_backward<'py>(
     py: Python<'py>,
-    means: F32<'py>,
-    quats: F32<'py>,
-    scales: F32<'py>,
-    opacities: F32<'py>,
-    features: F32<'py>,
-    d: usize,
-    background: F32<'py>,
-    viewmat: F32<'py>,
-    k: F32<'py>,
-    width: u32,
-    height: u32,
-    near: f32,
-    far: f32,
-    id: u64,
+    state: &Bound<'py, RenderState>,
     grad_image: F32<'py>,
     grad_depth: F32<'py>,
     grad_alpha: F32<'py>,
     atomics: Option<&str>,
     profile: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let g = Gaussians {
-        means: means.as_slice()?,
-        quats: quats.as_slice()?,
-        scales: scales.as_slice()?,
-        opacities: opacities.as_slice()?,
-        features: features.as_slice()?,
-        d,
-        background: background.as_slice()?,
-    };
-    let cam = camera(
-        viewmat.as_slice()?,
-        k.as_slice()?,
-        (width, height),
-        (near, far),
-    )?;
     let mode = match atomics {
         None => None,
         Some(s) if s.eq_ignore_ascii_case("float") => Some(AtomicMode::Float),
@@ -169,27 +145,17 @@ fn rasterize_backward<'py>(
             )))
         }
     };
-    let (gi, gd, ga) = (
-        grad_image.as_slice()?,
-        grad_depth.as_slice()?,
-        grad_alpha.as_slice()?,
-    );
+    let grads = OutputGrads {
+        image: grad_image.as_slice()?,
+        depth: grad_depth.as_slice()?,
+        alpha: grad_alpha.as_slice()?,
+    };
+    let render = &state.get().0;
     let mut times = PassTimes::new();
     let out = py.detach(|| {
         let ctx = context()?;
         let mode = mode.unwrap_or_else(|| ctx.default_atomic_mode());
-        gpu_backward(
-            ctx,
-            &g,
-            &cam,
-            id,
-            gi,
-            gd,
-            ga,
-            mode,
-            profile.then_some(&mut times),
-        )
-        .map_err(raster_err)
+        gpu_backward(ctx, render, &grads, mode, profile.then_some(&mut times)).map_err(raster_err)
     })?;
     let r = PyDict::new(py);
     r.set_item("means", PyArray1::from_vec(py, out.means))?;
@@ -203,6 +169,7 @@ fn rasterize_backward<'py>(
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<RenderState>()?;
     m.add_function(wrap_pyfunction!(rasterize_forward, m)?)?;
     m.add_function(wrap_pyfunction!(rasterize_backward, m)?)?;
     Ok(())

@@ -5,15 +5,11 @@ use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2, PyReadonlyArray3,
     PyReadonlyArrayDyn,
 };
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use evsplat_sim::render::{self, Pose, Primitive, RenderError};
-use evsplat_sim::{Bayer, SimConfig, SimError};
-
-fn sim_err(e: SimError) -> PyErr {
-    PyValueError::new_err(e.to_string())
-}
+use crate::errors::value_err;
+use evsplat_sim::render::{self, Pose, Primitive};
+use evsplat_sim::{Bayer, SimConfig};
 
 type EventArrays<'py> = (
     Bound<'py, PyArray1<u16>>,
@@ -45,7 +41,7 @@ impl EventSimulator {
         bayer: &str,
         seed: u64,
     ) -> PyResult<Self> {
-        let bayer = Bayer::parse(bayer).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let bayer = Bayer::parse(bayer).map_err(value_err)?;
         let cfg = SimConfig {
             c_pos,
             c_neg,
@@ -57,7 +53,7 @@ impl EventSimulator {
             bayer,
             seed,
         };
-        let inner = evsplat_sim::EventSimulator::new(width, height, cfg).map_err(sim_err)?;
+        let inner = evsplat_sim::EventSimulator::new(width, height, cfg).map_err(value_err)?;
         Ok(EventSimulator { inner })
     }
 
@@ -71,7 +67,7 @@ impl EventSimulator {
     ) -> PyResult<EventArrays<'py>> {
         let data = frame.as_slice()?;
         let inner = &mut self.inner;
-        let ev = py.detach(|| inner.push(t_us, data)).map_err(sim_err)?;
+        let ev = py.detach(|| inner.push(t_us, data)).map_err(value_err)?;
         Ok((
             PyArray1::from_vec(py, ev.x),
             PyArray1::from_vec(py, ev.y),
@@ -79,10 +75,6 @@ impl EventSimulator {
             PyArray1::from_vec(py, ev.p),
         ))
     }
-}
-
-fn render_err(e: RenderError) -> PyErr {
-    PyValueError::new_err(e.to_string())
 }
 
 fn pose_of(m: numpy::ndarray::ArrayView2<'_, f64>) -> Pose {
@@ -137,7 +129,7 @@ impl SceneRenderer {
                 Primitive::new(shape, size, tex, params, *moving)
             })
             .collect::<Result<Vec<_>, _>>()
-            .map_err(render_err)?;
+            .map_err(value_err)?;
         Ok(SceneRenderer {
             prims,
             width,
@@ -159,17 +151,16 @@ impl SceneRenderer {
         let (w, h) = (self.width, self.height);
         let f = py
             .detach(|| render::render(&self.prims, &poses, cam, self.k, w, h))
-            .map_err(render_err)?;
-        let shape_err = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
+            .map_err(value_err)?;
         Ok((
             Array::from_shape_vec((h, w, 3), f.rgb)
-                .map_err(shape_err)?
+                .map_err(value_err)?
                 .into_pyarray(py),
             Array::from_shape_vec((h, w), f.depth)
-                .map_err(shape_err)?
+                .map_err(value_err)?
                 .into_pyarray(py),
             Array::from_shape_vec((h, w), f.mask)
-                .map_err(shape_err)?
+                .map_err(value_err)?
                 .into_pyarray(py),
         ))
     }

@@ -5,6 +5,8 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use thiserror::Error;
 
+use crate::kernels::Kernel;
+
 #[derive(Debug, Error)]
 pub enum GpuError {
     #[error(
@@ -64,7 +66,8 @@ pub struct GpuContext {
     pub limits: wgpu::Limits,
     /// The adapter offers (and the device enabled) float32 atomic add on storage buffers.
     pub float_atomics: bool,
-    pipelines: Mutex<HashMap<String, Arc<wgpu::ComputePipeline>>>,
+    /// By kernel and channel count (0 for kernels without per-channel loops).
+    pipelines: Mutex<HashMap<(Kernel, u32), Arc<wgpu::ComputePipeline>>>,
 }
 
 static GLOBAL: OnceLock<Result<GpuContext, String>> = OnceLock::new();
@@ -161,30 +164,35 @@ impl GpuContext {
         }
     }
 
-    /// A compute pipeline for `entry` in `source`, built once per `key` and cached.
-    pub fn pipeline(&self, key: &str, source: &str, entry: &str) -> Arc<wgpu::ComputePipeline> {
-        let full_key = format!("{key}::{entry}");
+    /// The compute pipeline of `kernel` for `d` feature channels (ignored by kernels without
+    /// per-channel loops), built once and cached.
+    pub fn pipeline(&self, kernel: Kernel, d: u32) -> Arc<wgpu::ComputePipeline> {
+        let d = if kernel.per_channel() { d } else { 0 };
         let mut cache = self.pipelines.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some(p) = cache.get(&full_key) {
+        if let Some(p) = cache.get(&(kernel, d)) {
             return p.clone();
         }
+        let label = format!("{kernel:?} d={d}");
         let module = self
             .device
             .create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(key),
-                source: wgpu::ShaderSource::Wgsl(source.into()),
+                label: Some(&label),
+                source: wgpu::ShaderSource::Wgsl(kernel.source(d)),
             });
         let pipeline = Arc::new(self.device.create_compute_pipeline(
             &wgpu::ComputePipelineDescriptor {
-                label: Some(&full_key),
+                label: Some(&label),
                 layout: None,
                 module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
+                entry_point: Some(kernel.entry()),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: kernel.constants(),
+                    ..Default::default()
+                },
                 cache: None,
             },
         ));
-        cache.insert(full_key, pipeline.clone());
+        cache.insert((kernel, d), pipeline.clone());
         pipeline
     }
 

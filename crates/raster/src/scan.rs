@@ -1,20 +1,8 @@
 //! GPU exclusive prefix sum over u32, used to turn per-Gaussian tile counts into offsets.
 
 use crate::context::{dispatch_dims, GpuContext, GpuError};
-
-const SOURCE: &str = include_str!(concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/../../shaders/scan.wgsl"
-));
-const BLOCK: u32 = 256;
-
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    n: u32,
-    num_blocks: u32,
-    _pad: [u32; 2],
-}
+use crate::kernels::Kernel;
+use crate::wgsl::{ScanParams as Params, SCAN_BLOCK as BLOCK};
 
 /// One level of the recursive scan: its block-sum buffer and uniform.
 struct Level {
@@ -70,8 +58,8 @@ impl ScanScratch {
         if n == 0 {
             return;
         }
-        let scan = ctx.pipeline("scan", SOURCE, "scan_blocks");
-        let add = ctx.pipeline("scan", SOURCE, "add_offsets");
+        let scan = ctx.pipeline(Kernel::ScanBlocks, 0);
+        let add = ctx.pipeline(Kernel::AddOffsets, 0);
         // Down-sweep: scan each level's blocks, collecting block totals into the next level.
         let mut sizes = vec![n];
         let mut groups = Vec::new();
@@ -82,7 +70,8 @@ impl ScanScratch {
             let params = Params {
                 n: count,
                 num_blocks: blocks,
-                _pad: [0; 2],
+                _pad0: 0,
+                _pad1: 0,
             };
             ctx.queue
                 .write_buffer(&level.params, 0, bytemuck::bytes_of(&params));

@@ -22,7 +22,7 @@ import numpy as np
 
 from evsplat import _core
 from evsplat.data.events import EventStream
-from evsplat.errors import EvsplatError
+from evsplat.errors import EvsplatError, core_call
 
 #: Coefficient counts per model.
 MODELS = {"radtan": (4, 5), "equidistant": (4,)}
@@ -83,22 +83,24 @@ def undistort_points(
     """Pixel points [N,2] (x, y) of the distorted image -> the ideal pinhole image with the
     same K; NaN rows where the lens cannot be inverted."""
     pts = np.ascontiguousarray(np.asarray(points, np.float64).reshape(-1, 2))
-    try:
-        return _core.undistort_points(dist.model, list(dist.coeffs), _fxfycxcy(K, source), pts)
-    except ValueError as e:
-        raise EvsplatError(f"{source}: {e}") from None
+    return core_call(
+        source, _core.undistort_points, dist.model, list(dist.coeffs), _fxfycxcy(K, source), pts
+    )
 
 
 def rectification_map(
     dist: LensDistortion, K: np.ndarray, width: int, height: int, source: str = "<camera>"
 ) -> np.ndarray:
     """[height, width, 2]: the undistorted position of each pixel centre (j + 0.5, i + 0.5)."""
-    try:
-        return _core.rectification_map(
-            dist.model, list(dist.coeffs), _fxfycxcy(K, source), int(width), int(height)
-        )
-    except ValueError as e:
-        raise EvsplatError(f"{source}: {e}") from None
+    return core_call(
+        source,
+        _core.rectification_map,
+        dist.model,
+        list(dist.coeffs),
+        _fxfycxcy(K, source),
+        int(width),
+        int(height),
+    )
 
 
 class Rectifier:

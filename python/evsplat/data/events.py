@@ -6,13 +6,13 @@ the inputs and turns core errors into one-line ``EvsplatError``s.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, TypeVar, Union
 
 import numpy as np
 
 from evsplat import _core
-from evsplat.errors import EvsplatError
+from evsplat.errors import EvsplatError, core_call
 
 #: A contrast threshold: one value for the sensor, or an (H, W) map with one value per pixel.
 Contrast = Union[float, np.ndarray]
@@ -21,14 +21,6 @@ Contrast = Union[float, np.ndarray]
 MAX_SIDE = 65536
 
 R = TypeVar("R")
-
-
-def _core_call(source: str, fn: Callable[..., R], *args: object) -> R:
-    """Calls the Rust core and turns its ValueError into an EvsplatError naming ``source``."""
-    try:
-        return fn(*args)
-    except ValueError as e:
-        raise EvsplatError(f"{source}: {e}") from None
 
 
 def _one_dim(values: object, name: str, source: str) -> np.ndarray:
@@ -44,7 +36,7 @@ def _one_dim(values: object, name: str, source: str) -> np.ndarray:
 def _as_int64(a: np.ndarray, name: str, source: str) -> np.ndarray:
     """Integers (any width) or whole-numbered floats as int64; anything lossy is an error."""
     if a.dtype.kind == "f":
-        return _core_call(source, _core.float_to_int64, np.ascontiguousarray(a, np.float64), name)
+        return core_call(source, _core.float_to_int64, np.ascontiguousarray(a, np.float64), name)
     if a.dtype.kind in "iub":
         if a.dtype == np.uint64 and a.size and int(a.max()) > np.iinfo(np.int64).max:
             i = int(np.argmax(a > np.iinfo(np.int64).max))
@@ -64,14 +56,14 @@ def coords_uint16(values: object, axis: str, limit: int, source: str) -> np.ndar
     a = _one_dim(values, axis, source)
     if a.dtype.kind == "u" and a.dtype.itemsize <= 2:
         return np.ascontiguousarray(a, np.uint16)
-    return _core_call(source, _core.coords_to_uint16, _as_int64(a, axis, source), axis, limit)
+    return core_call(source, _core.coords_to_uint16, _as_int64(a, axis, source), axis, limit)
 
 
 def _polarity_int8(values: object, source: str) -> np.ndarray:
     a = _one_dim(values, "p", source)
     if a.dtype == np.int8:
         return np.ascontiguousarray(a)
-    return _core_call(source, _core.polarity_from_int64, _as_int64(a, "p", source))
+    return core_call(source, _core.polarity_from_int64, _as_int64(a, "p", source))
 
 
 def _side(value: object, name: str, source: str) -> int:
@@ -136,8 +128,9 @@ class EventStream:
         ta = _one_dim(t, "t", source)
         ts = np.ascontiguousarray(ta) if ta.dtype == np.int64 else _as_int64(ta, "t", source)
         ps = _polarity_int8(p, source)
-        mapped = _core_call(source, _core.validate_events, xs, ys, ts, ps, width, height)
-        return cls(xs, ys, ts, ps if mapped is None else mapped, width, height, source)
+        stream = cls(xs, ys, ts, ps, width, height, source)
+        mapped = core_call(source, _core.validate_events, stream)
+        return stream if mapped is None else replace(stream, p=mapped)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -148,7 +141,7 @@ class EventStream:
         return (self.height, self.width)
 
     def _call(self, fn: Callable[..., R], *args: object) -> R:
-        return _core_call(self.source, fn, *args)
+        return core_call(self.source, fn, *args)
 
     def _contrast(self, c: Contrast, name: str) -> float | np.ndarray:
         """A scalar as float, a map as a flat contiguous float32 array (checked to be H×W)."""
@@ -181,11 +174,7 @@ class EventStream:
         """The images named in ``want`` ("esi", "count", "mask") from one counting pass."""
         return self._call(
             _core.accumulate,
-            self.x,
-            self.y,
-            self.p,
-            self.width,
-            self.height,
+            self,
             int(i0),
             int(i1),
             self._contrast(c_pos, "c_pos"),
@@ -211,9 +200,7 @@ class EventStream:
 
     def event_mask(self, i0: int, i1: int) -> np.ndarray:
         """bool[H, W]: True where at least one event fired in [i0, i1)."""
-        return self._call(
-            _core.event_mask, self.x, self.y, self.p, self.width, self.height, int(i0), int(i1)
-        )
+        return self._call(_core.event_mask, self, int(i0), int(i1))
 
     def esi_by_channel(
         self, i0: int, i1: int, c_pos: Contrast, c_neg: Contrast, pattern: str
@@ -223,11 +210,7 @@ class EventStream:
         C = 1 for "mono"."""
         return self._call(
             _core.esi_by_channel,
-            self.x,
-            self.y,
-            self.p,
-            self.width,
-            self.height,
+            self,
             int(i0),
             int(i1),
             self._contrast(c_pos, "c_pos"),
@@ -265,11 +248,7 @@ class EventStream:
             )
         values, valid = self._call(
             _core.patches,
-            self.x,
-            self.y,
-            self.p,
-            self.width,
-            self.height,
+            self,
             b,
             np.ascontiguousarray(c, np.float32).reshape(-1),
             c.ndim == 3,
@@ -286,18 +265,7 @@ class EventStream:
         """float32[bins, H, W]: each event adds p·max(0, 1 − |tn − b|) to bin b, with
         tn = (bins − 1)(t − t_first)/(t_last − t_first) over the window (0 if all t equal).
         Time is made window-relative in integers first, so absolute offsets do not matter."""
-        return self._call(
-            _core.voxel_grid,
-            self.x,
-            self.y,
-            self.t,
-            self.p,
-            self.width,
-            self.height,
-            int(i0),
-            int(i1),
-            int(bins),
-        )
+        return self._call(_core.voxel_grid, self, int(i0), int(i1), int(bins))
 
     def slice(self, i0: int, i1: int) -> EventStream:
         """Events [i0, i1) as a new stream sharing this one's memory (no copy, no re-check)."""
@@ -316,4 +284,4 @@ class EventStream:
 def bayer_channel_map(pattern: str, width: int, height: int) -> np.ndarray:
     """uint8[H, W] channel index of every pixel (0=R, 1=G, 2=B) for a Bayer pattern
     (RGGB/BGGR/GRBG/GBRG, tile origin at pixel (0, 0)); zeros for "mono"."""
-    return _core_call("pattern", _core.bayer_channel_map, pattern, int(width), int(height))
+    return core_call("pattern", _core.bayer_channel_map, pattern, int(width), int(height))

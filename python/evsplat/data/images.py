@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from evsplat import _core
-from evsplat.errors import EvsplatError
+from evsplat.errors import EvsplatError, core_call
 
 
 def _image_array(img: np.ndarray, path: Path, what: str) -> np.ndarray:
@@ -24,10 +24,7 @@ def write_png(path: str | os.PathLike, img: np.ndarray, bits: int = 8) -> None:
     path = Path(path)
     if bits not in (8, 16):
         raise EvsplatError(f"{path}: PNG bit depth must be 8 or 16, got {bits}")
-    try:
-        _core.write_png(path, _image_array(img, path, "image"), bits == 16)
-    except ValueError as e:
-        raise EvsplatError(str(e)) from None
+    core_call(None, _core.write_png, path, _image_array(img, path, "image"), bits == 16)
 
 
 def read_png(path: str | os.PathLike) -> np.ndarray:
@@ -35,10 +32,7 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise EvsplatError(f"{path}: file not found")
-    try:
-        return _core.read_png(path)
-    except ValueError as e:
-        raise EvsplatError(str(e)) from None
+    return core_call(None, _core.read_png, path)
 
 
 def write_exr(path: str | os.PathLike, depth: np.ndarray) -> None:
@@ -47,10 +41,7 @@ def write_exr(path: str | os.PathLike, depth: np.ndarray) -> None:
     d = np.ascontiguousarray(depth, dtype=np.float32)
     if d.ndim != 2:
         raise EvsplatError(f"{path}: depth must be [H,W], got shape {d.shape}")
-    try:
-        _core.write_exr(path, d)
-    except ValueError as e:
-        raise EvsplatError(str(e)) from None
+    core_call(None, _core.write_exr, path, d)
 
 
 def read_exr(path: str | os.PathLike) -> np.ndarray:
@@ -58,7 +49,4 @@ def read_exr(path: str | os.PathLike) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise EvsplatError(f"{path}: file not found")
-    try:
-        return _core.read_exr(path)
-    except ValueError as e:
-        raise EvsplatError(str(e)) from None
+    return core_call(None, _core.read_exr, path)

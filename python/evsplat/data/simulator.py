@@ -25,7 +25,7 @@ from tqdm import tqdm
 from evsplat import _core
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.events import EventStream
-from evsplat.errors import EvsplatError
+from evsplat.errors import EvsplatError, core_call
 from evsplat.intensity import LOG_EPS, LUMA
 
 if TYPE_CHECKING:
@@ -117,10 +117,7 @@ def simulate_events(
                 )
             except (ValueError, OverflowError) as e:
                 raise EvsplatError(f"simulate_events: {e}") from None
-        try:
-            chunks.append(sim.push(t, f))
-        except ValueError as e:
-            raise EvsplatError(f"simulate_events: {e}") from None
+        chunks.append(core_call("simulate_events", sim.push, t, f))
     if sim is None:
         raise EvsplatError("simulate_events: no frames given; need at least two")
     x, y, t, p = (np.concatenate([c[k] for c in chunks]) for k in range(4))

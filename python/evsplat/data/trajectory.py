@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from evsplat import _core
-from evsplat.errors import EvsplatError
+from evsplat.errors import EvsplatError, core_call
 
 # Tolerance on R^T R = I for input poses: looser than float32 round-off of a stored matrix.
 ORTHONORMAL_TOL = 1e-5
@@ -88,10 +88,7 @@ class Trajectory:
             raise EvsplatError(f"{source}: knot interval {knot_interval_us} µs must be positive")
         rel = (t - t[0]).astype(np.float64)
         knot = None if knot_interval_us is None else float(knot_interval_us)
-        try:
-            spline = _core.SplineTrajectory(rel, np.ascontiguousarray(m), knot)
-        except ValueError as e:
-            raise EvsplatError(f"{source}: {e}") from None
+        spline = core_call(source, _core.SplineTrajectory, rel, np.ascontiguousarray(m), knot)
         return cls(spline, int(t[0]), source)
 
     @property

@@ -1,93 +1,45 @@
 //! Encoding of the backward passes: rasterize_bwd (atomics) then project_bwd, one readback.
 
-use super::buffers::{Buffers, GRAD_HEAD, PARAM_GRADS};
-use super::forward::{bind, dispatch, Recorder};
-use super::{forward, pipeline, pipeline_d, Camera, Gaussians, Gradients, PassTimes, State};
-use crate::context::{dispatch_dims, AtomicMode, GpuContext, GpuError};
+use super::binds::{self, raster_bwd_kernel};
+use super::buffers::GRAD_HEAD;
+use super::record::{dispatch, Recorder};
+use super::state::State;
+use super::{forward, readback, Gradients, OutputGrads, PassTimes, Render};
+use crate::context::{AtomicMode, GpuContext, GpuError};
+use crate::Kernel;
 
-pub struct Binds {
-    raster: [wgpu::BindGroup; 2],
-    project: wgpu::BindGroup,
-}
-
-fn raster_shader(mode: AtomicMode) -> &'static str {
-    match mode {
-        AtomicMode::Float => "rasterize_bwd.wgsl",
-        AtomicMode::Cas => "rasterize_bwd_cas.wgsl",
-    }
-}
-
-impl Binds {
-    fn new(ctx: &GpuContext, b: &Buffers, mode: AtomicMode, d: u32) -> Self {
-        let raster_p = pipeline_d(ctx, raster_shader(mode), "main", d);
-        let raster = [0, 1].map(|k| {
-            bind(
-                ctx,
-                &raster_p,
-                &[
-                    (0, &b.params),
-                    (1, &b.inputs.buf),
-                    (2, &b.proj.buf),
-                    (3, &b.tile_vals[k].buf),
-                    (4, &b.ranges.buf),
-                    (5, &b.aux.buf),
-                    (6, &b.grad_in.buf),
-                    (7, &b.grads.buf),
-                ],
-            )
-        });
-        let project = bind(
-            ctx,
-            &pipeline(ctx, "project_bwd.wgsl", "main"),
-            &[
-                (0, &b.params),
-                (1, &b.inputs.buf),
-                (2, &b.grads.buf),
-                (3, &b.param_grads.buf),
-            ],
-        );
-        Self { raster, project }
-    }
-}
-
-#[allow(clippy::too_many_arguments)]
+/// Differentiate `render` in `st`, rendering it again first when another render replaced its
+/// per-pixel state there.
 pub fn run(
     ctx: &GpuContext,
     st: &mut State,
-    g: &Gaussians,
-    cam: &Camera,
-    id: u64,
-    grad_out: [&[f32]; 3],
+    render: &Render,
+    grads: &OutputGrads,
     mode: AtomicMode,
     profile: Option<&mut PassTimes>,
 ) -> Result<Gradients, GpuError> {
-    let p = st.prepare(ctx, g, cam)?;
+    let p = st.prepare(ctx, render.n, render.d, &render.cam)?;
     let mut rec = Recorder::new(ctx, profile);
-    if st.current != Some(id) {
-        // Another render replaced this one's per-pixel state: render it again (no readback).
+    if st.current != Some(render.id) {
+        // Render it again (no readback).
         ctx.queue
-            .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(&g.pack()));
+            .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(&render.inputs));
         forward::encode(ctx, st, &p, &mut rec, false)?;
-        st.current = Some(id);
+        st.current = Some(render.id);
     }
-    let mut packed = Vec::with_capacity(grad_out.iter().map(|s| s.len()).sum());
-    for part in grad_out {
+    let parts = [grads.image, grads.depth, grads.alpha];
+    let mut packed = Vec::with_capacity(parts.iter().map(|s| s.len()).sum());
+    for part in parts {
         packed.extend_from_slice(part);
     }
     ctx.queue
         .write_buffer(&st.bufs.grad_in.buf, 0, bytemuck::cast_slice(&packed));
-    let fp = matches!(mode, AtomicMode::Float);
-    if !st.bwd_binds.contains_key(&fp) {
-        st.bwd_binds
-            .insert(fp, Binds::new(ctx, &st.bufs, mode, p.d));
-    }
     let b = &st.bufs;
-    let binds = st
-        .bwd_binds
-        .get(&fp)
-        .ok_or_else(|| GpuError::Invalid("rasterize: backward bind groups missing".into()))?;
-    let (n, d) = (g.len() as u64, g.d as u64);
-    let grad_bytes = 4 * n * (GRAD_HEAD + d);
+    let binds = (st.bwd_binds)
+        .entry(mode == AtomicMode::Float)
+        .or_insert_with(|| binds::Backward::new(ctx, b, mode, p.d));
+    let n = render.n as u64;
+    let grad_bytes = 4 * n * (GRAD_HEAD + render.d as u64);
     let sorted = forward::tile_passes(p.tiles_x * p.tiles_y) % 2;
     rec.step("backward rasterize", |enc| {
         if grad_bytes > 0 {
@@ -95,7 +47,7 @@ pub fn run(
         }
         dispatch(
             enc,
-            &pipeline_d(ctx, raster_shader(mode), "main", p.d),
+            &ctx.pipeline(raster_bwd_kernel(mode), p.d),
             &binds.raster[sorted],
             (p.tiles_x, p.tiles_y),
         );
@@ -104,42 +56,11 @@ pub fn run(
         rec.step("backward project", |enc| {
             dispatch(
                 enc,
-                &pipeline(ctx, "project_bwd.wgsl", "main"),
+                &ctx.pipeline(Kernel::ProjectBwd, p.d),
                 &binds.project,
-                dispatch_dims((n as u32).div_ceil(256)),
+                Kernel::ProjectBwd.groups_for(n as u32),
             )
         })?;
     }
-    let param_bytes = 4 * n * PARAM_GRADS;
-    if n > 0 {
-        rec.enc
-            .copy_buffer_to_buffer(&b.grads.buf, 0, &b.staging, 0, grad_bytes);
-        rec.enc
-            .copy_buffer_to_buffer(&b.param_grads.buf, 0, &b.staging, grad_bytes, param_bytes);
-    }
-    let raw = rec.finish(&b.staging, grad_bytes + param_bytes)?;
-    let all: Vec<f32> = bytemuck::pod_collect_to_vec(&raw);
-    let (n, d) = (n as usize, d as usize);
-    let stride = GRAD_HEAD as usize + d;
-    let (acc, params) = all.split_at(n * stride);
-    let mut out = Gradients {
-        means: Vec::with_capacity(3 * n),
-        quats: Vec::with_capacity(4 * n),
-        scales: Vec::with_capacity(3 * n),
-        opacities: Vec::with_capacity(n),
-        features: Vec::with_capacity(d * n),
-        means2d: Vec::with_capacity(2 * n),
-    };
-    for (a, q) in acc
-        .chunks_exact(stride)
-        .zip(params.chunks_exact(PARAM_GRADS as usize))
-    {
-        out.means2d.extend_from_slice(&a[..2]);
-        out.opacities.push(a[5]);
-        out.features.extend_from_slice(&a[GRAD_HEAD as usize..]);
-        out.means.extend_from_slice(&q[..3]);
-        out.quats.extend_from_slice(&q[3..7]);
-        out.scales.extend_from_slice(&q[7..10]);
-    }
-    Ok(out)
+    readback::gradients(rec, b, render.n, render.d)
 }

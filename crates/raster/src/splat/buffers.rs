@@ -2,6 +2,7 @@
 //! bind groups rebuilt only after a buffer grew.
 
 use crate::context::{GpuContext, GpuError};
+use crate::wgsl;
 
 /// A storage buffer that only ever grows (to the next power of two of the request).
 pub struct Grow {
@@ -80,16 +81,16 @@ pub struct Buffers {
     staging_cap: u64,
 }
 
-pub const SORT_BLOCK: u64 = 256;
+pub const SORT_BLOCK: u64 = wgsl::SORT_BLOCK as u64;
 /// u32 words of `counters`: the tile-pair count, the tile passes' disagreement flag, then three
 /// 64-bit work counters as (low, high) words (rasterize_fwd.wgsl's counting build).
 pub const COUNTER_WORDS: u64 = 8;
 /// Floats per Gaussian in `inputs`: mean 3, quaternion 4, scale 3, opacity 1 (features follow).
 pub const INPUT_FLOATS: u64 = 11;
 /// Floats per Gaussian in the gradient accumulator before the features (see rasterize_bwd.wgsl).
-pub const GRAD_HEAD: u64 = 8;
+pub const GRAD_HEAD: u64 = wgsl::GRAD_HEAD as u64;
 /// Floats per Gaussian written by project_bwd.wgsl: mean 3, quaternion 4, scale 3.
-pub const PARAM_GRADS: u64 = 10;
+pub const PARAM_GRADS: u64 = wgsl::PARAM_GRADS as u64;
 
 impl Buffers {
     pub fn new(ctx: &GpuContext, params_bytes: u64) -> Self {
@@ -129,6 +130,29 @@ impl Buffers {
         }
     }
 
+    /// The buffer that every kernel binding it names `name` (the ping-pong buffers and those
+    /// named by their role in one kernel are given to the bind group by that role instead).
+    pub fn named(&self, name: &str) -> Option<&wgpu::Buffer> {
+        Some(match name {
+            "params" => &self.params,
+            "live_blocks" => &self.live_blocks,
+            "inputs" => &self.inputs.buf,
+            "counters" => &self.counters.buf,
+            "proj" => &self.proj.buf,
+            "offsets" => &self.offsets.buf,
+            "hist" => &self.hist.buf,
+            "ranges" => &self.ranges.buf,
+            "out_image" => &self.image.buf,
+            "out_depth" => &self.depth.buf,
+            "out_alpha" => &self.alpha.buf,
+            "aux" => &self.aux.buf,
+            "grad_in" => &self.grad_in.buf,
+            "grads" => &self.grads.buf,
+            "param_grads" => &self.param_grads.buf,
+            _ => return None,
+        })
+    }
+
     fn staging_buffer(ctx: &GpuContext, bytes: u64) -> wgpu::Buffer {
         ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("splat readback"),
@@ -155,7 +179,7 @@ impl Buffers {
         for b in self.tile_keys.iter_mut().chain(self.tile_vals.iter_mut()) {
             grown |= b.ensure(ctx, f * s.isect)?;
         }
-        grown |= self.hist.ensure(ctx, f * 16 * blocks)?;
+        grown |= self.hist.ensure(ctx, f * wgsl::DIGITS as u64 * blocks)?;
         grown |= self.ranges.ensure(ctx, f * 2 * s.tiles)?;
         grown |= self.image.ensure(ctx, f * s.pixels * s.d)?;
         grown |= self.depth.ensure(ctx, f * s.pixels)?;

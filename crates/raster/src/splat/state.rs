@@ -1,0 +1,169 @@
+//! The per-process render states: each holds the buffers, bind groups and sort scratch of one
+//! render whose per-pixel state a backward pass may still need.
+
+use std::collections::HashMap;
+use std::sync::{Mutex, MutexGuard, OnceLock};
+
+use super::buffers::{Buffers, Sizes};
+use super::inputs::{params, Camera};
+use super::{binds, forward};
+use crate::context::{GpuContext, GpuError};
+use crate::wgsl::{self, Params};
+use crate::ScanScratch;
+
+pub struct State {
+    pub bufs: Buffers,
+    /// Intersection capacity (grows when a render overflows it, shrinks when far too large).
+    pub isect_cap: u64,
+    sizes: Option<Sizes>,
+    pub binds: Option<binds::Forward>,
+    /// Keyed by whether float atomics are used.
+    pub bwd_binds: HashMap<bool, binds::Backward>,
+    pub sort_passes: Vec<wgpu::Buffer>,
+    pub scans: Vec<ScanScratch>,
+    /// The render whose per-pixel state is in the buffers.
+    pub current: Option<u64>,
+    /// Pool clock of the last use, for least-recently-used reuse.
+    used: u64,
+    /// The render here was differentiated already: its state is not needed again.
+    pub spent: bool,
+}
+
+/// Renders whose per-pixel state a backward pass may still need each keep their own buffers,
+/// up to this many: a training step renders two or three views and differentiates them in
+/// reverse order, which with one set of buffers would re-render every view but the last.
+const STATES: usize = 3;
+
+/// The per-process states and the render-id counter.
+pub struct Pool {
+    states: Vec<State>,
+    next_id: u64,
+    clock: u64,
+}
+
+impl Pool {
+    /// A fresh render id and the state for that render with `d` channels: a spent one of the same
+    /// width first, then any spent one, a new one while the pool has room, else the least
+    /// recently used.
+    pub fn for_forward(&mut self, ctx: &GpuContext, d: u64) -> (u64, &mut State) {
+        let id = self.next_id;
+        self.next_id += 1;
+        let same_d = |s: &State| s.sizes.is_some_and(|z| z.d == d);
+        let pick = (self.states.iter().position(|s| s.spent && same_d(s)))
+            .or_else(|| self.states.iter().position(|s| s.spent));
+        let i = match pick {
+            Some(i) => i,
+            None if self.states.len() < STATES => {
+                self.states.push(State::new(ctx));
+                self.states.len() - 1
+            }
+            None => (0..self.states.len())
+                .min_by_key(|&i| self.states[i].used)
+                .unwrap_or(0),
+        };
+        let st = self.touch(i);
+        st.spent = false;
+        (id, st)
+    }
+
+    /// The state holding render `id`, else (it was evicted) the least recently used one.
+    pub fn for_backward(&mut self, ctx: &GpuContext, id: u64) -> &mut State {
+        if self.states.is_empty() {
+            self.states.push(State::new(ctx));
+        }
+        let i = (self.states.iter().position(|s| s.current == Some(id)))
+            .or_else(|| (0..self.states.len()).min_by_key(|&i| self.states[i].used))
+            .unwrap_or(0);
+        let st = self.touch(i);
+        st.spent = true;
+        st
+    }
+
+    fn touch(&mut self, i: usize) -> &mut State {
+        self.clock += 1;
+        let st = &mut self.states[i];
+        st.used = self.clock;
+        st
+    }
+}
+
+/// The pool, locked (a panic in an earlier holder does not stop later renders).
+pub fn lock() -> MutexGuard<'static, Pool> {
+    static POOL: OnceLock<Mutex<Pool>> = OnceLock::new();
+    let pool = POOL.get_or_init(|| {
+        Mutex::new(Pool {
+            states: Vec::new(),
+            next_id: 1,
+            clock: 0,
+        })
+    });
+    pool.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+impl State {
+    fn new(ctx: &GpuContext) -> Self {
+        let sort_passes = (0..2u32)
+            .flat_map(|which| {
+                (0..8u32).map(move |p| wgsl::SortPass {
+                    shift: 4 * p,
+                    which,
+                    _pad0: 0,
+                    _pad1: 0,
+                })
+            })
+            .map(|pass| {
+                let b = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("sort pass"),
+                    size: 16,
+                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                ctx.queue.write_buffer(&b, 0, bytemuck::bytes_of(&pass));
+                b
+            })
+            .collect();
+        Self {
+            bufs: Buffers::new(ctx, std::mem::size_of::<Params>() as u64),
+            isect_cap: forward::MIN_ISECT_CAP,
+            sizes: None,
+            binds: None,
+            bwd_binds: HashMap::new(),
+            sort_passes,
+            scans: (0..forward::SCANS)
+                .map(|_| ScanScratch::default())
+                .collect(),
+            current: None,
+            used: 0,
+            spent: false,
+        }
+    }
+
+    /// Grow buffers for a render of `n` Gaussians with `d` channels and drop bind groups that
+    /// point at replaced buffers; writes and returns the render's uniforms.
+    pub fn prepare(
+        &mut self,
+        ctx: &GpuContext,
+        n: usize,
+        d: usize,
+        cam: &Camera,
+    ) -> Result<Params, GpuError> {
+        let (tx, ty) = cam.tiles();
+        let sizes = Sizes {
+            n: n as u64,
+            d: d as u64,
+            pixels: cam.width as u64 * cam.height as u64,
+            tiles: tx as u64 * ty as u64,
+            isect: self.isect_cap,
+        };
+        let d_changed = self.sizes.is_some_and(|old| old.d != sizes.d);
+        if self.bufs.ensure(ctx, sizes)? || d_changed {
+            self.binds = None;
+            self.bwd_binds.clear();
+        }
+        self.sizes = Some(sizes);
+        let p = params(n, d, cam, self.isect_cap);
+        ctx.queue
+            .write_buffer(&self.bufs.params, 0, bytemuck::bytes_of(&p));
+        Ok(p)
+    }
+}
