@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 
+from evsplat.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint
 from evsplat.cli import main
 from evsplat.data.simulator import simulate_dataset
 from evsplat.errors import EvsplatError
@@ -22,7 +23,6 @@ from evsplat.export import export_ply, gaussian_arrays
 from evsplat.raster import rasterize
 from evsplat.render import Renderer
 from evsplat.train import train
-from evsplat.train.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint
 from evsplat.train.config import preset
 
 ITERS = 40

@@ -9,10 +9,10 @@ import pytest
 import torch
 
 import evsplat.train.loop as loop
+from evsplat.checkpoint import latest_checkpoint, load_checkpoint
 from evsplat.data.dataset import load_dataset
 from evsplat.data.simulator import simulate_dataset
 from evsplat.errors import EvsplatError
-from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint
 from evsplat.train.config import preset
 from evsplat.train.loop import Trainer
 

@@ -13,6 +13,7 @@ import pytest
 import torch
 from torch import nn
 
+from evsplat.checkpoint import latest_checkpoint, load_checkpoint
 from evsplat.config import LossConfig, SkipConfig
 from evsplat.data.dataset import load_dataset
 from evsplat.data.events import bayer_channel_map
@@ -21,7 +22,6 @@ from evsplat.model.gaussians import GaussianModel
 from evsplat.render import Renderer
 from evsplat.scenes import get_scene
 from evsplat.train import train
-from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint
 from evsplat.train.config import TrainConfig, preset
 from evsplat.train.loop import Trainer
 from evsplat.train.skips import (

@@ -683,7 +683,7 @@ def check_ply_output(path: Path, before: bytes | None) -> list[str]:
 
 def check_run_output(run: Path) -> list[str]:
     """A killed `train`: every JSON file parses and every listed checkpoint loads."""
-    from evsplat.train.checkpoint import list_checkpoints, load_checkpoint
+    from evsplat.checkpoint import list_checkpoints, load_checkpoint
 
     problems = []
     for name in ("config.json", "stats.json"):
@@ -709,8 +709,8 @@ def check_run_output(run: Path) -> list[str]:
 def resume_and_check(data: Path, run: Path, iters: int) -> list[str]:
     """``--resume`` a killed run: it must start at the newest complete checkpoint's iteration
     (0 when there is none) and finish with a checkpoint at ``iters``."""
+    from evsplat.checkpoint import latest_checkpoint, load_checkpoint
     from evsplat.train import loop, train
-    from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint
 
     latest = latest_checkpoint(run)
     expected = load_checkpoint(latest)["iteration"] if latest is not None else 0

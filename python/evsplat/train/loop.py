@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from evsplat.camera import project_points, viewmat
+from evsplat.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset
 from evsplat.data.events import bayer_channel_map
@@ -36,7 +37,6 @@ from evsplat.model.deform import DeformationMLP, deformed_means
 from evsplat.model.densify import Densifier
 from evsplat.model.gaussians import GaussianModel
 from evsplat.render import Renderer, RenderOut
-from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from evsplat.train.coarse import bin_events, coarse_due, half_renderer
 from evsplat.train.config import TrainConfig
 from evsplat.train.depth_prior import DepthPrior
