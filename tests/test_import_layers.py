@@ -17,11 +17,11 @@ COMMAND_IMPORTERS = ("evsplat.cli", "evsplat.commands")
 
 # Layers below training: they must not import evsplat.train.
 BELOW_TRAIN = (
-    "evsplat.camera",
     "evsplat.checkpoint",
     "evsplat.data",
     "evsplat.losses",
     "evsplat.model",
+    "evsplat.projection",
     "evsplat.raster",
     "evsplat.render",
     "evsplat.scenes",

@@ -129,7 +129,7 @@ def test_exported_ply_has_standard_fields_and_renders_like_the_model(tiny_run, t
     channels = renderer.model.colors().shape[1]
     c2w = np.eye(4)
     c2w[:3, 3] = renderer.model.means.detach().mean(0).numpy() - np.array([0, 0, 3.0])
-    from evsplat.camera import viewmat
+    from evsplat.projection import viewmat
 
     with torch.no_grad():
         ref = renderer.render(t, c2w).image

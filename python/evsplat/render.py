@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsplat.camera import viewmat
 from evsplat.checkpoint import load_run
 from evsplat.model.deform import DeformationMLP, deformed
 from evsplat.model.gaussians import GaussianModel
+from evsplat.projection import viewmat
 from evsplat.raster import rasterize
 
 ALPHA_EPS = 1e-4  # below this coverage, alpha-normalised extra channels are set to 0

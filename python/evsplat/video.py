@@ -54,11 +54,11 @@ def event_frame(events: EventStream, i0: int, i1: int) -> np.ndarray:
     return img
 
 
-def side_by_side(*images: np.ndarray) -> np.ndarray:
+def hstack_images(*images: np.ndarray) -> np.ndarray:
     """Images of equal height [H,W,3] placed left to right."""
     heights = {im.shape[0] for im in images}
     if len(heights) != 1:
-        raise EvsplatError(f"side_by_side: images have different heights {sorted(heights)}")
+        raise EvsplatError(f"hstack_images: images have different heights {sorted(heights)}")
     return np.concatenate([to_rgb8(im) for im in images], axis=1)
 
 

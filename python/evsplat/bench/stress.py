@@ -311,7 +311,7 @@ def _image(r: np.random.Generator, shape: tuple[int, ...], kind: str) -> np.ndar
 
 def _loss_case(r: np.random.Generator, kind: str) -> Arrays:
     from evsplat.losses.depth import silog
-    from evsplat.losses.event import event_loss, log_intensity
+    from evsplat.losses.event import event_loss, log_render
     from evsplat.losses.flow import camera_flow, event_flow_loss, linearized_brightness_change
     from evsplat.losses.patch import patch_motion_loss
     from evsplat.losses.reg import non_event_loss, spatial_gradient_loss
@@ -370,7 +370,7 @@ def _loss_case(r: np.random.Generator, kind: str) -> Arrays:
     if kind == "reg":
         img = _leaf(_image(r, (h, w), img_kind))
         out = non_event_loss(img, mask, float(r.uniform(0.01, 1))) + spatial_gradient_loss(img)
-        out = out + log_intensity(img).mean()
+        out = out + log_render(img).mean()
         out.backward()
         return [out, *_grads(img)]
     raise AssertionError(kind)

@@ -102,7 +102,7 @@ def _write_videos(args: argparse.Namespace, state: dict, frames: list, window_us
     when the run's dataset folder is still where training read it."""
     from evsplat.data.dataset import load_dataset
     from evsplat.errors import EvsplatError
-    from evsplat.video import event_frame, side_by_side, write_mp4
+    from evsplat.video import event_frame, hstack_images, write_mp4
 
     n = write_mp4(args.out / "render.mp4", (img for _, img, _ in frames), args.fps)
     print(f"wrote {args.out / 'render.mp4'} ({n} frames, {args.fps:g} fps)")
@@ -119,7 +119,7 @@ def _write_videos(args: argparse.Namespace, state: dict, frames: list, window_us
     def panels():
         for t_us, img, depth in frames:
             ev = events.read(int(t_us - window_us / 2), int(t_us + window_us / 2))
-            yield side_by_side(img, event_frame(ev, 0, len(ev)), depth)
+            yield hstack_images(img, event_frame(ev, 0, len(ev)), depth)
 
     n = write_mp4(args.out / "render_events.mp4", panels(), args.fps)
     print(f"wrote {args.out / 'render_events.mp4'} ({n} frames: render | events | depth)")

@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsplat.camera import project_points, viewmat
 from evsplat.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset
@@ -24,7 +23,7 @@ from evsplat.data.events import bayer_channel_map
 from evsplat.data.poses import read_tum
 from evsplat.errors import EvsplatError
 from evsplat.losses.depth import silog
-from evsplat.losses.event import bayer_select, event_loss, log_intensity
+from evsplat.losses.event import bayer_select, event_loss, log_render
 from evsplat.losses.flow import (
     camera_flow,
     event_flow_loss,
@@ -36,6 +35,7 @@ from evsplat.losses.reg import non_event_loss, spatial_gradient_loss
 from evsplat.model.deform import DeformationMLP, deformed_means
 from evsplat.model.densify import Densifier
 from evsplat.model.gaussians import GaussianModel
+from evsplat.projection import project_points, viewmat
 from evsplat.render import Renderer, RenderOut
 from evsplat.train.coarse import bin_events, coarse_due, half_renderer
 from evsplat.train.config import TrainConfig
@@ -195,18 +195,18 @@ class Trainer:
         A coarse colour render keeps all three channels ``[3,h,w]``, as its binned events do."""
         img = out.image
         if self.channel_map is None:
-            return log_intensity(img[..., 0])
+            return log_render(img[..., 0])
         if coarse:
-            return log_intensity(img).permute(2, 0, 1)
-        return log_intensity(bayer_select(img, self.channel_map))
+            return log_render(img).permute(2, 0, 1)
+        return log_render(bayer_select(img, self.channel_map))
 
     def _linearized_change(self, out: RenderOut, flow: torch.Tensor, coarse: bool) -> torch.Tensor:
         """-∇L·F (eq. 13) in the sensor's channels. A colour render is differentiated per
         channel before each pixel keeps its Bayer channel: differences across a mosaic mix
         colours, and drove the MLP's motion backwards in the oracle test (docs/results.md)."""
         if self.channel_map is None:
-            return linearized_brightness_change(log_intensity(out.image[..., 0]), flow)
-        change = linearized_brightness_change(log_intensity(out.image).permute(2, 0, 1), flow)
+            return linearized_brightness_change(log_render(out.image[..., 0]), flow)
+        change = linearized_brightness_change(log_render(out.image).permute(2, 0, 1), flow)
         if coarse:
             return change
         return bayer_select(change.permute(1, 2, 0), self.channel_map)
