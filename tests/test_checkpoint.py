@@ -5,15 +5,15 @@ import os
 import pytest
 import torch
 
-from evsplat.data.atomic import write_atomic, write_text_atomic
-from evsplat.errors import EvsplatError
-from evsplat.train.checkpoint import (
+from evsplat.checkpoint import (
     latest_checkpoint,
     list_checkpoints,
     load_checkpoint,
     load_run,
     save_checkpoint,
 )
+from evsplat.data.atomic import write_atomic, write_text_atomic
+from evsplat.errors import EvsplatError
 
 
 def test_checkpoint_round_trip_keeps_tensors_and_iteration(tmp_path):

@@ -201,8 +201,8 @@ def test_structurally_broken_index_is_a_one_line_load_error(ball, edit, match, c
 
 
 def test_train_on_a_time_range_reads_windows_inside_it_only(ball, tmp_path, monkeypatch):
+    from evsplat.checkpoint import load_run
     from evsplat.data.event_store import EventStore
-    from evsplat.train.checkpoint import load_run
 
     reads = []
     real = EventStore.read

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from evsplat.losses.event import LOG_EPS, bayer_select, event_loss, log_intensity
+from evsplat.losses.event import LOG_EPS, bayer_select, event_loss, log_render
 from evsplat.losses.ssim import ssim
 
 
@@ -73,9 +73,9 @@ def test_ssim_rejects_mismatched_shapes_and_nonpositive_range():
         ssim(torch.zeros(4, 4), torch.zeros(4, 4), data_range=0.0)
 
 
-def test_log_intensity_uses_the_documented_epsilon_and_clamps_negatives():
+def test_log_render_uses_the_documented_epsilon_and_clamps_negatives():
     img = torch.tensor([0.0, 0.5, -0.2], requires_grad=True)
-    out = log_intensity(img)
+    out = log_render(img)
     expected = np.log(np.array([0.0, 0.5, 0.0]) + 1e-3)
     assert LOG_EPS == 1e-3
     np.testing.assert_allclose(out.detach().numpy(), expected, rtol=1e-6)
@@ -91,7 +91,7 @@ def test_event_loss_is_zero_when_renders_reproduce_the_esi_exactly():
     # Renders whose log brightness changed by exactly C per event.
     i0 = np.exp(log0) - LOG_EPS
     i1 = np.exp(log0 + c * counts) - LOG_EPS
-    delta_pred = log_intensity(torch.tensor(i1, dtype=torch.float64)) - log_intensity(
+    delta_pred = log_render(torch.tensor(i1, dtype=torch.float64)) - log_render(
         torch.tensor(i0, dtype=torch.float64)
     )
     esi = torch.tensor(c * counts, dtype=torch.float64)
@@ -129,7 +129,7 @@ def test_event_loss_gradients_are_finite_on_all_zero_images_and_empty_mask():
     assert float(loss.detach()) == pytest.approx(0.0, abs=1e-7)
     assert torch.isfinite(pred.grad).all()
     img = torch.zeros(16, 16, requires_grad=True)  # black render: the log epsilon keeps it finite
-    delta = log_intensity(img) - log_intensity(torch.zeros(16, 16))
+    delta = log_render(img) - log_render(torch.zeros(16, 16))
     event_loss(delta, torch.ones(16, 16), None, 0.2).backward()
     assert torch.isfinite(img.grad).all()
 

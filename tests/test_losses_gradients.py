@@ -6,7 +6,7 @@ import torch
 from torch.autograd import gradcheck
 
 from evsplat.losses.depth import silog
-from evsplat.losses.event import event_loss, log_intensity
+from evsplat.losses.event import event_loss, log_render
 from evsplat.losses.flow import (
     camera_flow,
     event_flow_loss,
@@ -33,7 +33,7 @@ def test_event_loss_and_ssim_gradients_match_finite_differences():
     mask = torch.rand(9, 9, generator=torch.Generator().manual_seed(2)) > 0.5
     img0 = rand(2, 9, 9, seed=4).detach()
     assert gradcheck(
-        lambda a: event_loss(log_intensity(a) - log_intensity(img0), obs, mask, 0.2),
+        lambda a: event_loss(log_render(a) - log_render(img0), obs, mask, 0.2),
         (rand(2, 9, 9, seed=3),),
         fast_mode=True,
     )

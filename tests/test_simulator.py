@@ -6,7 +6,7 @@ import shutil
 import numpy as np
 import pytest
 
-from evsplat.data.simulator import log_intensity, simulate_events
+from evsplat.data.simulator import sensor_log_image, simulate_events
 from evsplat.errors import EvsplatError
 
 
@@ -61,7 +61,9 @@ def test_bayer_rggb_events_land_only_on_that_channels_pixels(channel, pixels):
     times = np.arange(0, 11_000, 1000, dtype=np.int64)
     rgb = np.full((len(times), h, w, 3), 0.2, dtype=np.float32)
     rgb[:, :, :, channel] = np.linspace(0.2, 0.8, len(times))[:, None, None]
-    ev = simulate_events((times, log_intensity(rgb, "RGGB")), 0.2, 0.2, sigma_c=0.0, bayer="RGGB")
+    ev = simulate_events(
+        (times, sensor_log_image(rgb, "RGGB")), 0.2, 0.2, sigma_c=0.0, bayer="RGGB"
+    )
     got = set(zip((ev.y % 2).tolist(), (ev.x % 2).tolist()))
     assert got == set(pixels)
     # every pixel of that channel fires floor(log(0.801/0.201)/0.2) times

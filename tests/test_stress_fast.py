@@ -9,17 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from evsplat.bench.stress import (
-    COMPONENTS,
-    Case,
-    Tally,
-    check_case,
-    check_ply_output,
-    format_tallies,
-    kill_trials,
-    run_stress,
-)
 from evsplat.errors import EvsplatError
+from tests.stress.harness import Case, Tally, check_case
+from tests.stress.kill import check_ply_output, kill_trials
+from tests.stress.suite import COMPONENTS, format_tallies, run_stress
 
 # Cases per component in the default run (the full bench runs >= 10,000 in all).
 FAST_CASES = {
@@ -76,6 +69,22 @@ def test_sigkill_during_simulate_and_export_leaves_only_complete_files(tmp_path)
     report = kill_trials(2, tmp_path, seed=3, kinds=("simulate", "export"))
     assert report.trials == {"train": 0, "simulate": 1, "export": 1}
     assert report.corrupt == []
+
+
+def test_cli_runs_the_harness_from_the_checkout(capsys):
+    from evsplat.cli import main
+
+    assert main(["bench", "stress", "--cases", "8", "--components", "events"]) == 0
+    assert "events | 8 |" in capsys.readouterr().out
+
+
+def test_cli_without_a_checkout_says_where_the_harness_lives(tmp_path, monkeypatch, capsys):
+    from evsplat.bench import stress
+    from evsplat.cli import main
+
+    monkeypatch.setattr(stress, "CHECKOUT", tmp_path)
+    assert main(["bench", "stress", "--cases", "8"]) == 2
+    assert "no source checkout with tests/stress/" in capsys.readouterr().err
 
 
 # ---- regressions found by the stress suite ---------------------------------------------------

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 
+from evsplat.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint
 from evsplat.cli import main
 from evsplat.config import preset
 from evsplat.data.simulator import simulate_dataset
@@ -23,7 +24,6 @@ from evsplat.export import export_ply, gaussian_arrays
 from evsplat.raster import rasterize
 from evsplat.render import Renderer
 from evsplat.train import train
-from evsplat.train.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint
 
 ITERS = 40
 
@@ -129,7 +129,7 @@ def test_exported_ply_has_standard_fields_and_renders_like_the_model(tiny_run, t
     channels = renderer.model.colors().shape[1]
     c2w = np.eye(4)
     c2w[:3, 3] = renderer.model.means.detach().mean(0).numpy() - np.array([0, 0, 3.0])
-    from evsplat.camera import viewmat
+    from evsplat.projection import viewmat
 
     with torch.no_grad():
         ref = renderer.render(t, c2w).image

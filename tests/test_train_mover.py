@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from evsplat.camera import project_points, viewmat
 from evsplat.config import ModelConfig, MoverConfig, preset
 from evsplat.data.dataset import load_dataset
 from evsplat.model.deform import DeformationMLP, deformed
 from evsplat.model.gaussians import GaussianModel
+from evsplat.projection import project_points, viewmat
 from evsplat.train.loop import Trainer
 from evsplat.train.mover import (
     MoverPath,

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 import torch
 
-from evsplat.camera import project_points, viewmat
 from evsplat.config import preset
 from evsplat.data.dataset import load_dataset
 from evsplat.model.deform import deformed
 from evsplat.model.gaussians import SH_C0
+from evsplat.projection import project_points, viewmat
 from evsplat.scenes import get_scene
 from evsplat.train.loop import Trainer
 

@@ -9,11 +9,11 @@ import pytest
 import torch
 
 import evsplat.train.loop as loop
+from evsplat.checkpoint import latest_checkpoint, load_checkpoint
 from evsplat.config import preset
 from evsplat.data.dataset import load_dataset
 from evsplat.data.simulator import simulate_dataset
 from evsplat.errors import EvsplatError
-from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint
 from evsplat.train.loop import Trainer
 
 

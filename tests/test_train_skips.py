@@ -13,15 +13,15 @@ import pytest
 import torch
 from torch import nn
 
+from evsplat.checkpoint import latest_checkpoint, load_checkpoint
 from evsplat.config import LossConfig, SkipConfig, TrainConfig, preset
 from evsplat.data.dataset import load_dataset
 from evsplat.data.events import bayer_channel_map
-from evsplat.losses.event import bayer_select, log_intensity
+from evsplat.losses.event import bayer_select, log_render
 from evsplat.model.gaussians import GaussianModel
 from evsplat.render import Renderer
 from evsplat.scenes import get_scene
 from evsplat.train import train
-from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint
 from evsplat.train.loop import Trainer
 from evsplat.train.skips import (
     Plateau,
@@ -318,7 +318,7 @@ def test_the_true_scene_frozen_in_time_explains_the_events_only_where_nothing_mo
         poses = np.stack([p.pose(t_scene * 1e-6) for p in scene.primitives]).astype(np.float64)
         c2w = np.asarray(scene.camera(t_pose * 1e-6), np.float64)
         rgb = torch.from_numpy(scene._renderer.render(c2w, poses)[0])
-        return log_intensity(bayer_select(rgb, cmap))
+        return log_render(bayer_select(rgb, cmap))
 
     cfg = SkipConfig()
     windows = evidence_windows(esi_of(data), data.t_start_us, data.t_end_us, LossConfig(), cfg, 0)

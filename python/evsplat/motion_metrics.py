@@ -56,7 +56,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from evsplat.camera import world_to_camera
+from evsplat.projection import world_to_camera
 
 if TYPE_CHECKING:
     from evsplat.render import Renderer

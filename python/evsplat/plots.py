@@ -48,7 +48,7 @@ def plot_losses(history: list[dict], out: Path) -> None:
     plt.close(fig)
 
 
-def side_by_side(frames: list[dict], out: Path, title: str = "") -> None:
+def plot_test_frames(frames: list[dict], out: Path, title: str = "") -> None:
     """Rows of ground truth | render (colour-fitted) | depth for a few test frames."""
     plt = _pyplot()
     rows = len(frames)

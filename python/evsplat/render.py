@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsplat.camera import viewmat
+from evsplat.checkpoint import load_run
 from evsplat.model.deform import DeformationMLP, deformed
 from evsplat.model.gaussians import GaussianModel
+from evsplat.projection import viewmat
 from evsplat.raster import rasterize
 
 ALPHA_EPS = 1e-4  # below this coverage, alpha-normalised extra channels are set to 0
@@ -123,7 +124,5 @@ class Renderer:
     @classmethod
     def from_run(cls, run_dir: str | Path) -> tuple[Renderer, dict]:
         """The renderer of a run folder's newest checkpoint, and that checkpoint's state."""
-        from evsplat.train.checkpoint import load_run
-
         state = load_run(Path(run_dir))
         return cls.from_state(state), state

@@ -27,6 +27,16 @@ def to_rgb8(img: np.ndarray) -> np.ndarray:
     return (np.clip(a, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
+def colour_depth(depth: np.ndarray) -> np.ndarray:
+    """Turbo colour map of depth (near = warm), background black."""
+    import matplotlib
+
+    valid = depth > 0
+    vmax = float(np.percentile(depth[valid], 99)) if valid.any() else 1.0
+    rgb = matplotlib.colormaps["turbo"](np.clip(depth / max(vmax, 1e-9), 0, 1))[..., :3]
+    return np.where(valid[..., None], rgb, 0.0).astype(np.float32)
+
+
 def event_frame(events: EventStream, i0: int, i1: int) -> np.ndarray:
     """Events [i0, i1) as an image: white background, positive events red, negative blue,
     saturating at 3 events per pixel. [H,W,3] float32."""
@@ -44,11 +54,11 @@ def event_frame(events: EventStream, i0: int, i1: int) -> np.ndarray:
     return img
 
 
-def side_by_side(*images: np.ndarray) -> np.ndarray:
+def hstack_images(*images: np.ndarray) -> np.ndarray:
     """Images of equal height [H,W,3] placed left to right."""
     heights = {im.shape[0] for im in images}
     if len(heights) != 1:
-        raise EvsplatError(f"side_by_side: images have different heights {sorted(heights)}")
+        raise EvsplatError(f"hstack_images: images have different heights {sorted(heights)}")
     return np.concatenate([to_rgb8(im) for im in images], axis=1)
 
 

@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
         write_track_plot,
     )
     from evsplat.metrics import fit_log_linear
-    from evsplat.plots import plot_losses, side_by_side
+    from evsplat.plots import plot_losses, plot_test_frames
     from evsplat.render import Renderer
     from evsplat.train import train
 
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         fr["gt"] = to_sensor_channels(fr["gt"], fr["render"].shape[-1])
         fr["fitted"] = fit_log_linear(fr["render"], fr["gt"])
     m = result["mean"]
-    side_by_side(
+    plot_test_frames(
         picks,
         args.out / "side_by_side.png",
         title=f"{args.scene} (tiny): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}",

@@ -60,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from evsplat.data.trajectory import Trajectory
     from evsplat.errors import EvsplatError
     from evsplat.render import Renderer
+    from evsplat.video import colour_depth
 
     if args.out.exists() and not args.out.is_dir():
         raise EvsplatError(f"--out {args.out}: exists and is not a folder; choose a folder path")
@@ -82,9 +83,9 @@ def run(args: argparse.Namespace) -> int:
         write_png(args.out / f"frame_{i:05d}.png", img[..., 0] if img.shape[-1] == 1 else img)
         depth = out.depth.numpy()
         write_exr(args.out / f"depth_{i:05d}.exr", depth)
-        write_png(args.out / f"depth_{i:05d}.png", _colour_depth(depth))
+        write_png(args.out / f"depth_{i:05d}.png", colour_depth(depth))
         if args.video:
-            frames.append((t_us, img, _colour_depth(depth)))
+            frames.append((t_us, img, colour_depth(depth)))
     print(f"rendered {len(fractions)} frames to {args.out}")
     if args.video:
         _write_videos(args, state, frames, span * _step(fractions))
@@ -101,7 +102,7 @@ def _write_videos(args: argparse.Namespace, state: dict, frames: list, window_us
     when the run's dataset folder is still where training read it."""
     from evsplat.data.dataset import load_dataset
     from evsplat.errors import EvsplatError
-    from evsplat.video import event_frame, side_by_side, write_mp4
+    from evsplat.video import event_frame, hstack_images, write_mp4
 
     n = write_mp4(args.out / "render.mp4", (img for _, img, _ in frames), args.fps)
     print(f"wrote {args.out / 'render.mp4'} ({n} frames, {args.fps:g} fps)")
@@ -118,17 +119,7 @@ def _write_videos(args: argparse.Namespace, state: dict, frames: list, window_us
     def panels():
         for t_us, img, depth in frames:
             ev = events.read(int(t_us - window_us / 2), int(t_us + window_us / 2))
-            yield side_by_side(img, event_frame(ev, 0, len(ev)), depth)
+            yield hstack_images(img, event_frame(ev, 0, len(ev)), depth)
 
     n = write_mp4(args.out / "render_events.mp4", panels(), args.fps)
     print(f"wrote {args.out / 'render_events.mp4'} ({n} frames: render | events | depth)")
-
-
-def _colour_depth(depth: np.ndarray) -> np.ndarray:
-    """Turbo colour map of depth (near = warm), background black."""
-    import matplotlib
-
-    valid = depth > 0
-    vmax = float(np.percentile(depth[valid], 99)) if valid.any() else 1.0
-    rgb = matplotlib.colormaps["turbo"](np.clip(depth / max(vmax, 1e-9), 0, 1))[..., :3]
-    return np.where(valid[..., None], rgb, 0.0).astype(np.float32)

@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG", "mono")
 
 
-def log_intensity(img: np.ndarray, bayer: str = "RGGB") -> np.ndarray:
+def sensor_log_image(img: np.ndarray, bayer: str = "RGGB") -> np.ndarray:
     """L = log(I + LOG_EPS) as the sensor sees it: [H,W,3] for colour (the simulator picks each
     pixel's channel), [H,W] for mono (RGB input is converted with Rec. 709 luma first)."""
     i = np.asarray(img, dtype=np.float32)
@@ -84,7 +84,7 @@ def simulate_events(
     """Events from log-intensity frames at increasing int64 µs times.
 
     `frames` is an iterable of (t_us, L) or a pair of arrays (times_us [N], L [N,H,W(,3)]);
-    L is [H,W,3] for bayer="RGGB" and [H,W] for "mono" (see `log_intensity`). The first frame
+    L is [H,W,3] for bayer="RGGB" and [H,W] for "mono" (see `sensor_log_image`). The first frame
     sets the reference levels. Same inputs and seed give identical events."""
     if bayer not in BAYER_PATTERNS:
         raise EvsplatError(f"bayer pattern '{bayer}' is not supported; use one of {BAYER_PATTERNS}")
@@ -200,7 +200,7 @@ def simulate_dataset(
             for t in tqdm(
                 frame_times, desc=f"simulate {scene.name}", unit="frame", disable=not progress
             ):
-                yield int(t), log_intensity(scene.render(int(t))[0], bayer)
+                yield int(t), sensor_log_image(scene.render(int(t))[0], bayer)
 
         events = simulate_events(
             frames(),

@@ -9,8 +9,9 @@ from evsplat.intensity import LOG_EPS
 from evsplat.losses.ssim import ssim
 
 
-def log_intensity(img: Tensor, eps: float = LOG_EPS) -> Tensor:
-    """log(max(img, 0) + eps): the log brightness an event sensor responds to."""
+def log_render(img: Tensor, eps: float = LOG_EPS) -> Tensor:
+    """log(max(img, 0) + eps) of a rendered image, differentiable: the log brightness an event
+    sensor responds to (the simulator's numpy counterpart is ``sensor_log_image``)."""
     return torch.log(img.clamp_min(0.0) + eps)
 
 

@@ -34,12 +34,12 @@ def train(
     configuration wins); without it, an ``out_dir`` that already holds checkpoints is an error so
     a finished run is never overwritten by accident.
     """
-    # Imported here so `evsplat.train.checkpoint` & co. load without the data/model stack.
+    # Imported here so `evsplat.train`'s light modules load without the data/model stack.
     import torch
 
+    from evsplat.checkpoint import latest_checkpoint, load_checkpoint
     from evsplat.config import TrainConfig, preset
     from evsplat.data.dataset import load_dataset
-    from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint
     from evsplat.train.depth_prior import make_depth_prior
     from evsplat.train.loop import Trainer
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsplat.camera import viewmat
+from evsplat.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from evsplat.config import TrainConfig
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset
@@ -28,8 +28,8 @@ from evsplat.losses.flow import gaussian_flow_features
 from evsplat.model.deform import DeformationMLP
 from evsplat.model.densify import Densifier
 from evsplat.model.gaussians import GaussianModel
+from evsplat.projection import viewmat
 from evsplat.render import Renderer
-from evsplat.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from evsplat.train.coarse import coarse_due, half_renderer
 from evsplat.train.depth_prior import DepthPrior
 from evsplat.train.mover import MoverTrack

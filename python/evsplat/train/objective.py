@@ -7,7 +7,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from evsplat.camera import project_points, viewmat
 from evsplat.config import LossConfig
 from evsplat.data.dataset import Dataset
 from evsplat.losses.depth import silog
@@ -16,6 +15,7 @@ from evsplat.losses.patch import patch_motion_loss, select_visible
 from evsplat.losses.reg import non_event_loss, spatial_gradient_loss
 from evsplat.model.deform import DeformationMLP, deformed_means
 from evsplat.model.gaussians import GaussianModel
+from evsplat.projection import project_points, viewmat
 from evsplat.render import Renderer, RenderOut
 from evsplat.train.depth_prior import DepthPrior
 from evsplat.train.mover import MoverTrack

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from evsplat.data.dataset import Dataset
-from evsplat.losses.event import bayer_select, log_intensity
+from evsplat.losses.event import bayer_select, log_render
 from evsplat.losses.flow import linearized_brightness_change
 from evsplat.render import Renderer, RenderOut
 from evsplat.train.coarse import bin_events
@@ -29,18 +29,18 @@ class Views:
         A coarse colour render keeps all three channels ``[3,h,w]``, as its binned events do."""
         img = out.image
         if self.channel_map is None:
-            return log_intensity(img[..., 0])
+            return log_render(img[..., 0])
         if coarse:
-            return log_intensity(img).permute(2, 0, 1)
-        return log_intensity(bayer_select(img, self.channel_map))
+            return log_render(img).permute(2, 0, 1)
+        return log_render(bayer_select(img, self.channel_map))
 
     def linearized_change(self, out: RenderOut, flow: torch.Tensor, coarse: bool) -> torch.Tensor:
         """-∇L·F (eq. 13) in the sensor's channels. A colour render is differentiated per
         channel before each pixel keeps its Bayer channel: differences across a mosaic mix
         colours, and drove the MLP's motion backwards in the oracle test (docs/results.md)."""
         if self.channel_map is None:
-            return linearized_brightness_change(log_intensity(out.image[..., 0]), flow)
-        change = linearized_brightness_change(log_intensity(out.image).permute(2, 0, 1), flow)
+            return linearized_brightness_change(log_render(out.image[..., 0]), flow)
+        change = linearized_brightness_change(log_render(out.image).permute(2, 0, 1), flow)
         if coarse:
             return change
         return bayer_select(change.permute(1, 2, 0), self.channel_map)

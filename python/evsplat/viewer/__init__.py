@@ -76,8 +76,7 @@ class RunView:
     def render(self, view: ViewState) -> np.ndarray:
         """[H,W,3] uint8 of ``view``: following the training camera, it is the run's own camera
         (K and size); free, a pinhole with the page's fov and aspect."""
-        from evsplat.commands.render import _colour_depth
-        from evsplat.video import to_rgb8
+        from evsplat.video import colour_depth, to_rgb8
 
         r = self.renderer
         if view.follow:
@@ -91,7 +90,7 @@ class RunView:
         with torch.no_grad():
             out = cam.render(self.t_us(view.time), c2w)
         if view.depth:
-            img = _colour_depth(out.depth.numpy())
+            img = colour_depth(out.depth.numpy())
         else:
             img = out.image.clamp(0, 1).numpy()
             img = img[..., :1].repeat(3, -1) if img.shape[-1] == 1 else img
@@ -224,8 +223,8 @@ def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 def open_viewer(run_dir: Path, port: int = 8080) -> Viewer:
     """Loads ``run_dir`` (and its dataset's events when found) and serves it on 127.0.0.1."""
+    from evsplat.checkpoint import load_run
     from evsplat.data.dataset import load_dataset
-    from evsplat.train.checkpoint import load_run
 
     check_port_free(port)
     data_dir = Path(load_run(Path(run_dir)).get("dataset", ""))

@@ -1,4 +1,5 @@
-"""Camera helpers shared by training, rendering and evaluation (OpenCV convention, +z forward)."""
+"""World-to-camera matrices and pinhole projection shared by training, rendering and evaluation
+(OpenCV convention, +z forward). The camera's trajectory is evsplat.data.trajectory."""
 
 from __future__ import annotations
 
