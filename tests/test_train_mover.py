@@ -14,18 +14,14 @@ from evsplat.model.deform import DeformationMLP, deformed
 from evsplat.model.gaussians import GaussianModel
 from evsplat.projection import project_points, viewmat
 from evsplat.train.loop import Trainer
-from evsplat.train.mover import (
+from evsplat.train.mover import MoverTrack, fit_mlp_to_path, lift, near_path, place_on_mover
+from evsplat.train.mover_path import (
     MoverPath,
-    MoverTrack,
     chain_circles,
     connected,
     find_path,
-    fit_mlp_to_path,
     fit_rings,
-    lift,
     locate,
-    near_path,
-    place_on_mover,
     prefer_ring,
     ring_scores,
     unexplained,

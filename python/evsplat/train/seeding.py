@@ -15,18 +15,14 @@ from evsplat.data.dataset import Dataset
 from evsplat.model.deform import DeformationMLP
 from evsplat.model.gaussians import GaussianModel
 from evsplat.train.mover import (
-    MoverPath,
     MoverTrack,
     disc_depth,
-    disc_inside,
-    find_path,
     fit_mlp_to_path,
-    interp_rows,
     lift,
     near_path,
     place_on_mover,
-    unexplained,
 )
+from evsplat.train.mover_path import MoverPath, disc_inside, find_path, interp_rows, unexplained
 from evsplat.train.spin import SpinSettings, find_spin, integrate
 from evsplat.train.views import Views
 
@@ -67,7 +63,7 @@ def seed_mover(
     with torch.no_grad():
         path = find_path(residual_of, data.t_start_us, data.t_end_us, mc)
     # Whether there is a mover: the windows that saw one (contrast); its path: the found
-    # windows, fewer (mover.prefer_ring and mover.connected drop the fits that disagree).
+    # windows, fewer (mover_path.prefer_ring and mover_path.connected drop the fits that disagree).
     found = float((path.contrast >= mc.min_contrast).mean())
     if found < mc.min_found or not path.found.any():
         return Seeding({"mover_found": found}, seeded=False, track=None)
