@@ -32,6 +32,7 @@ from evsplat.projection import viewmat
 from evsplat.render import Renderer
 from evsplat.train.coarse import coarse_due, half_renderer
 from evsplat.train.depth_prior import DepthPrior
+from evsplat.train.init import initial_gaussians, scene_extent
 from evsplat.train.mover import MoverTrack
 from evsplat.train.objective import motion_losses, refine_losses, track_loss
 from evsplat.train.seeding import seed_mover
@@ -68,32 +69,6 @@ class TrainStats:
     stopped_early_at: int | None = None  # completed iterations when the held-out loss plateaued
 
 
-def _init_points(data: Dataset, n: int, rng: np.random.Generator, depth_range: tuple[float, float]):
-    """Random points in the volume the trajectory sees: random time, pixel and inverse depth.
-
-    Event data carries no RGB or SfM points, so the frusta are the only geometric prior.
-    Returns (points [n,3], depths [n]) — depth sets each Gaussian's initial size.
-    """
-    times = rng.uniform(data.trajectory.t_min_us, data.trajectory.t_max_us, size=n)
-    c2w = data.trajectory.pose(times)
-    px = np.stack([rng.uniform(0, data.width, n), rng.uniform(0, data.height, n)], axis=1)
-    near, far = depth_range
-    depth = 1.0 / rng.uniform(1.0 / far, 1.0 / near, size=n)
-    kinv = np.linalg.inv(data.K)
-    rays = (np.concatenate([px, np.ones((n, 1))], axis=1) @ kinv.T) * depth[:, None]
-    points = np.einsum("nij,nj->ni", c2w[:, :3, :3], rays) + c2w[:, :3, 3]
-    return points, depth
-
-
-def scene_extent(data: Dataset, depth_range: tuple[float, float]) -> float:
-    """Radius used to scale learning rates and densification (3DGS: camera spread x 1.1),
-    never below the far depth so a nearly static camera still gets a sensible scale."""
-    times = np.linspace(data.trajectory.t_min_us, data.trajectory.t_max_us, 64)
-    centres = data.trajectory.pose(times)[:, :3, 3]
-    spread = float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) * 1.1
-    return max(spread, depth_range[1])
-
-
 class Trainer:
     """Trains a dynamic Gaussian scene from one dataset; see ``run``."""
 
@@ -115,21 +90,7 @@ class Trainer:
         self.depth_range = tuple(data.meta.get("depth_range") or cfg.model.init_depth_range)
         self.extent = scene_extent(data, self.depth_range)
 
-        rng = np.random.default_rng(cfg.seed)
-        points, depth = _init_points(data, cfg.num_gaussians, rng, self.depth_range)
-        lo, hi = points.min(0), points.max(0)
-        self.model = GaussianModel.random_init(
-            cfg.num_gaussians, self.channels, lo, hi, sh_degree=cfg.model.sh_degree, seed=cfg.seed
-        )
-        self.model.temporal = cfg.deform and cfg.model.temporal_opacity
-        if self.model.temporal:
-            self.model.start_time_local(*cfg.model.init_time_local, seed=cfg.seed)
-        focal = float(data.K[0, 0])
-        with torch.no_grad():
-            self.model.means.copy_(torch.from_numpy(points.astype(np.float32)))
-            # About two pixels wide where it was sampled: visible, but no initial blur.
-            size = np.log(np.maximum(2.0 * depth / focal, 1e-6)).astype(np.float32)
-            self.model.log_scales.copy_(torch.from_numpy(size)[:, None].expand(-1, 3))
+        self.model = initial_gaussians(data, cfg, self.channels, self.depth_range)
         self.mlp = DeformationMLP(cfg.model)
         self.optimizer = torch.optim.Adam(
             self.model.param_groups(cfg.model, self.extent), eps=1e-15
