@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from evsplat.config import ModelConfig
+from evsplat.config import ModelConfig, preset
 from evsplat.model.deform import DeformationMLP, deformed, deformed_means, positional_encoding
 from evsplat.model.gaussians import GaussianModel
 
@@ -30,7 +30,7 @@ def test_mlp_starts_as_the_identity_deformation():
 
 
 def test_mlp_layers_follow_deformable_3dgs_encoding_and_skip_shapes():
-    mlp = DeformationMLP(ModelConfig())
+    mlp = DeformationMLP(preset("paper").model)  # Deformable-3DGS's 8x256, skip at layer 4
     # γ(x): 3 + 3·2·10 = 63, γ(t): 1 + 2·6 = 13.
     assert mlp.input_dim == 76
     assert len(mlp.layers) == 8
