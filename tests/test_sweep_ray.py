@@ -31,16 +31,12 @@ def cluster():
     cells inherit one lavapipe thread: with several, the backward's float atomics add in an
     order that varies with the load, and a loaded CI machine saw two runs of one cell differ
     by 6e-5 in PSNR."""
-    kept = os.environ.get("LP_NUM_THREADS")
-    os.environ["LP_NUM_THREADS"] = "1"
-    ray = import_ray(LOCAL_CLUSTER)  # loopback only, usage reporting off
-    start_local_cluster(ray, cpus=2)
-    yield
-    ray.shutdown()
-    if kept is None:
-        del os.environ["LP_NUM_THREADS"]
-    else:
-        os.environ["LP_NUM_THREADS"] = kept
+    with pytest.MonkeyPatch.context() as env:
+        env.setenv("LP_NUM_THREADS", "1")
+        ray = import_ray(LOCAL_CLUSTER)  # loopback only, usage reporting off
+        start_local_cluster(ray, cpus=2)
+        yield
+        ray.shutdown()
 
 
 def config(iterations: int, checkpoint_every: int = 500, static: bool = True) -> dict:

@@ -263,8 +263,15 @@ class Trainer:
         """Mark the dynamic Gaussians that stopped moving static (``skips.update_static``);
         the first classification may find the whole scene static."""
         centre = torch.from_numpy(self.pose_samples[1][:, :3, 3].mean(0).astype(np.float32))
+        focal = float(self.data.K[0, 0])
         whole = update_static(
-            self.model, self.mlp, self.renderer, centre, self.cfg.skips, self.unexplained_events
+            self.model,
+            self.mlp,
+            self.renderer,
+            centre,
+            focal,
+            self.cfg.skips,
+            self.unexplained_events,
         )
         self.static_scene = self.static_scene or whole
 

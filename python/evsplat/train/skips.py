@@ -269,20 +269,22 @@ def update_static(
     mlp: DeformationMLP,
     renderer: Renderer,
     centre: Tensor,
+    focal: float,
     cfg: SkipConfig,
     scene_unexplained: Callable[[], float],
 ) -> bool:
     """Mark the dynamic Gaussians that stopped moving static in ``renderer.static_mask`` and
     bake their deformation; static ones stay static, so only the dynamic ones go through the
-    MLP. ``centre`` [3] is the mean camera position (Gaussians' motion is measured in pixels
-    from there). True when this first classification finds the whole scene static, which also
-    needs ``scene_unexplained()`` (the events' evidence) to agree: the MLP having learned no
-    motion does not show that nothing moves (time-local opacity may carry the moving object)."""
+    MLP. ``centre`` [3] is the mean camera position and ``focal`` the focal length in pixels
+    (Gaussians' motion is measured in pixels from there). True when this first classification
+    finds the whole scene static, which also needs ``scene_unexplained()`` (the events'
+    evidence) to agree: the MLP having learned no motion does not show that nothing moves
+    (time-local opacity may carry the moving object)."""
     first = renderer.static_mask is None
     old = torch.zeros(model.num_gaussians, dtype=torch.bool) if first else renderer.static_mask
     dynamic = torch.nonzero(~old).reshape(-1)
     means = model.means[dynamic]
-    scale = pixels_per_unit(means, centre, float(renderer.K[0, 0]), 1e-2)
+    scale = pixels_per_unit(means, centre, focal, 1e-2)
     static, scene_static, mean = classify_static(mlp, means, scale, cfg)
     whole = False
     if first and float(scene_static.float().mean()) >= cfg.static_scene_fraction:

@@ -27,13 +27,14 @@ pub fn run(
         forward::encode(ctx, st, &p, &mut rec, false)?;
         st.current = Some(render.id);
     }
-    let parts = [grads.image, grads.depth, grads.alpha];
-    let mut packed = Vec::with_capacity(parts.iter().map(|s| s.len()).sum());
-    for part in parts {
-        packed.extend_from_slice(part);
+    // The three output gradients lie back to back in `grad_in`: each is written at its offset
+    // (no host-side copy into one packed vector).
+    let mut offset = 0;
+    for part in [grads.image, grads.depth, grads.alpha] {
+        let bytes: &[u8] = bytemuck::cast_slice(part);
+        ctx.queue.write_buffer(&st.bufs.grad_in.buf, offset, bytes);
+        offset += bytes.len() as u64;
     }
-    ctx.queue
-        .write_buffer(&st.bufs.grad_in.buf, 0, bytemuck::cast_slice(&packed));
     let b = &st.bufs;
     let binds = (st.bwd_binds)
         .entry(mode == AtomicMode::Float)
