@@ -26,6 +26,9 @@ def _fake_row(cell):
         "ssim": 0.5,
         "lpips": None,
         "psnr_moving": psnr - 3,
+        "psnr_flat": 12.0,
+        "psnr_moving_flat": 9.0,
+        "track_px": 1.0 + speed,
     }
 
 
@@ -68,9 +71,10 @@ def test_tables_hold_every_run_and_the_papers_numbers(tmp_path, monkeypatch):
     assert len(calls) == 12 + 3 + 4
     assert len({(c.labels["case"], c.labels["variant"]) for c in calls}) == len(calls)
     text = doc.read_text()
-    assert "| butterfly | 24.27 / 0.902 / 0.12 |" in text
-    assert "| x3 | 19.14 | 21.00 |" in text
-    assert "| L_e | 18.61 | 19.00 |" in text
+    assert "| butterfly | 24.27 / 0.902 / 0.12 | 12.00 |" in text
+    assert "| 9.00 / 12.00 / 16.00 | 2.0 / 2.0 |" in text  # flat, static, full; tracking
+    assert "| x3 | 19.14 | 21.00 (12.00) | 0.500 | 18.00 (9.00) | 4.0 |" in text
+    assert "| L_e | 18.61 | 19.00 (12.00) |" in text
     assert text.count("; 7 iterations per run.") == 3
     assert text.rstrip().endswith("ball 400x400: kept")
     assert (tmp_path / "results_pareto.png").stat().st_size > 0
@@ -89,5 +93,6 @@ def test_rerunning_one_table_keeps_the_others_as_measured(tmp_path, monkeypatch)
     text = doc.read_text()
     assert table1 in text  # untouched, provenance line included
     assert paper.TITLES["2"] not in text  # never measured, not invented
-    assert "| L_e | 18.61 | 30.00 |" in text and "| L_e | 18.61 | 30.00 |" not in first
+    assert "| L_e | 18.61 | 30.00 (12.00) |" in text
+    assert "| L_e | 18.61 | 30.00 (12.00) |" not in first
     assert text.index(paper.TITLES["1"]) < text.index(paper.TITLES["3"]) < text.index("![time")

@@ -121,10 +121,12 @@ def plot_track(
     ax.set_yticks([])
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, 0.0), frameon=False)
     err, ratio = tracking["error_px_median"], tracking["path_ratio"]
+    region = tracking["region"]["error_px_median"]
     summary = (
         "no reference frame shows the object's Gaussians"
         if err is None or ratio is None
-        else f"median tracking error {err:.1f} px, path ratio {ratio:.2f}"
+        else f"object region off by {'-' if region is None else f'{region:.1f}'} px (median); "
+        f"Gaussians followed: {err:.1f} px, path ratio {ratio:.2f}"
     )
     ax.set_title(f"{title}\n{summary}" if title else summary, fontsize=9)
     fig.tight_layout()

@@ -74,9 +74,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _table1(rows: list[dict]) -> list[str]:
     lines = [
-        "| scene | paper PSNR/SSIM/LPIPS | static 3DGS | no L_ef, L_m | ours (full) | "
-        "moving-mask PSNR static -> full |",
-        "|---|---|---|---|---|---|",
+        "| scene | paper PSNR/SSIM/LPIPS | flat image PSNR | static 3DGS | no L_ef, L_m | "
+        "ours (full) | moving-mask PSNR: flat / static / full | tracking px static / full |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for scene in SCENES:
         by = {r["variant"]: r for r in rows if r["case"].startswith(scene + "-")}
@@ -90,37 +90,49 @@ def _table1(rows: list[dict]) -> list[str]:
             for v in TABLE1_VARIANTS
         ]
         st, fu = by.get("static", {}), by.get("full", {})
-        moving = f"{fmt(st.get('psnr_moving'))} -> {fmt(fu.get('psnr_moving'))}"
+        any_row = fu or st or next(iter(by.values()))
+        moving = (
+            f"{fmt(any_row.get('psnr_moving_flat'))} / {fmt(st.get('psnr_moving'))} / "
+            f"{fmt(fu.get('psnr_moving'))}"
+        )
+        track = f"{fmt(st.get('track_px'), 1)} / {fmt(fu.get('track_px'), 1)}"
         lines.append(
-            f"| {scene} | {p[0]} / {p[1]} / {p[2]} | " + " | ".join(cells) + f" | {moving} |"
+            f"| {scene} | {p[0]} / {p[1]} / {p[2]} | {fmt(any_row.get('psnr_flat'))} | "
+            + " | ".join(cells)
+            + f" | {moving} | {track} |"
         )
     return lines
 
 
 def _table2(rows: list[dict]) -> list[str]:
     lines = [
-        "| speed | paper PSNR | ours PSNR | ours SSIM | moving-mask PSNR |",
-        "|---|---|---|---|---|",
+        "| speed | paper PSNR | ours PSNR (flat) | ours SSIM | moving-mask PSNR (flat) | "
+        "tracking px |",
+        "|---|---|---|---|---|---|",
     ]
     for r in rows:
         k = int(r["case"].rsplit("-x", 1)[1])
         lines.append(
-            f"| x{k} | {PAPER_TABLE2[k]} | {fmt(r['psnr'])} | {fmt(r['ssim'], 3)} | "
-            f"{fmt(r['psnr_moving'])} |"
+            f"| x{k} | {PAPER_TABLE2[k]} | {fmt(r['psnr'])} ({fmt(r.get('psnr_flat'))}) | "
+            f"{fmt(r['ssim'], 3)} | {fmt(r['psnr_moving'])} ({fmt(r.get('psnr_moving_flat'))}) | "
+            f"{fmt(r.get('track_px'), 1)} |"
         )
     return lines
 
 
 def _table3(rows: list[dict]) -> list[str]:
     lines = [
-        "| losses | paper PSNR | ours PSNR | ours SSIM | moving-mask PSNR | time s |",
-        "|---|---|---|---|---|---|",
+        "| losses | paper PSNR | ours PSNR (flat) | ours SSIM | moving-mask PSNR (flat) | "
+        "tracking px | time s |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in sorted(rows, key=lambda r: ABLATION.index(r["variant"])):
         paper = PAPER_TABLE3.get(r["variant"], "-")
         lines.append(
-            f"| {ABLATION_LABEL[r['variant']]} | {paper} | {fmt(r['psnr'])} | "
-            f"{fmt(r['ssim'], 3)} | {fmt(r['psnr_moving'])} | {r['wall_seconds']:.0f} |"
+            f"| {ABLATION_LABEL[r['variant']]} | {paper} | {fmt(r['psnr'])} "
+            f"({fmt(r.get('psnr_flat'))}) | {fmt(r['ssim'], 3)} | {fmt(r['psnr_moving'])} "
+            f"({fmt(r.get('psnr_moving_flat'))}) | {fmt(r.get('track_px'), 1)} | "
+            f"{r['wall_seconds']:.0f} |"
         )
     return lines
 

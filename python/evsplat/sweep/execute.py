@@ -114,16 +114,19 @@ def _train_and_score(cell: Cell, out: Path, key: str, log: Path, host: str, code
     return row
 
 
-METRICS = ("psnr", "ssim", "lpips", "psnr_moving")
+METRICS = ("psnr", "psnr_flat", "ssim", "lpips", "psnr_moving", "psnr_moving_flat")
 
 
 def _score(evaluate_run, run: Path, data: Path) -> dict:
-    """Held-out metrics (eval.json etc. into the run folder); None for a recording without
-    ground-truth frames (a real camera's)."""
+    """Held-out metrics (eval.json etc. into the run folder) and the moving object's region
+    tracking error (``track_px``); None for what the data cannot score (a real camera's
+    recording has no ground-truth frames, a scene without an object centre no tracking)."""
     if not (data / "test" / "frames.json").is_file():
-        return dict.fromkeys(METRICS)
-    mean = evaluate_run(run, data)["mean"]
-    return {k: mean[k] for k in METRICS}
+        return dict.fromkeys((*METRICS, "track_px"))
+    result = evaluate_run(run, data)
+    tracking = result["tracking"]
+    track = None if tracking is None else tracking["region"]["error_px_median"]
+    return {k: result["mean"][k] for k in METRICS} | {"track_px": track}
 
 
 def _failure(log: Path, returncode: int) -> str:
