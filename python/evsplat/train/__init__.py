@@ -12,7 +12,7 @@ from evsplat.errors import EvsplatError
 
 if TYPE_CHECKING:
     from evsplat.config import TrainConfig
-    from evsplat.train.loop import TrainStats
+    from evsplat.train.progress import TrainStats
 
 __all__ = ["train"]
 
