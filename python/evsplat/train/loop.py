@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsplat.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
+from evsplat.checkpoint import checkpoint_dir, latest_checkpoint
 from evsplat.config import TrainConfig
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset
@@ -25,9 +25,9 @@ from evsplat.losses.event import event_loss
 from evsplat.losses.flow import gaussian_flow_features
 from evsplat.model.deform import DeformationMLP
 from evsplat.model.densify import Densifier
-from evsplat.model.gaussians import GaussianModel
 from evsplat.projection import viewmat
 from evsplat.render import Renderer
+from evsplat.run_state import RunState
 from evsplat.train.coarse import coarse_due, half_renderer
 from evsplat.train.depth_prior import DepthPrior
 from evsplat.train.gradients import first_nonfinite_grad, grad_norms_due, mlp_grad_norms
@@ -44,6 +44,7 @@ from evsplat.train.skips import (
     static_due,
     update_static,
 )
+from evsplat.train.snapshot import restore, snapshot
 from evsplat.train.stages import Stage, stage_at
 from evsplat.train.views import Views
 
@@ -245,73 +246,9 @@ class Trainer:
 
     # ---- checkpoints and the loop --------------------------------------------------------
 
-    def state(self, iteration: int) -> dict:
-        """Everything needed to resume at ``iteration`` or to render the result."""
-        data, stats = self.data, self.progress.stats
-        return {
-            "config": self.cfg.to_dict(),
-            "gaussians": self.model.state_for_checkpoint(),
-            "mlp": self.mlp.state_dict() if self.mlp_active(iteration) else None,
-            "mlp_full": self.mlp.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
-            "mlp_optimizer": self.mlp_optimizer.state_dict(),
-            "densifier": self.densifier.state_dict(),
-            "static_mask": self.renderer.static_mask,
-            "static_scene": self.static_scene,
-            "mover_track": None if self.mover_track is None else self.mover_track.state_dict(),
-            "early_stop": self.progress.plateau.state_dict(),
-            "camera": {
-                "K": data.K.tolist(),
-                "width": data.width,
-                "height": data.height,
-                "t_start_us": data.t_start_us,
-                "t_end_us": data.t_end_us,
-                "channels": self.channels,
-                "bayer": data.bayer,
-            },
-            "trajectory": {"times_us": self.pose_samples[0], "c2w": self.pose_samples[1]},
-            "dataset": str(data.root),
-            "stats": {
-                "skipped_nonfinite": stats.skipped_nonfinite,
-                "skipped_empty": stats.skipped_empty,
-                "seconds": stats.seconds,
-            },
-            "history": stats.history,
-        }
-
-    def restore(self, state: dict, path: Path) -> None:
-        """Load a checkpoint of the same dataset and configuration shape."""
-        cam = state["camera"]
-        if (cam["width"], cam["height"]) != (self.data.width, self.data.height):
-            raise EvsplatError(
-                f"{path}: checkpoint is for a {state['camera']['width']}x"
-                f"{state['camera']['height']} sensor but the data is {self.data.width}x"
-                f"{self.data.height}; resume with the dataset it was trained on"
-            )
-        self.model = GaussianModel.from_checkpoint(state["gaussians"])
-        self.renderer.model = self.model
-        self.mlp.load_state_dict(state["mlp_full"])
-        self.optimizer = self.gaussians_adam()
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.mlp_optimizer.load_state_dict(state["mlp_optimizer"])
-        self.densifier.load_state_dict(state["densifier"])
-        self.renderer.static_mask = state.get("static_mask")  # absent before skips existed
-        self.static_scene = bool(state.get("static_scene", False))
-        track = state.get("mover_track")  # absent before the track prior existed
-        self.mover_track = None if track is None else MoverTrack.from_state(track)
-        if "early_stop" in state:
-            self.progress.plateau.load_state_dict(state["early_stop"])
-        s, stats = state["stats"], self.progress.stats
-        stats.skipped_nonfinite = s["skipped_nonfinite"]
-        stats.skipped_empty = s["skipped_empty"]
-        stats.seconds = s["seconds"]
-        stats.history = list(state["history"])
-        self.start_iteration = int(state["iteration"])
-
     def save(self, iteration: int) -> Path:
-        path = save_checkpoint(
-            self.run_dir, iteration, self.state(iteration), keep=self.cfg.schedule.keep_checkpoints
-        )
+        """The checkpoint after ``iteration`` completed iterations, and the loss log so far."""
+        path = snapshot(self, iteration).save(self.run_dir, keep=self.cfg.schedule.keep_checkpoints)
         lines = "".join(json.dumps(h) + "\n" for h in self.progress.stats.history)
         write_text_atomic(self.run_dir / "log.jsonl", lines)
         return path
@@ -321,7 +258,7 @@ class Trainer:
         latest = latest_checkpoint(self.run_dir)
         if latest is None:
             return False
-        self.restore(load_checkpoint(latest), latest)
+        restore(self, RunState.load(latest), latest)
         return True
 
     def run(self, progress: bool = True) -> TrainStats:
@@ -347,7 +284,7 @@ class Trainer:
             result = self.step(it)
             p.stats.seconds += time.perf_counter() - t
             last = it + 1
-            p.account(it, result, self.run_dir / "checkpoints")
+            p.account(it, result, checkpoint_dir(self.run_dir))
             stop = p.holdout_due(last) and p.plateaued(self._holdout_loss(last), last, result.stage)
             shown = p.log(it, result, stop)
             if shown is not None:
