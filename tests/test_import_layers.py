@@ -24,6 +24,7 @@ BELOW_TRAIN = (
     "evsplat.projection",
     "evsplat.raster",
     "evsplat.render",
+    "evsplat.run_state",
     "evsplat.scenes",
     "evsplat.video",
     "evsplat.viewer",

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from evsplat.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint
+from evsplat.checkpoint import list_checkpoints
 from evsplat.cli import main
 from evsplat.config import preset
 from evsplat.data.simulator import simulate_dataset
@@ -23,6 +23,7 @@ from evsplat.eval import evaluate
 from evsplat.export import export_ply, gaussian_arrays
 from evsplat.raster import rasterize
 from evsplat.render import Renderer
+from evsplat.run_state import RunState
 from evsplat.train import train
 
 ITERS = 40
@@ -43,8 +44,7 @@ def tiny_run(tiny_data, tmp_path_factory) -> Path:
 
 
 def test_short_training_run_writes_a_complete_checkpoint_and_log(tiny_run):
-    state = load_checkpoint(latest_checkpoint(tiny_run))
-    assert state["iteration"] == ITERS
+    assert RunState.load(tiny_run).iteration == ITERS
     assert (tiny_run / "log.jsonl").is_file()
     assert json.loads((tiny_run / "config.json").read_text())["preset"] == "tiny"
     losses = [json.loads(line) for line in (tiny_run / "log.jsonl").read_text().splitlines()]
@@ -189,7 +189,7 @@ def test_sigkill_mid_training_then_resume_matches_an_uninterrupted_run(tiny_data
         time.sleep(0.2)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    done = load_checkpoint(latest_checkpoint(killed))["iteration"]
+    done = RunState.load(killed).iteration
     assert 0 < done < iters, "the kill should land mid-training"
     train(tiny_data, killed, preset_name="tiny", resume=True, progress=False)
 

@@ -9,11 +9,11 @@ import pytest
 import torch
 
 import evsplat.train.loop as loop
-from evsplat.checkpoint import latest_checkpoint, load_checkpoint
 from evsplat.config import preset
 from evsplat.data.dataset import load_dataset
 from evsplat.data.simulator import simulate_dataset
 from evsplat.errors import EvsplatError
+from evsplat.run_state import RunState
 from evsplat.train.loop import Trainer
 
 
@@ -70,9 +70,9 @@ def test_persistent_nan_gradient_stops_with_the_term_and_keeps_the_last_good_che
     with pytest.raises(EvsplatError, match=r"non-finite gradient of .* in 20 steps") as e:
         trainer.run(progress=False)
     assert "\n" not in str(e.value)
-    good = load_checkpoint(latest_checkpoint(run))
-    assert good["iteration"] == 5
-    assert all(torch.isfinite(v).all() for v in good["gaussians"].values() if torch.is_tensor(v))
+    good = RunState.load(run)
+    assert good.iteration == 5
+    assert all(torch.isfinite(v).all() for v in good.gaussians.values() if torch.is_tensor(v))
 
 
 def test_three_views_give_l_e_as_the_mean_over_their_three_windows(

@@ -13,13 +13,13 @@ import pytest
 import torch
 from torch import nn
 
-from evsplat.checkpoint import latest_checkpoint, load_checkpoint
 from evsplat.config import LossConfig, SkipConfig, TrainConfig, preset
 from evsplat.data.dataset import load_dataset
 from evsplat.data.events import bayer_channel_map
 from evsplat.losses.event import bayer_select, log_render
 from evsplat.model.gaussians import GaussianModel
 from evsplat.render import Renderer
+from evsplat.run_state import RunState
 from evsplat.scenes import get_scene
 from evsplat.train import train
 from evsplat.train.loop import Trainer
@@ -195,8 +195,8 @@ def test_static_mask_follows_densification_and_survives_a_checkpoint(tiny_data, 
         previous = mask.clone()
     assert len(sizes) >= 3, "densification should have changed N twice"
     trainer.save(10)
-    state = load_checkpoint(latest_checkpoint(tmp_path / "run"))
-    assert torch.equal(state["static_mask"], trainer.renderer.static_mask)
+    state = RunState.load(tmp_path / "run")
+    assert torch.equal(state.static_mask, trainer.renderer.static_mask)
     assert torch.equal(Renderer.from_state(state).static_mask, trainer.renderer.static_mask)
     resumed = Trainer(load_dataset(tiny_data), cfg, tmp_path / "run")
     assert resumed.resume()
@@ -226,7 +226,7 @@ def test_flat_held_out_loss_stops_at_the_predicted_iteration(flat_run):
     run, stats = flat_run
     # Evaluations after 8 (the first after warm-up: best), 12, 16, 20 (third without progress).
     assert stats.iterations == 20 and stats.stopped_early_at == 20
-    assert load_checkpoint(latest_checkpoint(run))["iteration"] == 20
+    assert RunState.load(run).iteration == 20
     summary = json.loads((run / "stats.json").read_text())
     assert summary["stopped_early"] and summary["stopped_early_at"] == 20
     held = [h for h in stats.history if "holdout_e" in h]
@@ -238,7 +238,7 @@ def test_resuming_an_early_stopped_run_does_not_train_further(flat_run, tiny_dat
     run, _ = flat_run
     stats = train(tiny_data, run, resume=True, progress=False)
     assert stats.iterations == 20 and stats.stopped_early_at == 20
-    assert load_checkpoint(latest_checkpoint(run))["iteration"] == 20
+    assert RunState.load(run).iteration == 20
 
 
 def test_improving_held_out_loss_does_not_stop(tiny_data, tmp_path):
@@ -271,8 +271,9 @@ def test_a_scene_found_static_drops_the_mlp_and_motion_losses_for_good(tiny_data
     assert trainer.renderer.mlp is None
     trainer.save(6)
     assert trainer.summary()["static_scene"] is True
-    state = load_checkpoint(latest_checkpoint(tmp_path / "run"))
-    assert state["static_scene"] is True and state["mlp"] is None
+    state = RunState.load(tmp_path / "run")
+    assert state.static_scene and not state.mlp_active
+    assert Renderer.from_state(state).mlp is None
     resumed = Trainer(load_dataset(tiny_data), cfg, tmp_path / "run")
     assert resumed.resume() and resumed.static_scene
     assert not {"ef", "m"} & set(resumed.step(6).losses)

@@ -1,12 +1,14 @@
-"""Checkpoints: written atomically, validated on load, and found again for ``--resume``.
+"""Checkpoint files: written atomically, validated on load, and found again for ``--resume``.
 
 Layout inside a run folder: ``checkpoints/ckpt_<iteration>.pt`` (complete files only, thanks to
-the atomic rename) and ``checkpoints/latest`` naming the newest one.
+the atomic rename) and ``checkpoints/latest`` naming the newest one. What a checkpoint holds,
+and its version, is ``evsplat.run_state``'s: this module is the container.
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -16,20 +18,26 @@ from evsplat.data.atomic import write_atomic, write_text_atomic
 from evsplat.errors import EvsplatError
 
 FORMAT = "evsplat-checkpoint"
-VERSION = 1
 _NAME = re.compile(r"^ckpt_(\d+)\.pt$")
+
+#: Per layout version older than the current one, the function that turns a payload of that
+#: version into the next version's.
+Upgrades = Mapping[int, Callable[[dict[str, Any]], dict[str, Any]]]
 
 
 def checkpoint_dir(run_dir: Path) -> Path:
     return Path(run_dir) / "checkpoints"
 
 
-def save_checkpoint(run_dir: Path, iteration: int, state: dict[str, Any], keep: int = 2) -> Path:
-    """Write ``state`` as the checkpoint of ``iteration`` and prune all but the newest ``keep``."""
+def save_checkpoint(
+    run_dir: Path, iteration: int, state: dict[str, Any], version: int, keep: int = 2
+) -> Path:
+    """Write ``state`` (layout ``version``) as the checkpoint of ``iteration`` and prune all but
+    the newest ``keep``."""
     folder = checkpoint_dir(run_dir)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"ckpt_{iteration:07d}.pt"
-    payload = {"format": FORMAT, "version": VERSION, "iteration": iteration, **state}
+    payload = {"format": FORMAT, "version": version, "iteration": iteration, **state}
     write_atomic(path, lambda tmp: torch.save(payload, tmp))
     write_text_atomic(folder / "latest", path.name + "\n")
     for old in list_checkpoints(run_dir)[:-keep]:
@@ -46,8 +54,9 @@ def list_checkpoints(run_dir: Path) -> list[Path]:
     return [p for _, p in sorted(found)]
 
 
-def load_checkpoint(path: Path) -> dict[str, Any]:
-    """Load and validate one checkpoint file; foreign or damaged files are one-line errors."""
+def load_checkpoint(path: Path, version: int, upgrades: Upgrades) -> dict[str, Any]:
+    """Load and validate one checkpoint file, upgraded to layout ``version`` one version at a
+    time; foreign, damaged and unknown-version files are one-line errors."""
     path = Path(path)
     try:
         state = torch.load(path, map_location="cpu", weights_only=False)
@@ -64,10 +73,16 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
         raise EvsplatError(
             f"{path}: not an evsplat checkpoint; pass a run folder made by `evsplat train`"
         )
-    if state.get("version") != VERSION:
+    while (found := state.get("version")) in upgrades:
+        try:
+            state = {**upgrades[found](state), "version": found + 1}
+        except KeyError as e:
+            raise EvsplatError(f"{path}: version {found} checkpoint lacks {e}; retrain") from None
+    if found != version:
+        readable = ", ".join(str(v) for v in sorted({*upgrades, version}))
         raise EvsplatError(
-            f"{path}: checkpoint format version {state.get('version')} but this evsplat reads "
-            f"version {VERSION}; retrain with this version"
+            f"{path}: checkpoint format version {found} but this evsplat reads version "
+            f"{readable}; retrain with this version"
         )
     return state
 
@@ -78,11 +93,11 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
     return found[-1] if found else None
 
 
-def load_run(run_dir: Path) -> dict[str, Any]:
+def run_checkpoint(run_dir: Path) -> Path:
     """The newest checkpoint of a run folder (or a checkpoint file given directly)."""
     run_dir = Path(run_dir)
     if run_dir.is_file():
-        return load_checkpoint(run_dir)
+        return run_dir
     if not run_dir.is_dir():
         raise EvsplatError(
             f"{run_dir}: no such run folder; pass the --out folder of `evsplat train`"
@@ -90,4 +105,4 @@ def load_run(run_dir: Path) -> dict[str, Any]:
     latest = latest_checkpoint(run_dir)
     if latest is None:
         raise EvsplatError(f"{run_dir}: no checkpoint in this run folder; train it first")
-    return load_checkpoint(latest)
+    return latest

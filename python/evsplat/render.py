@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsplat.checkpoint import load_run
 from evsplat.model.deform import DeformationMLP, deformed
 from evsplat.model.gaussians import GaussianModel
 from evsplat.projection import viewmat
 from evsplat.raster import rasterize
+from evsplat.run_state import RunState
 
 ALPHA_EPS = 1e-4  # below this coverage, alpha-normalised extra channels are set to 0
 
@@ -97,32 +97,28 @@ class Renderer:
         return RenderOut(image[..., :channels], depth, alpha, meta, means, out_extra)
 
     @classmethod
-    def from_state(cls, state: dict) -> Renderer:
-        """Rebuild a renderer from a checkpoint's state (see ``evsplat.train``)."""
-        from evsplat.config import TrainConfig
-
-        cfg = TrainConfig.from_dict(state["config"])
-        model = GaussianModel.from_checkpoint(state["gaussians"])
+    def from_state(cls, state: RunState) -> Renderer:
+        """The trained scene of a run's state, as its renders saw it at that iteration."""
         mlp = None
-        if state.get("mlp") is not None:
-            mlp = DeformationMLP(cfg.model)
-            mlp.load_state_dict(state["mlp"])
-        cam = state["camera"]
-        static = state.get("static_mask")
+        if state.mlp_active:
+            mlp = DeformationMLP(state.config.model)
+            mlp.load_state_dict(state.mlp)
+        cam, static = state.camera, state.static_mask
         return cls(
-            model=model,
+            model=GaussianModel.from_checkpoint(state.gaussians),
             mlp=mlp,
-            K=torch.tensor(cam["K"], dtype=torch.float32),
-            width=int(cam["width"]),
-            height=int(cam["height"]),
-            t_start_us=int(cam["t_start_us"]),
-            t_end_us=int(cam["t_end_us"]),
-            background=cfg.background,
+            K=torch.from_numpy(cam.K.astype(np.float32)),
+            width=cam.width,
+            height=cam.height,
+            t_start_us=cam.t_start_us,
+            t_end_us=cam.t_end_us,
+            background=state.config.background,
             static_mask=None if static is None else torch.as_tensor(static, dtype=torch.bool),
         )
 
     @classmethod
-    def from_run(cls, run_dir: str | Path) -> tuple[Renderer, dict]:
-        """The renderer of a run folder's newest checkpoint, and that checkpoint's state."""
-        state = load_run(Path(run_dir))
+    def from_run(cls, run_dir: str | Path) -> tuple[Renderer, RunState]:
+        """The renderer of a run folder's newest checkpoint (or of a checkpoint file), and
+        that checkpoint's state."""
+        state = RunState.load(run_dir)
         return cls.from_state(state), state

@@ -89,7 +89,8 @@ def check_ply_output(path: Path, before: bytes | None) -> list[str]:
 
 def check_run_output(run: Path) -> list[str]:
     """A killed `train`: every JSON file parses and every listed checkpoint loads."""
-    from evsplat.checkpoint import list_checkpoints, load_checkpoint
+    from evsplat.checkpoint import list_checkpoints
+    from evsplat.run_state import RunState
 
     problems = []
     for name in ("config.json", "stats.json"):
@@ -106,7 +107,7 @@ def check_run_output(run: Path) -> list[str]:
             problems.append(f"{run / 'log.jsonl'}: a line is not valid JSON")
     for ckpt in list_checkpoints(run):
         try:
-            load_checkpoint(ckpt)
+            RunState.load(ckpt)
         except EvsplatError as e:
             problems.append(str(e))
     return problems
@@ -115,11 +116,12 @@ def check_run_output(run: Path) -> list[str]:
 def resume_and_check(data: Path, run: Path, iters: int) -> list[str]:
     """``--resume`` a killed run: it must start at the newest complete checkpoint's iteration
     (0 when there is none) and finish with a checkpoint at ``iters``."""
-    from evsplat.checkpoint import latest_checkpoint, load_checkpoint
+    from evsplat.checkpoint import latest_checkpoint
+    from evsplat.run_state import RunState
     from evsplat.train import loop, train
 
     latest = latest_checkpoint(run)
-    expected = load_checkpoint(latest)["iteration"] if latest is not None else 0
+    expected = RunState.load(latest).iteration if latest is not None else 0
     started: list[int] = []
     original = loop.Trainer.run
 
@@ -136,7 +138,7 @@ def resume_and_check(data: Path, run: Path, iters: int) -> list[str]:
     if started != [expected]:
         problems.append(f"{run}: resumed at {started}, newest complete checkpoint is {expected}")
     final = latest_checkpoint(run)
-    if final is None or load_checkpoint(final)["iteration"] != iters:
+    if final is None or RunState.load(final).iteration != iters:
         problems.append(f"{run}: resumed run did not finish at iteration {iters}")
     return problems
 

@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         args.out / "side_by_side.png",
         title=f"{args.scene} (tiny): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}",
     )
-    plot_losses(state["history"], args.out / "losses.png")
+    plot_losses(state.history, args.out / "losses.png")
     tracked = write_track_plot(result, data, args.out / "track.png")
     lpips = "missing" if m["lpips"] is None else f"{m['lpips']:.3f}"
     print(

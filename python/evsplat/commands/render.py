@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from evsplat.run_state import RunState
 
 HELP = "render a trained run at many times (PNG, depth EXR + colour-mapped PNG, MP4)"
 
@@ -69,8 +73,7 @@ def run(args: argparse.Namespace) -> int:
     renderer, state = Renderer.from_run(args.run_dir)
     fractions = parse_times(args.times)
     span = renderer.t_end_us - renderer.t_start_us
-    traj = state["trajectory"]
-    trajectory = Trajectory.fit(np.asarray(traj["times_us"]), np.asarray(traj["c2w"]))
+    trajectory = Trajectory.fit(np.asarray(state.poses.times_us), np.asarray(state.poses.c2w))
     fixed = read_tum(args.pose)[1][0] if args.pose is not None else None
     args.out.mkdir(parents=True, exist_ok=True)
     frames = []
@@ -97,7 +100,9 @@ def _step(fractions: np.ndarray) -> float:
     return float(np.median(np.diff(fractions))) if len(fractions) > 1 else 0.05
 
 
-def _write_videos(args: argparse.Namespace, state: dict, frames: list, window_us: float) -> None:
+def _write_videos(
+    args: argparse.Namespace, state: RunState, frames: list, window_us: float
+) -> None:
     """render.mp4, and render_events.mp4 (render | events of each frame's interval | depth)
     when the run's dataset folder is still where training read it."""
     from evsplat.data.dataset import load_dataset
@@ -106,7 +111,7 @@ def _write_videos(args: argparse.Namespace, state: dict, frames: list, window_us
 
     n = write_mp4(args.out / "render.mp4", (img for _, img, _ in frames), args.fps)
     print(f"wrote {args.out / 'render.mp4'} ({n} frames, {args.fps:g} fps)")
-    data_dir = Path(state.get("dataset", ""))
+    data_dir = Path(state.dataset)
     if not (data_dir / "events.h5").is_file():
         print(f"no dataset at {data_dir}: skipped render_events.mp4")
         return

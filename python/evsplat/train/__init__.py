@@ -12,7 +12,7 @@ from evsplat.errors import EvsplatError
 
 if TYPE_CHECKING:
     from evsplat.config import TrainConfig
-    from evsplat.train.loop import TrainStats
+    from evsplat.train.progress import TrainStats
 
 __all__ = ["train"]
 
@@ -37,9 +37,10 @@ def train(
     # Imported here so `evsplat.train`'s light modules load without the data/model stack.
     import torch
 
-    from evsplat.checkpoint import latest_checkpoint, load_checkpoint
-    from evsplat.config import TrainConfig, preset
+    from evsplat.checkpoint import latest_checkpoint
+    from evsplat.config import preset
     from evsplat.data.dataset import load_dataset
+    from evsplat.run_state import RunState
     from evsplat.train.depth_prior import make_depth_prior
     from evsplat.train.loop import Trainer
 
@@ -52,7 +53,7 @@ def train(
             "or choose a new --out"
         )
     if latest is not None:
-        cfg = TrainConfig.from_dict(load_checkpoint(latest)["config"])
+        cfg = RunState.load(latest).config
     else:
         cfg = config or preset(preset_name)
     if cfg.time_range is not None:

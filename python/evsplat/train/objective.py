@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from evsplat.config import LossConfig
+from evsplat.config import LossConfig, TrainConfig
 from evsplat.data.dataset import Dataset
 from evsplat.losses.depth import silog
 from evsplat.losses.flow import camera_flow, event_flow_loss
@@ -20,6 +20,20 @@ from evsplat.render import Renderer, RenderOut
 from evsplat.train.depth_prior import DepthPrior
 from evsplat.train.mover import MoverTrack
 from evsplat.train.views import Views
+
+
+def loss_weights(cfg: TrainConfig) -> dict[str, float]:
+    """Each term's weight in the step's total (L_e's is 1)."""
+    lc = cfg.loss
+    return {
+        "e": 1.0,
+        "ef": lc.w_flow,
+        "m": lc.w_motion,
+        "d": lc.w_depth,
+        "ne": lc.w_non_event,
+        "sp": lc.w_spatial,
+        "tr": cfg.mover.track_weight,
+    }
 
 
 def motion_losses(

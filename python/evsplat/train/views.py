@@ -8,7 +8,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from evsplat.config import LossConfig
 from evsplat.data.dataset import Dataset
+from evsplat.data.events import bayer_channel_map
 from evsplat.losses.event import bayer_select, log_render
 from evsplat.losses.flow import linearized_brightness_change
 from evsplat.render import Renderer, RenderOut
@@ -23,6 +25,31 @@ class Views:
     data: Dataset
     renderer: Renderer
     channel_map: torch.Tensor | None  # [h,w] Bayer channel per pixel; None for a mono sensor
+
+    @classmethod
+    def of(cls, data: Dataset, renderer: Renderer) -> Views:
+        """The views of ``data``'s sensor: one channel, or each pixel's Bayer channel."""
+        channel_map = None
+        if data.bayer != "mono":
+            cmap = bayer_channel_map(data.bayer, data.width, data.height)
+            channel_map = torch.from_numpy(cmap.astype(np.int64))
+        return cls(data, renderer, channel_map)
+
+    def draw_times(
+        self, rng: np.random.Generator, lc: LossConfig, moving: bool
+    ) -> tuple[list[int], int] | None:
+        """One iteration's ``lc.views`` render times t_0 < ... < t_last, consecutive gaps of
+        random length, and the short flow window of L_ef after t_last (0 without motion); None
+        when the gaps are longer than the sequence."""
+        start, end = self.data.t_start_us, self.data.t_end_us
+        draw = [rng.uniform(lc.window_min, lc.window_max) for _ in range(lc.views - 1)]
+        gaps = [int(g * (end - start)) for g in draw]
+        dtau = max(int(lc.flow_window * (end - start)), 1) if moving else 0
+        span = sum(gaps)
+        if span > end - start - dtau:
+            return None
+        t1 = int(rng.integers(start + span, end - dtau + 1))
+        return [t1 - sum(gaps[k:]) for k in range(lc.views - 1)] + [t1], dtau
 
     def log_image(self, out: RenderOut, coarse: bool = False) -> torch.Tensor:
         """Log intensity each pixel's sensor sees: its own Bayer channel, or the one channel.

@@ -48,9 +48,8 @@ class RunView:
 
     def __init__(self, run_dir: Path, events: EventStore | None = None):
         self.renderer, state = Renderer.from_run(run_dir)
-        traj = state["trajectory"]
-        self.times_us = np.asarray(traj["times_us"], np.int64)
-        self.c2w = np.asarray(traj["c2w"], np.float64)
+        self.times_us = np.asarray(state.poses.times_us, np.int64)
+        self.c2w = np.asarray(state.poses.c2w, np.float64)
         self.trajectory = Trajectory.fit(self.times_us, self.c2w)
         self.events = events
 
@@ -223,11 +222,11 @@ def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 def open_viewer(run_dir: Path, port: int = 8080) -> Viewer:
     """Loads ``run_dir`` (and its dataset's events when found) and serves it on 127.0.0.1."""
-    from evsplat.checkpoint import load_run
     from evsplat.data.dataset import load_dataset
+    from evsplat.run_state import RunState
 
     check_port_free(port)
-    data_dir = Path(load_run(Path(run_dir)).get("dataset", ""))
+    data_dir = Path(RunState.load(run_dir).dataset)
     events = None
     if (data_dir / "events.h5").is_file():
         try:

@@ -1,0 +1,33 @@
+"""The learning-rate schedule: exponential decay of the position and MLP rates (3DGS /
+Deformable-3DGS)."""
+
+from __future__ import annotations
+
+import torch
+
+from evsplat.config import TrainConfig
+
+
+def decay_learning_rates(
+    optimizer: torch.optim.Optimizer,
+    mlp_optimizer: torch.optim.Optimizer,
+    cfg: TrainConfig,
+    extent: float,
+    iteration: int,
+) -> None:
+    """Set the rates for the step after ``iteration``: the means' decays from ``means_lr`` x
+    ``extent`` to ``means_lr_final`` x ``extent`` over the run.
+
+    The MLP's rate decays from iteration 0 over ``mlp_lr_horizon`` iterations, a fixed
+    horizon as in the authors' code (40k), not the run's length: shrunk to a short run the
+    decay left the MLP too small a rate to learn any motion (docs/results.md, session 11).
+    """
+    mc, sc = cfg.model, cfg.schedule
+    frac = min(iteration / max(sc.iterations, 1), 1.0)
+    for group in optimizer.param_groups:
+        if group.get("name") == "means":
+            start = mc.means_lr * extent
+            group["lr"] = start * (mc.means_lr_final / mc.means_lr) ** frac
+    frac_mlp = min(iteration / max(mc.mlp_lr_horizon, 1), 1.0)
+    for group in mlp_optimizer.param_groups:
+        group["lr"] = mc.mlp_lr * (mc.mlp_lr_final / mc.mlp_lr) ** frac_mlp
