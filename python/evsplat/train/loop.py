@@ -190,7 +190,9 @@ class Trainer:
         if static is not None:
             if counts:  # clones, splits and prunes change the rows the mask must follow
                 self.renderer.static_mask = follow_rows(static, self.densifier.origin)
-            values["static_frac"] = self.static_fraction()
+            values["static_gaussians"] = self.static_fraction()  # the background, after seeding
+        if motion_stage:  # 1 once the scene-level check baked the MLP away
+            values["static_scene"] = float(self.static_scene)
         values["gaussians"] = float(self.model.means.shape[0])
         return StepResult(values, stage)
 
