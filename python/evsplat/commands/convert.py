@@ -8,6 +8,7 @@ recording larger than memory converts; the other event files are read whole. A b
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -83,10 +84,11 @@ def convert(
     if not out.parent.is_dir():
         raise EvsplatError(f"{out}: directory {out.parent} does not exist; create it first")
     start = time.perf_counter()
+    dropped = formats.Dropped()
     if formats.is_sensor_format(src):
         source = formats.open_source(src, topic=topic)
         width, height, chunks = source.width, source.height, source.chunks
-        kind, decoder = source.format, source.decoder
+        kind, decoder, dropped = source.format, source.decoder, source.dropped
     else:
         if topic is not None:
             raise EvsplatError(f"{src}: --topic applies to ROS bags only")
@@ -105,8 +107,20 @@ def convert(
             bar.update(len(ev))
         if n == 0:
             raise EvsplatError(f"{src}: the recording holds no events; nothing to convert")
-        # The readers stop with an error rather than skip events: none are dropped.
-        record.update(provenance(src, *digest.result(), kind, decoder, n, dropped=0))
+        if (warning := dropped.warning(src)) is not None:
+            bar.write(f"warning: {warning}", file=sys.stderr)
+        record.update(
+            provenance(
+                src,
+                *digest.result(),
+                kind,
+                decoder,
+                n,
+                dropped.events,
+                bytes_dropped=dropped.bytes,
+                words_skipped=dropped.words,
+            )
+        )
 
     bar = tqdm(
         unit="ev", unit_scale=True, desc=f"convert {src.name} ({kind})", disable=not progress
