@@ -4,6 +4,8 @@
 //! parsed by the Python reader (python/evsplat/data/formats/prophesee.py); this crate sees the
 //! bytes after them.
 
+#[cfg(any(test, feature = "check"))]
+pub mod check;
 pub mod dat;
 pub mod evt2;
 pub mod evt3;
@@ -100,5 +102,7 @@ impl Unwrap {
     }
 }
 
+#[cfg(test)]
+mod fuzz_tests;
 #[cfg(test)]
 mod tests;

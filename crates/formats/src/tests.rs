@@ -1,25 +1,7 @@
 //! Each decoder on words written by hand from the format's spec.
 
-use crate::{ChunkReader, Encoding, Events, Stats};
-
-/// Every event of `bytes` read in chunks of `max_events` through a buffer of `block` bytes.
-fn decode(encoding: Encoding, bytes: &[u8], block: usize, max_events: usize) -> (Events, Stats) {
-    let mut reader = ChunkReader::new(bytes, encoding, block);
-    let mut all = Events::default();
-    loop {
-        let chunk = reader
-            .next_chunk(max_events)
-            .expect("reading a slice cannot fail");
-        assert!(chunk.len() <= max_events.max(encoding.max_per_word()));
-        if chunk.is_empty() {
-            return (all, reader.stats());
-        }
-        all.x.extend(chunk.x);
-        all.y.extend(chunk.y);
-        all.t.extend(chunk.t);
-        all.p.extend(chunk.p);
-    }
-}
+use crate::check::decode_all as decode;
+use crate::{Encoding, Events, Stats};
 
 fn rows(e: &Events) -> Vec<(u16, u16, i64, i8)> {
     (0..e.len())
