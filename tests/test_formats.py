@@ -249,6 +249,8 @@ def test_truncated_recording_keeps_the_complete_records_and_says_what_was_droppe
         np.testing.assert_array_equal(f["events/t"][:] + f["t_offset"][()], t[:-1])
         prov = dict(f["provenance"].attrs)
     assert (prov["events"], prov["events_dropped"], prov["bytes_dropped"]) == (499, 0, 1)
+    assert main(["check", str(out)]) == 0
+    assert "the last 1 B (a truncated record) dropped" in capsys.readouterr().out
     with pytest.warns(UserWarning, match="incomplete record"):
         assert len(read_events(path)) == 499
 

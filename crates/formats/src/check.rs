@@ -10,9 +10,9 @@ use crate::{ChunkReader, Encoding, Events, Stats};
 /// `-timeout=1` (scripts/fuzz.sh) holds the one-second limit.
 const HANG: Duration = Duration::from_secs(10);
 
-/// Decodes `data` in several buffer and chunk sizes and panics unless: every chunk holds at
-/// most `max_events` events in vectors of at most twice that capacity (memory bounded by the
-/// chunk, not the input); the events number at most the format's events per word times the
+/// Decodes `data` in several buffer and chunk sizes and panics unless: every chunk but the
+/// last holds exactly `max_events` events, in vectors of at most twice that capacity (memory
+/// bounded by the chunk, not the input); the events number at most the format's events per word times the
 /// whole words; the trailing partial word is what `truncated_bytes` counts; buffer and chunk
 /// sizes do not change the events or the counts (the state crosses boundaries); a truncated
 /// copy decodes to a prefix of the events; and it all ends (`HANG`).
@@ -55,9 +55,10 @@ pub fn decode_all(
     block: usize,
     max_events: usize,
 ) -> (Events, Stats) {
-    let limit = max_events.max(encoding.max_per_word());
+    let limit = max_events.max(1);
     let mut reader = ChunkReader::new(data, encoding, block);
     let mut all = Events::default();
+    let mut last = limit;
     loop {
         let chunk = match reader.next_chunk(max_events) {
             Ok(chunk) => chunk,
@@ -72,6 +73,8 @@ pub fn decode_all(
         if chunk.is_empty() {
             return (all, reader.stats());
         }
+        assert!(last == limit, "a chunk of {last} < {limit} before the end");
+        last = chunk.len();
         all.x.extend(chunk.x);
         all.y.extend(chunk.y);
         all.t.extend(chunk.t);

@@ -36,20 +36,49 @@ pub struct Decoder {
     y: u16,
     vect_x: u16,
     vect_p: i8,
+    /// The events of a vector word that did not fit in the last chunk.
+    pending: Vector,
+}
+
+/// A vector word's events: bit i of `mask` is an event at x + i.
+#[derive(Debug, Default, Clone, Copy)]
+struct Vector {
+    mask: u16,
+    x: u16,
+    y: u16,
+    t: i64,
+    p: i8,
+}
+
+impl Vector {
+    /// Emits events until `out` holds `max_events`; the mask keeps the rest.
+    #[inline(always)]
+    fn emit(&mut self, out: &mut Events, max_events: usize) {
+        while self.mask != 0 && out.len() < max_events {
+            let i = self.mask.trailing_zeros() as u16;
+            out.push(self.x.wrapping_add(i), self.y, self.t, self.p);
+            self.mask &= self.mask - 1;
+        }
+    }
 }
 
 impl Decoder {
-    /// The events of a vector mask at the current base, which then moves by `width`.
+    /// The events of a vector mask at the current base, which then moves by `width`; those
+    /// past `max_events` wait in `pending`, so that chunks come out exactly full.
     #[inline(always)]
-    fn vector(&mut self, mut mask: u16, width: u16, out: &mut Events, stats: &mut Stats) {
+    fn vector(
+        &mut self,
+        mask: u16,
+        width: u16,
+        out: &mut Events,
+        max_events: usize,
+        stats: &mut Stats,
+    ) {
         match self.base {
             Some(base) => {
-                let t = base | self.low;
-                while mask != 0 {
-                    let i = mask.trailing_zeros() as u16;
-                    out.push(self.vect_x.wrapping_add(i), self.y, t, self.vect_p);
-                    mask &= mask - 1;
-                }
+                let (x, y, t, p) = (self.vect_x, self.y, base | self.low, self.vect_p);
+                self.pending = Vector { mask, x, y, t, p };
+                self.pending.emit(out, max_events);
             }
             None => stats.untimed_events += mask.count_ones() as u64,
         }
@@ -68,10 +97,10 @@ impl Decode for Decoder {
         max_events: usize,
         stats: &mut Stats,
     ) -> usize {
-        let limit = max_events.saturating_sub(Self::MAX_PER_WORD);
+        self.pending.emit(out, max_events);
         let mut used = 0;
         for w in bytes.chunks_exact(Self::WORD) {
-            if out.len() > limit {
+            if out.len() >= max_events {
                 break;
             }
             let w = u16::from_le_bytes([w[0], w[1]]);
@@ -83,8 +112,8 @@ impl Decode for Decoder {
                     None => stats.untimed_events += 1,
                 },
                 VECT_BASE_X => (self.vect_x, self.vect_p) = (x, p),
-                VECT_12 => self.vector(w & 0xFFF, 12, out, stats),
-                VECT_8 => self.vector(w & 0xFF, 8, out, stats),
+                VECT_12 => self.vector(w & 0xFFF, 12, out, max_events, stats),
+                VECT_8 => self.vector(w & 0xFF, 8, out, max_events, stats),
                 TIME_LOW => self.low = (w & 0xFFF) as i64,
                 TIME_HIGH => {
                     let high = self.high.next((w & 0xFFF) as u64, HIGH_BITS, WRAP_DROP);

@@ -68,9 +68,9 @@ pub trait Decode {
     /// Most events one word can produce.
     const MAX_PER_WORD: usize;
 
-    /// Decodes whole words from the start of `bytes` into `out` while `out` has room for a
-    /// word's events below `max_events` (which must be at least `MAX_PER_WORD`); returns the
-    /// bytes consumed, a multiple of `WORD`.
+    /// Decodes whole words from the start of `bytes` into `out` until `out` holds
+    /// `max_events` (a word's events past it wait for the next call); returns the bytes
+    /// consumed, a multiple of `WORD`.
     fn decode(
         &mut self,
         bytes: &[u8],

@@ -80,10 +80,10 @@ impl<R: Read> ChunkReader<R> {
         self.stats
     }
 
-    /// The next chunk of at most `max_events` events (raised to one word's worth); empty at the
-    /// end of the input. A trailing partial word is counted in `stats().truncated_bytes`.
+    /// The next chunk: `max_events` events (at least 1), fewer only at the end of the input,
+    /// where it is empty. A trailing partial word is counted in `stats().truncated_bytes`.
     pub fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
-        let max_events = max_events.max(self.encoding.max_per_word());
+        let max_events = max_events.max(1);
         // Sized by the bytes at hand, so a small input allocates little; a long chunk grows.
         let words = (self.end - self.start + self.buf.len()) / self.encoding.word();
         let mut out = Events::with_capacity(words.min(max_events));
@@ -94,8 +94,8 @@ impl<R: Read> ChunkReader<R> {
                 State::Evt3(d) => d.decode(bytes, &mut out, max_events, &mut self.stats),
                 State::Dat(d) => d.decode(bytes, &mut out, max_events, &mut self.stats),
             };
-            if self.end - self.start >= self.encoding.word() {
-                return Ok(out); // the chunk is full
+            if out.len() == max_events {
+                return Ok(out);
             }
             if self.eof {
                 self.stats.truncated_bytes += (self.end - self.start) as u64;

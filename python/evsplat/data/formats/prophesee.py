@@ -19,7 +19,8 @@ from evsplat import _core
 from evsplat.data.formats import Chunk, Dropped, EventSource
 from evsplat.errors import EvsplatError
 
-#: Events per chunk, and bytes per read: the memory a recording streams through.
+#: Events per chunk (every chunk but the last is full: convert's batches are whole chunks),
+#: and bytes per read: the memory a recording streams through.
 CHUNK_EVENTS = 1 << 20
 BLOCK_BYTES = 4 << 20
 #: DAT event-type byte for CD events and their size in bytes (Prophesee file format docs).
