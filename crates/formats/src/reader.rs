@@ -84,9 +84,18 @@ impl<R: Read> ChunkReader<R> {
     /// where it is empty. A trailing partial word is counted in `stats().truncated_bytes`.
     pub fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
         let max_events = max_events.max(1);
-        // Sized by the bytes at hand, so a small input allocates little; a long chunk grows.
-        let words = (self.end - self.start + self.buf.len()) / self.encoding.word();
-        let mut out = Events::with_capacity(words.min(max_events));
+        if self.end - self.start < self.encoding.word() && !self.eof {
+            self.refill()?;
+        }
+        // A full chunk's room at once (growing it would move it and fault in fresh pages),
+        // unless the rest of the input is in the buffer: then its words, so that a small input
+        // allocates little (EVT 3.0 vectors may still grow it).
+        let words = (self.end - self.start) / self.encoding.word();
+        let mut out = Events::with_capacity(if self.eof {
+            words.min(max_events)
+        } else {
+            max_events
+        });
         loop {
             let bytes = &self.buf[self.start..self.end];
             self.start += match &mut self.state {
