@@ -279,7 +279,7 @@ def table(rows: list[dict]) -> str:
         disk = next(
             d["wall_s"]
             for d in rows
-            if d["format"] == r["format"] and d["what"] == "disk read, warm"
+            if d["format"] == r["format"] and d["what"] == "disk read, O_DIRECT"
         )
         same = "" if r["same"] is None else ("yes" if r["same"] else "NO")
         cpu = f"{r['cpu_s']:>8.3f}" if r["cpu_s"] == r["cpu_s"] else f"{'-':>8}"
