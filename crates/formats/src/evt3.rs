@@ -98,6 +98,10 @@ impl Decode for Decoder {
         stats: &mut Stats,
     ) -> usize {
         self.pending.emit(out, max_events);
+        // The current row and time in locals: a single event (ADDR_X, most words) then needs
+        // no load from the decoder.
+        let mut y = self.y;
+        let mut t = self.base.map(|base| base | self.low);
         let mut used = 0;
         for w in bytes.chunks_exact(Self::WORD) {
             if out.len() >= max_events {
@@ -105,26 +109,41 @@ impl Decode for Decoder {
             }
             let w = u16::from_le_bytes([w[0], w[1]]);
             let (kind, x, p) = (w >> 12, w & 0x7FF, ((w >> 11) & 1) as i8);
-            match kind {
-                ADDR_Y => self.y = x,
-                ADDR_X => match self.base {
-                    Some(base) => out.push(x, self.y, base | self.low, p),
+            used += Self::WORD;
+            if kind == ADDR_X {
+                match t {
+                    Some(t) => out.push(x, y, t, p),
                     None => stats.untimed_events += 1,
-                },
+                }
+                continue;
+            }
+            match kind {
+                ADDR_Y => y = x,
                 VECT_BASE_X => (self.vect_x, self.vect_p) = (x, p),
-                VECT_12 => self.vector(w & 0xFFF, 12, out, max_events, stats),
-                VECT_8 => self.vector(w & 0xFF, 8, out, max_events, stats),
-                TIME_LOW => self.low = (w & 0xFFF) as i64,
+                VECT_12 | VECT_8 => {
+                    let (mask, width) = if kind == VECT_12 {
+                        (w & 0xFFF, 12)
+                    } else {
+                        (w & 0xFF, 8)
+                    };
+                    self.y = y;
+                    self.vector(mask, width, out, max_events, stats);
+                }
+                TIME_LOW => {
+                    self.low = (w & 0xFFF) as i64;
+                    t = self.base.map(|base| base | self.low);
+                }
                 TIME_HIGH => {
                     let high = self.high.next((w & 0xFFF) as u64, HIGH_BITS, WRAP_DROP);
                     self.base = Some((high << 12) as i64);
                     self.low = 0;
+                    t = self.base;
                 }
                 CONTINUED_4 | EXT_TRIGGER | OTHERS | CONTINUED_12 => {}
                 _ => stats.unknown_words += 1,
             }
-            used += Self::WORD;
         }
+        self.y = y;
         used
     }
 }
