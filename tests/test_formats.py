@@ -1,6 +1,8 @@
 """Sensor recordings: each reader on a file made here, by the format's own writer (AEDAT 4:
-iniVation's dv-processing; ROS bags: rosbags' writers) or by an independent encoder written
-from the public spec (Prophesee EVT 2.0, EVT 3.0, DAT), then `evsplat convert` on each."""
+iniVation's dv-processing; ROS bags: rosbags' writers) or by an encoder written from the
+public spec (Prophesee EVT 2.0, EVT 3.0, DAT: evsplat.data.formats.prophesee_writer), then
+`evsplat convert` on each. The Prophesee decoders are compared event by event with the
+field's (evt3, expelliarmus) on the same bytes."""
 
 from __future__ import annotations
 
@@ -12,9 +14,10 @@ import h5py
 import numpy as np
 import pytest
 
+from evsplat import _core
 from evsplat.cli import main
 from evsplat.data.event_files import read_events
-from evsplat.data.formats import rosbag
+from evsplat.data.formats import prophesee_writer, rosbag
 from evsplat.errors import EvsplatError
 
 W, H = 320, 240
@@ -40,53 +43,9 @@ def _assert_same(ev, x, y, t, p):
     assert (ev.width, ev.height) == (W, H)
 
 
-# --- independent encoders (Prophesee "EVT 2.0/3.0 format" and "DAT file format" docs) -------
-
-
-def encode_evt2(x, y, t, p, header: str | None = None) -> bytes:
-    """EVT 2.0: 32-bit words; type in bits 31..28 (0 CD_OFF, 1 CD_ON, 8 EVT_TIME_HIGH).
-    CD: t[5:0] in 27..22, x in 21..11, y in 10..0; TIME_HIGH: t[33:6] in 27..0."""
-    words, high = [], None
-    for xi, yi, ti, pi in zip(x, y, t, p):
-        if high != ti >> 6:
-            high = ti >> 6
-            words.append((0x8 << 28) | (high & 0x0FFFFFFF))
-        words.append(((1 if pi else 0) << 28) | ((ti & 0x3F) << 22) | (xi << 11) | yi)
-    hdr = header or f"% evt 2.0\n% format EVT2;height={H};width={W}\n% geometry {W}x{H}\n% end\n"
-    return hdr.encode() + np.array(words, "<u4").tobytes()
-
-
-def encode_evt3(x, y, t, p) -> bytes:
-    """EVT 3.0: 16-bit words; type in bits 15..12: 0x8 TIME_HIGH (t[23:12]), 0x6 TIME_LOW
-    (t[11:0]), 0x0 ADDR_Y (y), 0x2 ADDR_X (polarity in bit 11, x) = one event."""
-    words, high, low, row = [], None, None, None
-    for xi, yi, ti, pi in zip(x, y, t, p):
-        if high != (ti >> 12) & 0xFFF:
-            high = (ti >> 12) & 0xFFF
-            words.append((0x8 << 12) | high)
-        if low != ti & 0xFFF:
-            low = ti & 0xFFF
-            words.append((0x6 << 12) | low)
-        if row != yi:
-            row = yi
-            words.append(yi)
-        words.append((0x2 << 12) | ((1 if pi else 0) << 11) | xi)
-    hdr = f"% evt 3.0\n% format EVT3;height={H};width={W}\n% geometry {W}x{H}\n% end\n"
-    return hdr.encode() + np.array(words, "<u2").tobytes()
-
-
-def encode_dat(x, y, t, p, kind: bytes = bytes([0x0C, 8])) -> bytes:
-    """DAT (CD): '%' header lines, then event type and size bytes, then per event uint32 t
-    and uint32 with x in bits 0..13, y in 14..27, polarity in 28..31."""
-    hdr = f"% Data file containing CD events.\n% Version 2\n% Width {W}\n% Height {H}\n"
-    rec = np.zeros(len(x), [("t", "<u4"), ("d", "<u4")])
-    rec["t"] = t
-    rec["d"] = (
-        np.asarray(x, np.uint32)
-        | (np.asarray(y, np.uint32) << 14)
-        | (np.asarray(p, np.uint32) << 28)
-    )
-    return hdr.encode() + kind + rec.tobytes()
+def _recording(encoding: str, x, y, t, p, head: bytes | None = None) -> bytes:
+    """A Prophesee recording written from the public spec (EVT 2.0, EVT 3.0, DAT)."""
+    return prophesee_writer.encode(encoding, x, y, t, p, W, H, head=head)
 
 
 def write_aedat4(path: Path, x, y, t, p) -> None:
@@ -184,10 +143,116 @@ def test_prophesee_reader_recovers_spec_encoded_events(tmp_path, encoding):
     x, y, t, p = _events(1, t0=1_234_567)
     suffix = ".dat" if encoding == "dat" else ".raw"
     path = tmp_path / f"rec{suffix}"
-    path.write_bytes(
-        {"evt2": encode_evt2, "evt3": encode_evt3, "dat": encode_dat}[encoding](x, y, t, p)
-    )
+    path.write_bytes(_recording(encoding, x, y, t, p))
     _assert_same(read_events(path), x, y, t, p)
+
+
+def _decoded(encoding: str, data: bytes, tmp_path: Path):
+    """Our decoder's events and dropped counts on the words ``data`` (no header)."""
+    path = tmp_path / f"words.{encoding}"
+    path.write_bytes(data)
+    decoder = _core.EventFileDecoder(path, encoding, 0, 1 << 12)
+    chunks = []
+    while len((chunk := decoder.next_chunk(1000))[0]):
+        chunks.append(chunk)
+    x, y, t, p = (np.concatenate([c[i] for c in chunks] or [[]]) for i in range(4))
+    return (x, y, t, p), decoder.dropped()
+
+
+def _expelliarmus(encoding: str, head: bytes, data: bytes, tmp_path: Path):
+    expelliarmus = pytest.importorskip("expelliarmus")
+    path = tmp_path / ("ref.dat" if encoding == "dat" else "ref.raw")
+    path.write_bytes(head + data)
+    arr = expelliarmus.Wizard(encoding=encoding, fpath=path).read()
+    return arr["x"], arr["y"], arr["t"], arr["p"]
+
+
+def _evt3_reference(data: bytes):
+    evt3 = pytest.importorskip("evt3")
+    ev = evt3.decode_bytes(data, 2048, 2048)
+    return ev.x, ev.y, ev.timestamp, ev.polarity
+
+
+def _assert_same_events(ours, ref) -> None:
+    assert len(ours[0]) == len(ref[0])
+    for name, a, b in zip("xytp", ours, ref):
+        np.testing.assert_array_equal(np.asarray(a, np.int64), np.asarray(b, np.int64), name)
+
+
+@pytest.mark.parametrize("encoding", ["evt2", "evt3", "dat"])
+def test_prophesee_decoders_match_the_reference_decoders_on_the_same_bytes(tmp_path, encoding):
+    # 40k events over 40 s: EVT 3.0's 24-bit time wraps twice, several chunks and buffers.
+    x, y, t, p = _events(7, n=40_000, t0=16_000_000)
+    t = t0 = 16_000_000 + np.sort(np.random.default_rng(8).integers(0, 40_000_000, len(t)))
+    data = prophesee_writer.Encoder(encoding).encode(x, y, t, p)
+    ours, dropped = _decoded(encoding, data, tmp_path)
+    if encoding == "evt3":
+        ref = _evt3_reference(data)
+    else:
+        ref = _expelliarmus(encoding, prophesee_writer.header(encoding, W, H), data, tmp_path)
+    _assert_same_events(ours, ref)
+    _assert_same_events(ours, (x, y, t0, p))
+    assert dropped == (0, 0, 0)
+
+
+def _random_evt3_words(rng: np.random.Generator, n: int) -> bytes:
+    """Every EVT 3.0 word type in random order (vectors, triggers, OTHERS, CONTINUED, time
+    words), TIME_HIGH first and then climbing by small steps, sometimes wrapping."""
+    kinds = rng.choice([0x0, 0x2, 0x3, 0x4, 0x5, 0x6, 0x7, 0x8, 0xA, 0xE, 0xF], n)
+    payload = rng.integers(0, 1 << 12, n)
+    high = (3000 + np.cumsum(kinds == 0x8) * rng.integers(0, 3, n)) & 0xFFF
+    payload = np.where(kinds == 0x8, high, payload)
+    payload = np.where(kinds == 0x0, payload & 0x7FF, payload)  # y < 2048
+    words = np.concatenate([[0x8000 | 3000], (kinds << 12) | payload])
+    return words.astype("<u2").tobytes()
+
+
+def test_evt3_decoder_matches_evt3_on_every_word_type(tmp_path):
+    rng = np.random.default_rng(9)
+    for _ in range(5):
+        data = _random_evt3_words(rng, 20_000)
+        ours, dropped = _decoded("evt3", data, tmp_path)
+        _assert_same_events(ours, _evt3_reference(data))
+        assert dropped == (0, 0, 0)
+
+
+def test_evt2_decoder_matches_expelliarmus_on_time_and_trigger_words(tmp_path):
+    rng = np.random.default_rng(10)
+    n = 20_000
+    kinds = rng.choice([0x0, 0x1, 0x8, 0xA], n, p=[0.4, 0.4, 0.1, 0.1])
+    payload = rng.integers(0, 1 << 28, n)
+    high = 1000 + np.cumsum(kinds == 0x8)
+    words = (kinds << 28) | np.where(kinds == 0x8, high, payload)
+    data = np.concatenate([[(0x8 << 28) | 1000], words]).astype("<u4").tobytes()
+    ours, dropped = _decoded("evt2", data, tmp_path)
+    head = prophesee_writer.header("evt2", W, H)
+    _assert_same_events(ours, _expelliarmus("evt2", head, data, tmp_path))
+    assert dropped == (0, 0, 0)
+
+
+@pytest.mark.parametrize("encoding", ["evt2", "evt3", "dat"])
+def test_truncated_recording_keeps_the_complete_records_and_says_what_was_dropped(
+    tmp_path, capsys, encoding
+):
+    x, y, t, p = _events(11, n=500)
+    whole = _recording(encoding, x, y, t, p)
+    word = {"evt2": 4, "evt3": 2, "dat": 8}[encoding]
+    path = tmp_path / ("cut.dat" if encoding == "dat" else "cut.raw")
+    path.write_bytes(whole[: len(whole) - word + 1])  # the last event's word cut short
+    out = tmp_path / "cut.h5"
+    assert main(["convert", str(path), str(out)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    warning = [line for line in err if line.startswith("warning:")]
+    assert len(warning) == 1 and str(path) in warning[0], err
+    assert "an incomplete record of 1 B at the end" in warning[0]
+    with h5py.File(out) as f:
+        np.testing.assert_array_equal(f["events/t"][:] + f["t_offset"][()], t[:-1])
+        prov = dict(f["provenance"].attrs)
+    assert (prov["events"], prov["events_dropped"], prov["bytes_dropped"]) == (499, 0, 1)
+    assert main(["check", str(out)]) == 0
+    assert "the last 1 B (a truncated record) dropped" in capsys.readouterr().out
+    with pytest.warns(UserWarning, match="incomplete record"):
+        assert len(read_events(path)) == 499
 
 
 def test_aedat4_reader_recovers_dv_processing_recording(tmp_path):
@@ -236,15 +301,15 @@ def test_byte_views_agree_with_the_rosbags_deserializer(tmp_path, ros2):
 
 
 #: The PyPI decoder each converted file's provenance must name.
-DECODERS = {"a": "evt3", "b": "expelliarmus", "c": "expelliarmus", "d": "aedat", "e": "rosbags"}
+DECODERS = {"a": "evsplat", "b": "evsplat", "c": "evsplat", "d": "aedat", "e": "rosbags"}
 
 
 def test_convert_streams_every_format_into_the_same_h5(tmp_path, capsys):
     x, y, t, p = _events(4, t0=5_000)
     inputs = {
-        "a.raw": encode_evt3(x, y, t, p),
-        "b.raw": encode_evt2(x, y, t, p),
-        "c.dat": encode_dat(x, y, t, p),
+        "a.raw": _recording("evt3", x, y, t, p),
+        "b.raw": _recording("evt2", x, y, t, p),
+        "c.dat": _recording("dat", x, y, t, p),
     }
     for name, data in inputs.items():
         (tmp_path / name).write_bytes(data)
@@ -270,7 +335,7 @@ def test_convert_streams_every_format_into_the_same_h5(tmp_path, capsys):
         assert prov["source"] == str((tmp_path / name).resolve())
         assert prov["source_bytes"] == len(raw)
         assert prov["source_sha256"] == hashlib.sha256(raw).hexdigest()
-        assert (prov["events"], prov["events_dropped"]) == (N, 0)
+        assert (prov["events"], prov["events_dropped"], prov["bytes_dropped"]) == (N, 0, 0)
         assert prov["decoder"].split()[0] == DECODERS[name.split(".")[0]]
     from evsplat.data.poses import read_tum
 
@@ -302,16 +367,14 @@ def _bad_cases(tmp_path: Path):
     )
     cases["missing topic"] = (pose_only, ["--topic", "/nope"], "no topic '/nope'")
     corrupt = tmp_path / "corrupt.raw"
-    corrupt.write_bytes(encode_evt2(x, y, t, p, header="% evt 9.9\n% geometry 320x240\n% end\n"))
+    corrupt.write_bytes(_recording("evt2", x, y, t, p, b"% evt 9.9\n% geometry 320x240\n% end\n"))
     cases["RAW with corrupt header (unknown encoding)"] = (corrupt, [], "corrupt header")
     nogeom = tmp_path / "nogeom.raw"
-    nogeom.write_bytes(encode_evt2(x, y, t, p, header="% evt 2.0\n% end\n"))
+    nogeom.write_bytes(_recording("evt2", x, y, t, p, b"% evt 2.0\n% end\n"))
     cases["RAW without sensor size"] = (nogeom, [], "no sensor size")
-    truncated = tmp_path / "truncated.raw"
-    truncated.write_bytes(encode_evt2(x, y, t, p)[:-3])
-    cases["truncated EVT 2.0 words"] = (truncated, [], "not whole 32-bit words")
     dat = tmp_path / "wrongtype.dat"
-    dat.write_bytes(encode_dat(x, y, t, p, kind=bytes([0x00, 4])))
+    head = prophesee_writer.header("dat", W, H).replace(prophesee_writer.DAT_KIND, bytes([0, 4]))
+    dat.write_bytes(_recording("dat", x, y, t, p, head))
     cases["DAT of another event type"] = (dat, [], "type/size bytes 0004")
     garbage = tmp_path / "garbage.aedat4"
     garbage.write_bytes(b"#!AER-DAT4.0\r\n" + bytes(range(256)) * 4)

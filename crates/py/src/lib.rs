@@ -6,6 +6,7 @@ use pyo3::prelude::*;
 mod camera;
 mod errors;
 mod events;
+mod formats;
 mod gpu;
 mod io;
 mod raster;
@@ -16,6 +17,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     gpu::register(m)?;
     events::register(m)?;
+    formats::register(m)?;
     camera::register(m)?;
     sim::register(m)?;
     io::register(m)?;

@@ -42,9 +42,11 @@ def describe(store: EventStore) -> list[str]:
         f"  provenance: converted from {prov.get('source')} ({prov.get('source_bytes'):,} bytes, "
         f"sha256 {prov.get('source_sha256')})"
     )
+    cut = prov.get("bytes_dropped", 0)
     lines.append(
         f"  by {prov.get('converter')} with {prov.get('decoder')} (format {prov.get('format')}): "
         f"{prov.get('events'):,} events written, {prov.get('events_dropped'):,} dropped"
+        + (f", the last {cut} B (a truncated record) dropped" if cut else "")
     )
     return lines
 

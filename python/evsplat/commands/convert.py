@@ -8,6 +8,7 @@ recording larger than memory converts; the other event files are read whole. A b
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,7 +17,7 @@ import numpy as np
 
 HELP = "convert an event recording (AEDAT4, Prophesee RAW/DAT, ROS bag, h5, npz, txt) to HDF5"
 
-#: Events validated and written at once.
+#: Events validated and written at once: a multiple of the writer's HDF5 chunk.
 BATCH = 1 << 20
 
 
@@ -41,17 +42,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _batched(chunks, size: int):
-    """Joins small chunks (a bag message holds a few thousand events) into ~``size`` events,
-    so per-chunk validation and HDF5 resizes are paid rarely."""
+    """Re-cuts the chunks into batches of exactly ``size`` events (the last one shorter), so
+    per-batch validation and HDF5 resizes are paid rarely (a bag message holds a few thousand
+    events) and every write starts on an HDF5 chunk boundary (``size`` is a multiple of the
+    writer's chunk: a write that ends mid-chunk makes HDF5 decompress and recompress that
+    chunk on the next one). A batch inside one chunk is a view, not a copy."""
     parts, n = [], 0
     for c in chunks:
-        parts.append(c)
-        n += len(c[0])
-        if n >= size:
-            yield tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
-            parts, n = [], 0
+        start, m = 0, len(c[0])
+        while start < m:
+            take = min(size - n, m - start)
+            parts.append(tuple(a[start : start + take] for a in c))
+            n, start = n + take, start + take
+            if n == size:
+                yield _joined(parts)
+                parts, n = [], 0
     if parts:
-        yield tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
+        yield _joined(parts)
+
+
+def _joined(parts: list) -> tuple:
+    if len(parts) == 1:
+        return parts[0]
+    return tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
 
 
 def convert(
@@ -83,10 +96,11 @@ def convert(
     if not out.parent.is_dir():
         raise EvsplatError(f"{out}: directory {out.parent} does not exist; create it first")
     start = time.perf_counter()
+    dropped = formats.Dropped()
     if formats.is_sensor_format(src):
         source = formats.open_source(src, topic=topic)
         width, height, chunks = source.width, source.height, source.chunks
-        kind, decoder = source.format, source.decoder
+        kind, decoder, dropped = source.format, source.decoder, source.dropped
     else:
         if topic is not None:
             raise EvsplatError(f"{src}: --topic applies to ROS bags only")
@@ -105,8 +119,20 @@ def convert(
             bar.update(len(ev))
         if n == 0:
             raise EvsplatError(f"{src}: the recording holds no events; nothing to convert")
-        # The readers stop with an error rather than skip events: none are dropped.
-        record.update(provenance(src, *digest.result(), kind, decoder, n, dropped=0))
+        if (warning := dropped.warning(src)) is not None:
+            bar.write(f"warning: {warning}", file=sys.stderr)
+        record.update(
+            provenance(
+                src,
+                *digest.result(),
+                kind,
+                decoder,
+                n,
+                dropped.events,
+                bytes_dropped=dropped.bytes,
+                words_skipped=dropped.words,
+            )
+        )
 
     bar = tqdm(
         unit="ev", unit_scale=True, desc=f"convert {src.name} ({kind})", disable=not progress

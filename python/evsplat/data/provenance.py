@@ -47,9 +47,14 @@ def provenance(
     decoder: str,
     events: int,
     dropped: int,
+    *,
+    bytes_dropped: int = 0,
+    words_skipped: int = 0,
 ) -> dict[str, object]:
     """The provenance attributes of a file converted from ``source`` by ``decoder`` (a PyPI
-    package name, or "evsplat" for the project's own readers)."""
+    package name, or "evsplat" for the project's own readers): ``dropped`` events without a
+    timestamp, the ``bytes_dropped`` of a truncated last record, the ``words_skipped`` of
+    undefined types."""
     version = __version__ if decoder == "evsplat" else package_version(decoder)
     return {
         "source": str(Path(source).resolve()),
@@ -60,4 +65,6 @@ def provenance(
         "converter": f"evsplat {__version__} convert",
         "events": int(events),
         "events_dropped": int(dropped),
+        "bytes_dropped": int(bytes_dropped),
+        "words_skipped": int(words_skipped),
     }

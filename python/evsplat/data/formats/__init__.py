@@ -4,9 +4,9 @@
 suffix          format                      decoder (PyPI)
 ==============  ==========================  ===========================================
 ``.aedat4``     iniVation AEDAT 4 (DV)      ``aedat`` (Rust)
-``.raw``        Prophesee RAW, EVT 2.0      ``expelliarmus`` (C)
-``.raw``        Prophesee RAW, EVT 3.0      ``evt3`` (Rust)
-``.dat``        Prophesee DAT (CD events)   ``expelliarmus`` (C)
+``.raw``        Prophesee RAW, EVT 2.0      evsplat's own (crates/formats, Rust)
+``.raw``        Prophesee RAW, EVT 3.0      evsplat's own (crates/formats, Rust)
+``.dat``        Prophesee DAT (CD events)   evsplat's own (crates/formats, Rust)
 ``.bag``        ROS 1 bag                   ``rosbags`` (pure Python)
 ``.mcap/.db3``  ROS 2 bag (or its folder)   ``rosbags``
 ==============  ==========================  ===========================================
@@ -14,14 +14,17 @@ suffix          format                      decoder (PyPI)
 Every reader opens a file into an :class:`EventSource`: the sensor size plus an iterator of
 chunks ``(x, y, t, p)`` (t in integer µs, p in {0, 1} or {-1, +1}), so conversion streams
 without holding the recording in memory. :func:`read_source` gathers the chunks into one
-validated :class:`EventStream` for ``evsplat.data.event_files.read_events``.
+validated :class:`EventStream` for ``evsplat.data.event_files.read_events``. What a decoder
+read but could not turn into events (a truncated file's last bytes) is counted in the
+source's :class:`Dropped`.
 """
 
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -37,9 +40,37 @@ SUFFIXES = (".aedat4", ".raw", ".dat", ".bag", ".mcap", ".db3")
 
 
 @dataclass
+class Dropped:
+    """What a decoder read but did not turn into events; complete once the chunks are
+    exhausted."""
+
+    #: CD events before the stream's first time word: they have no timestamp.
+    events: int = 0
+    #: Words of a type the format does not define, skipped.
+    words: int = 0
+    #: Bytes after the last complete word or record: the file is truncated.
+    bytes: int = 0
+
+    def warning(self, path: Path) -> str | None:
+        """One line saying what was dropped, or None when nothing was."""
+        parts = [
+            f"an incomplete record of {self.bytes} B at the end (the file is truncated)"
+            if self.bytes
+            else "",
+            f"{self.events} events come before the first time word (no timestamp)"
+            if self.events
+            else "",
+            f"{self.words} words of undefined types were skipped" if self.words else "",
+        ]
+        said = "; ".join(p for p in parts if p)
+        return f"{path}: {said}; all other events were kept" if said else None
+
+
+@dataclass
 class EventSource:
-    """An opened recording: where it came from, its sensor size, its event chunks, and the
-    PyPI package that decodes it (recorded in a converted file's provenance)."""
+    """An opened recording: where it came from, its sensor size, its event chunks, the
+    decoder (a PyPI package, or "evsplat" for the project's own; recorded in a converted
+    file's provenance) and what it dropped."""
 
     path: Path
     width: int
@@ -47,6 +78,7 @@ class EventSource:
     chunks: Iterator[Chunk]
     format: str
     decoder: str
+    dropped: Dropped = field(default_factory=Dropped)
 
 
 def is_sensor_format(path: str | os.PathLike) -> bool:
@@ -82,6 +114,8 @@ def open_source(path: str | os.PathLike, *, topic: str | None = None) -> EventSo
 def read_source(source: EventSource) -> EventStream:
     """Gathers every chunk of ``source`` into one validated stream."""
     parts = [c for c in source.chunks if len(c[0])]
+    if (warning := source.dropped.warning(source.path)) is not None:
+        warnings.warn(warning, stacklevel=2)
     if not parts:
         raise EvsplatError(f"{source.path}: the recording holds no events")
     x, y, t, p = (np.concatenate([c[i] for c in parts]) for i in range(4))

@@ -1,10 +1,13 @@
-"""Prophesee recordings: RAW (EVT 2.0 through ``expelliarmus``, EVT 3.0 through ``evt3``) and
-DAT (CD events, through ``expelliarmus``).
+"""Prophesee recordings: RAW (EVT 2.0, EVT 3.0) and DAT (CD events), decoded by the
+project's Rust decoders (crates/formats) in bounded chunks.
 
 Both start with an ASCII header of ``% key value`` lines, parsed here for the encoding and the
-sensor size; the binary event words are left to the decoders. (``expelliarmus`` also reads
-EVT 3.0, but adds 4096 µs after each TIME_HIGH word that follows a larger TIME_LOW, which every
-real stream has; ``evt3`` decodes the same words as OpenEB does.)"""
+sensor size; the binary event words after it go to ``_core.EventFileDecoder``. The decoders
+were checked event by event against the field's: ``evt3`` for EVT 3.0 (it decodes as OpenEB
+does; ``expelliarmus`` adds 4096 µs after each TIME_HIGH word that follows a larger TIME_LOW,
+which every real stream has) and ``expelliarmus`` for EVT 2.0 and DAT (tests/test_formats.py,
+``evsplat bench decode``). A truncated file keeps its events up to the last complete word and
+says how many bytes were dropped."""
 
 from __future__ import annotations
 
@@ -12,16 +15,14 @@ import re
 from collections.abc import Iterator
 from pathlib import Path
 
-import evt3
-import expelliarmus
-import numpy as np
-
-from evsplat.data.formats import Chunk, EventSource
+from evsplat import _core
+from evsplat.data.formats import Chunk, Dropped, EventSource
 from evsplat.errors import EvsplatError
 
-#: Events per chunk (EVT 2.0, DAT) and bytes per batch (EVT 3.0) when streaming.
+#: Events per chunk (every chunk but the last is full: convert's batches are whole chunks),
+#: and bytes per read: the memory a recording streams through.
 CHUNK_EVENTS = 1 << 20
-BATCH_BYTES = 8 << 20
+BLOCK_BYTES = 4 << 20
 #: DAT event-type byte for CD events and their size in bytes (Prophesee file format docs).
 DAT_CD_TYPE, DAT_CD_SIZE = 0x0C, 8
 #: A header longer than this is not a header (a binary file that happens to start with '%').
@@ -83,26 +84,13 @@ def _evt_version(path: Path, fields: dict[str, str]) -> str:
     return version
 
 
-def _decode_error(path: Path, e: BaseException) -> EvsplatError:
-    what = " ".join(str(e).split())
-    return EvsplatError(f"{path}: cannot decode events ({what}); the file is truncated or corrupt")
-
-
 def open_raw(path: Path) -> EventSource:
     """Opens a Prophesee .raw file (EVT 2.0 or 3.0, named in its header)."""
     fields, start = read_header(path)
     version = _evt_version(path, fields)
     width, height = _geometry(path, fields)
-    if version == "2.0":
-        if (path.stat().st_size - start) % 4:
-            raise EvsplatError(
-                f"{path}: EVT 2.0 data is {path.stat().st_size - start} bytes, not whole 32-bit "
-                "words; the file is truncated"
-            )
-        return EventSource(
-            path, width, height, _expelliarmus_chunks(path, "evt2"), "evt2", "expelliarmus"
-        )
-    return EventSource(path, width, height, _evt3_chunks(path), "evt3", "evt3")
+    encoding = {"2.0": "evt2", "3.0": "evt3"}[version]
+    return _source(path, width, height, encoding, start)
 
 
 def open_dat(path: Path) -> EventSource:
@@ -117,28 +105,22 @@ def open_dat(path: Path) -> EventSource:
             f"{path}: corrupt header: event type/size bytes {kind.hex() or 'missing'}; a CD "
             f"event file has type {DAT_CD_TYPE:#04x} and size {DAT_CD_SIZE}"
         )
-    return EventSource(
-        path, width, height, _expelliarmus_chunks(path, "dat"), "dat", "expelliarmus"
-    )
+    return _source(path, width, height, "dat", start + len(kind))
 
 
-def _expelliarmus_chunks(path: Path, encoding: str) -> Iterator[Chunk]:
+def _source(path: Path, width: int, height: int, encoding: str, start: int) -> EventSource:
+    dropped = Dropped()
+    chunks = _chunks(path, encoding, start, dropped)
+    return EventSource(path, width, height, chunks, encoding, "evsplat", dropped)
+
+
+def _chunks(path: Path, encoding: str, start: int, dropped: Dropped) -> Iterator[Chunk]:
+    """The events after byte ``start``; ``dropped`` is filled in once they are exhausted."""
+    block = max(1, min(BLOCK_BYTES, path.stat().st_size - start))
     try:
-        wizard = expelliarmus.Wizard(encoding=encoding, fpath=path, chunk_size=CHUNK_EVENTS)
-        for arr in wizard.read_chunk():
-            yield (
-                arr["x"].astype(np.uint16),
-                arr["y"].astype(np.uint16),
-                arr["t"].astype(np.int64, copy=False),
-                arr["p"].astype(np.int8),
-            )
-    except (OSError, RuntimeError, ValueError) as e:
-        raise _decode_error(path, e) from None
-
-
-def _evt3_chunks(path: Path) -> Iterator[Chunk]:
-    try:
-        for ev in evt3.decode_file_batches(str(path), batch_bytes=BATCH_BYTES):
-            yield ev.x, ev.y, ev.timestamp.astype(np.int64), ev.polarity.astype(np.int8)
-    except (OSError, RuntimeError, ValueError) as e:
-        raise _decode_error(path, e) from None
+        decoder = _core.EventFileDecoder(path, encoding, start, block)
+        while len((chunk := decoder.next_chunk(CHUNK_EVENTS))[0]):
+            yield chunk
+    except OSError as e:
+        raise EvsplatError(f"{path}: cannot read events ({e}); check the file") from None
+    dropped.events, dropped.words, dropped.bytes = decoder.dropped()

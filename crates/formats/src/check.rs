@@ -1,0 +1,84 @@
+//! The properties every input must keep, whatever its bytes: the fuzzers' oracle (the
+//! proptest mutation tests here, the libFuzzer targets in fuzz/).
+
+use std::time::{Duration, Instant};
+
+use crate::{ChunkReader, Encoding, Events, Stats};
+
+/// Longest an input may take through all the decodes below (microseconds for the seeds): more
+/// is a hang. Generous, since a shared machine can stall a thread for a second; libFuzzer's
+/// `-timeout=1` (scripts/fuzz.sh) holds the one-second limit.
+const HANG: Duration = Duration::from_secs(10);
+
+/// Decodes `data` in several buffer and chunk sizes and panics unless: every chunk but the
+/// last holds exactly `max_events` events, in vectors of at most twice that capacity (memory
+/// bounded by the chunk, not the input); the events number at most the format's events per word times the
+/// whole words; the trailing partial word is what `truncated_bytes` counts; buffer and chunk
+/// sizes do not change the events or the counts (the state crosses boundaries); a truncated
+/// copy decodes to a prefix of the events; and it all ends (`HANG`).
+pub fn decode_checked(encoding: Encoding, data: &[u8]) -> (Events, Stats) {
+    let start = Instant::now();
+    let (events, stats) = decode_all(encoding, data, 1 << 16, 1 << 16);
+    let (word, per_word) = (encoding.word(), encoding.max_per_word());
+    assert!(
+        events.len() <= data.len() / word * per_word,
+        "more events than words allow"
+    );
+    assert_eq!(stats.truncated_bytes as usize, data.len() % word);
+    for (block, max_events) in [(1, 1), (data.len() % 61 + 1, data.len() % 29 + 1)] {
+        let other = decode_all(encoding, data, block, max_events);
+        assert!(
+            other == (events.clone(), stats),
+            "block {block}, chunk {max_events} differ"
+        );
+    }
+    let cut = data.len() * 2 / 3;
+    let (head, head_stats) = decode_all(encoding, &data[..cut], 4096, 4096);
+    assert_eq!(head_stats.truncated_bytes as usize, cut % word);
+    let n = head.len();
+    assert!(n <= events.len(), "a truncated copy has more events");
+    assert!(
+        head.x == events.x[..n]
+            && head.y == events.y[..n]
+            && head.t == events.t[..n]
+            && head.p == events.p[..n],
+        "a truncated copy's events are not a prefix"
+    );
+    assert!(start.elapsed() < HANG, "took {:?}", start.elapsed());
+    (events, stats)
+}
+
+/// Every event of `data`, read through a `block`-byte buffer in chunks of `max_events`.
+pub fn decode_all(
+    encoding: Encoding,
+    data: &[u8],
+    block: usize,
+    max_events: usize,
+) -> (Events, Stats) {
+    let limit = max_events.max(1);
+    let mut reader = ChunkReader::new(data, encoding, block);
+    let mut all = Events::default();
+    let mut last = limit;
+    loop {
+        let chunk = match reader.next_chunk(max_events) {
+            Ok(chunk) => chunk,
+            Err(e) => panic!("reading a slice failed: {e}"),
+        };
+        assert!(chunk.len() <= limit, "chunk of {} > {limit}", chunk.len());
+        // Vec's smallest allocation is 8 elements (for bytes): the floor of the bound.
+        let capacity = [chunk.x.capacity(), chunk.y.capacity(), chunk.t.capacity()];
+        assert!(
+            capacity.iter().all(|&c| c <= (2 * limit).max(8)),
+            "chunk capacity {capacity:?}"
+        );
+        if chunk.is_empty() {
+            return (all, reader.stats());
+        }
+        assert!(last == limit, "a chunk of {last} < {limit} before the end");
+        last = chunk.len();
+        all.x.extend(chunk.x);
+        all.y.extend(chunk.y);
+        all.t.extend(chunk.t);
+        all.p.extend(chunk.p);
+    }
+}

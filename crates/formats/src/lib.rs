@@ -1,0 +1,108 @@
+//! Decoders of event-camera recordings: the binary words of Prophesee EVT 2.0, EVT 3.0 and DAT
+//! (CD events) turned into events, chunk by chunk. Each decoder keeps its state (time base,
+//! row, vector base) across calls, so a recording streams through a bounded buffer. Headers are
+//! parsed by the Python reader (python/evsplat/data/formats/prophesee.py); this crate sees the
+//! bytes after them.
+
+#[cfg(any(test, feature = "check"))]
+pub mod check;
+pub mod dat;
+pub mod evt2;
+pub mod evt3;
+mod reader;
+
+pub use reader::{ChunkReader, Encoding};
+
+/// Decoded events in the project's column layout: x, y (pixels), t (µs), p (the format's
+/// polarity value: 0/1 for CD events).
+#[derive(Debug, Default, Clone, PartialEq)]
+pub struct Events {
+    pub x: Vec<u16>,
+    pub y: Vec<u16>,
+    pub t: Vec<i64>,
+    pub p: Vec<i8>,
+}
+
+impl Events {
+    pub fn with_capacity(n: usize) -> Self {
+        Self {
+            x: Vec::with_capacity(n),
+            y: Vec::with_capacity(n),
+            t: Vec::with_capacity(n),
+            p: Vec::with_capacity(n),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.t.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.t.is_empty()
+    }
+
+    #[inline(always)]
+    fn push(&mut self, x: u16, y: u16, t: i64, p: i8) {
+        self.x.push(x);
+        self.y.push(y);
+        self.t.push(t);
+        self.p.push(p);
+    }
+}
+
+/// What a decoder read but did not turn into events.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct Stats {
+    /// CD events before the stream's first time base (no timestamp to give them).
+    pub untimed_events: u64,
+    /// Words of a type the format does not define (skipped).
+    pub unknown_words: u64,
+    /// Bytes after the last complete word or record (a truncated file).
+    pub truncated_bytes: u64,
+}
+
+/// One format's word decoder: the state carried from one call to the next.
+pub trait Decode {
+    /// Bytes per word (EVT) or record (DAT).
+    const WORD: usize;
+    /// Most events one word can produce.
+    const MAX_PER_WORD: usize;
+
+    /// Decodes whole words from the start of `bytes` into `out` until `out` holds
+    /// `max_events` (a word's events past it wait for the next call); returns the bytes
+    /// consumed, a multiple of `WORD`.
+    fn decode(
+        &mut self,
+        bytes: &[u8],
+        out: &mut Events,
+        max_events: usize,
+        stats: &mut Stats,
+    ) -> usize;
+}
+
+/// A counter that wraps: `value` read after `last`, unwrapped into `loops` periods of
+/// `1 << bits`. A drop of at least `min_drop` is the counter wrapping; a smaller drop is a
+/// step back in time, kept as it is (the caller's validation reports it).
+#[derive(Debug, Default, Clone, Copy)]
+struct Unwrap {
+    last: Option<u64>,
+    loops: u64,
+}
+
+impl Unwrap {
+    #[inline]
+    fn next(&mut self, value: u64, bits: u32, min_drop: u64) -> u64 {
+        if let Some(last) = self.last {
+            if last >= value + min_drop {
+                self.loops += 1;
+            }
+        }
+        self.last = Some(value);
+        (self.loops << bits) | value
+    }
+}
+
+#[cfg(test)]
+mod fuzz_tests;
+#[cfg(test)]
+mod tests;
