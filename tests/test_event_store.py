@@ -201,8 +201,8 @@ def test_structurally_broken_index_is_a_one_line_load_error(ball, edit, match, c
 
 
 def test_train_on_a_time_range_reads_windows_inside_it_only(ball, tmp_path, monkeypatch):
-    from evsplat.checkpoint import load_run
     from evsplat.data.event_store import EventStore
+    from evsplat.run_state import RunState
 
     reads = []
     real = EventStore.read
@@ -215,8 +215,8 @@ def test_train_on_a_time_range_reads_windows_inside_it_only(ball, tmp_path, monk
     run = tmp_path / "run"
     argv = ["train", str(ball), "--out", str(run), "--preset", "tiny", "--iters", "3"]
     assert main([*argv, "--time-range", "0.2:0.45", "--no-progress"]) == 0
-    camera = load_run(run)["camera"]
-    assert (camera["t_start_us"], camera["t_end_us"]) == (200_000, 450_000)
+    camera = RunState.load(run).camera
+    assert (camera.t_start_us, camera.t_end_us) == (200_000, 450_000)
     assert reads and all(200_000 <= a and b <= 450_000 for a, b in reads if b > a)
 
 
