@@ -292,6 +292,25 @@ def test_cas_path_is_selected_by_environment_variable(monkeypatch):
         assert torch.allclose(a, b, rtol=1e-4, atol=1e-6 + 1e-5 * b.abs().max())
 
 
+@pytest.mark.parametrize("atomics", ["float", "cas"])
+def test_subgroup_sums_and_per_invocation_atomics_agree(monkeypatch, atomics):
+    # The backward pass sums gradients across subgroups before its atomics where the adapter has
+    # subgroup operations (lavapipe has); EVSPLAT_SUBGROUPS=off makes each invocation add its own.
+    if atomics == "float" and not adapter_info()["float32_atomics"]:
+        pytest.skip("the adapter has no float32 atomics")
+    width, height = 48, 40
+    scene = make_scene(300, 5, width, height, seed=22)
+    out = _out_grads(width, height, 5, seed=3)
+    summed, _ = _grads(evsplat.rasterize, scene, width, height, out, atomics=atomics)
+    monkeypatch.setenv("EVSPLAT_SUBGROUPS", "off")
+    solo, _ = _grads(evsplat.rasterize, scene, width, height, out, atomics=atomics)
+    ref, _ = _grads(render, scene, width, height, out, double=True)
+    for name, a, b, r in zip(NAMES, summed, solo, ref):
+        assert relative_errors(a, r).median() <= 1e-3, name
+        assert relative_errors(b, r).median() <= 1e-3, name
+        assert torch.allclose(a, b, rtol=1e-4, atol=1e-5 * b.abs().max()), name
+
+
 def test_interleaved_renders_each_get_their_own_gradients():
     # More renders in flight than the extension keeps states for (3), with different channel
     # counts, differentiated in reverse order: kept states are reused, evicted ones re-rendered.

@@ -36,9 +36,10 @@ pub fn run(
         offset += bytes.len() as u64;
     }
     let b = &st.bufs;
+    let kernel = raster_bwd_kernel(mode, ctx.subgroup_reduce());
     let binds = (st.bwd_binds)
-        .entry(mode == AtomicMode::Float)
-        .or_insert_with(|| binds::Backward::new(ctx, b, mode, p.d));
+        .entry(kernel)
+        .or_insert_with(|| binds::Backward::new(ctx, b, kernel, p.d));
     let n = render.n as u64;
     let grad_bytes = 4 * n * (GRAD_HEAD + render.d as u64);
     let sorted = forward::tile_passes(p.tiles_x * p.tiles_y) % 2;
@@ -48,7 +49,7 @@ pub fn run(
         }
         dispatch(
             enc,
-            &ctx.pipeline(raster_bwd_kernel(mode), p.d),
+            &ctx.pipeline(kernel, p.d),
             &binds.raster[sorted],
             (p.tiles_x, p.tiles_y),
         );

@@ -170,24 +170,26 @@ impl Forward {
     }
 }
 
-/// The backward compositing kernel for an atomics mode.
-pub fn raster_bwd_kernel(mode: AtomicMode) -> Kernel {
-    match mode {
-        AtomicMode::Float => Kernel::RasterizeBwd,
-        AtomicMode::Cas => Kernel::RasterizeBwdCas,
+/// The backward compositing kernel for an atomics mode, summing across subgroups first or not.
+pub fn raster_bwd_kernel(mode: AtomicMode, subgroups: bool) -> Kernel {
+    match (mode, subgroups) {
+        (AtomicMode::Float, true) => Kernel::RasterizeBwd,
+        (AtomicMode::Cas, true) => Kernel::RasterizeBwdCas,
+        (AtomicMode::Float, false) => Kernel::RasterizeBwdSolo,
+        (AtomicMode::Cas, false) => Kernel::RasterizeBwdCasSolo,
     }
 }
 
-/// Bind groups of the backward passes for one atomics mode.
+/// Bind groups of the backward passes for one backward compositing kernel.
 pub struct Backward {
     pub raster: [wgpu::BindGroup; 2],
     pub project: wgpu::BindGroup,
 }
 
 impl Backward {
-    pub fn new(ctx: &GpuContext, b: &Buffers, mode: AtomicMode, d: u32) -> Self {
+    pub fn new(ctx: &GpuContext, b: &Buffers, raster: Kernel, d: u32) -> Self {
         Self {
-            raster: per_sorted(ctx, b, raster_bwd_kernel(mode), d),
+            raster: per_sorted(ctx, b, raster, d),
             project: bind(ctx, b, Kernel::ProjectBwd, d, &[]),
         }
     }
@@ -224,9 +226,13 @@ mod tests {
             })
             .collect();
         Forward::new(ctx, &b, &passes, 1).raster(ctx, &b, true, 1);
-        Backward::new(ctx, &b, AtomicMode::Cas, 1);
-        if ctx.float_atomics {
-            Backward::new(ctx, &b, AtomicMode::Float, 1);
+        for mode in [AtomicMode::Float, AtomicMode::Cas] {
+            for subgroups in [true, false] {
+                let kernel = raster_bwd_kernel(mode, subgroups);
+                if ctx.runs(kernel) {
+                    Backward::new(ctx, &b, kernel, 1);
+                }
+            }
         }
         ctx.wait().expect("the device survives");
     }

@@ -9,6 +9,7 @@ use super::inputs::{params, Camera};
 use super::{binds, forward};
 use crate::context::{GpuContext, GpuError};
 use crate::wgsl::{self, Params};
+use crate::Kernel;
 use crate::ScanScratch;
 
 pub struct State {
@@ -17,8 +18,8 @@ pub struct State {
     pub isect_cap: u64,
     sizes: Option<Sizes>,
     pub binds: Option<binds::Forward>,
-    /// Keyed by whether float atomics are used.
-    pub bwd_binds: HashMap<bool, binds::Backward>,
+    /// Keyed by the backward compositing kernel (atomics mode, subgroup sums or not).
+    pub bwd_binds: HashMap<Kernel, binds::Backward>,
     pub sort_passes: Vec<wgpu::Buffer>,
     pub scans: Vec<ScanScratch>,
     /// The render whose per-pixel state is in the buffers.
