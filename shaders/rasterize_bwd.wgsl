@@ -1,4 +1,4 @@
-// Backward compositing, one 16x4 workgroup per 16x16 tile, four pixels per invocation (vec4 lanes,
+// Backward compositing, one TILE x TILE/4 workgroup per tile, four pixels per invocation (vec4 lanes,
 // see splat_common.wgsl): each pixel replays its list back to front from the stored final
 // transmittance and last contributor (as 3DGS); an invocation sums its pixels' gradients of the
 // 2-D mean, conic, opacity, camera z and features per Gaussian, group_sum sums them over its
@@ -18,7 +18,7 @@
 // dL/dimage (H*W*D), then dL/ddepth (H*W), then dL/dalpha (H*W).
 @group(0) @binding(6) var<storage, read> grad_in: array<f32>;
 
-@compute @workgroup_size(16, 4)
+@compute @workgroup_size(TILE, TILE / 4u)
 fn main(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(local_invocation_id) lid: vec3<u32>,

@@ -30,7 +30,10 @@ struct Params {
     _pad: u32,
 }
 
-const TILE: u32 = 16u;
+// Tile side in pixels: the compositing passes run one workgroup of TILE x TILE/4 invocations per
+// tile. 8x8 rather than 16x16: the lists are shorter, so each pixel evaluates about half as many
+// Gaussians (docs/benchmarks.md, session 20), for twice the tile keys to sort.
+const TILE: u32 = 8u;
 // Feature channels: the compositing passes use `D`, which the host declares per pipeline
 // (crates/raster/src/kernels.rs) as the render's channel count, 1 to MAX_D, so per-pixel channel
 // loops unroll into registers.
@@ -49,7 +52,7 @@ const MAX_VAR_PX: f32 = 1e12; // cull 2-D variances beyond (1e6 px)^2: keeps the
 const QUAT_EPS2: f32 = 1e-12; // squared-norm floor when normalising quaternions
 const ALPHA_EPS: f32 = 1e-6; // depth = sum(w z) / alpha only where alpha exceeds this, else 0
 const CULLED_KEY: u32 = 0xffffffffu;
-// Compositing: a 16x4 workgroup covers a 16x16 tile, each invocation four consecutive pixels of
+// Compositing: a TILE x TILE/4 workgroup covers a tile, each invocation four consecutive pixels of
 // one column as the lanes of vec4s: every Gaussian loaded from the tile list serves four pixels,
 // the per-pixel state is vectors, not arrays indexed by pixel, and neighbouring invocations (run
 // together as SIMD lanes on a CPU, a warp on a GPU) cover a compact block, so a splat that misses

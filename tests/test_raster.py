@@ -104,12 +104,12 @@ def test_intersection_capacity_follows_the_counts_without_losing_any():
     assert evsplat.rasterize(*big, 128, 128, count_work=True)[3]["work"]["pairs"] > 3 * 4096
 
 
-def _square_pairs(meta: dict, width: int, height: int) -> int:
+def _square_pairs(meta: dict, width: int, height: int, tile: int) -> int:
     """Tile pairs of the 3-sigma bounding squares (the culling before the exact tile test)."""
     r = meta["radii"].float()[:, None]
-    size = torch.tensor([(width + 15) // 16, (height + 15) // 16])
-    lo = torch.minimum(((meta["means2d"] - r) / 16).floor().clamp(min=0), size)
-    hi = torch.minimum(((meta["means2d"] + r) / 16).floor().add(1).clamp(min=0), size)
+    size = torch.tensor([(width + tile - 1) // tile, (height + tile - 1) // tile])
+    lo = torch.minimum(((meta["means2d"] - r) / tile).floor().clamp(min=0), size)
+    hi = torch.minimum(((meta["means2d"] + r) / tile).floor().add(1).clamp(min=0), size)
     return int((hi - lo).clamp(min=0).prod(dim=1)[meta["visible"]].sum())
 
 
@@ -123,8 +123,8 @@ def test_exact_tile_culling_drops_pairs_but_no_fragment_of_thin_faint_tilted_spl
     opac = torch.exp(torch.rand(400, generator=g) * -5.5).clamp(min=1 / 255)
     scene = (means, quats, scales, opac, feats, view, K)
     *_, meta = assert_forward_matches(scene, width, height)
-    pairs = evsplat.rasterize(*scene, width, height, count_work=True)[3]["work"]["pairs"]
-    assert pairs < 0.6 * _square_pairs(meta, width, height)
+    work = evsplat.rasterize(*scene, width, height, count_work=True)[3]["work"]
+    assert work["pairs"] < 0.6 * _square_pairs(meta, width, height, work["tile_size"])
 
 
 def test_forward_matches_reference_with_rotated_camera_and_off_centre_principal_point():
@@ -260,9 +260,9 @@ def test_work_counts_match_the_reference_fragments_and_leave_the_image_unchanged
     # alpha or transmittance thresholds).
     fragments = _reference_fragments(scene, width, height)
     assert abs(work["contributed"] - fragments) <= 2 + 1e-3 * fragments
-    # Every step is one of a tile list's entries at one of the tile's 256 pixels.
+    # Every step is one of a tile list's entries at one of the tile's pixels.
     assert work["contributed"] <= work["evaluated"]
-    assert work["evaluated"] + work["saturated"] <= work["pairs"] * 256
+    assert work["evaluated"] + work["saturated"] <= work["pairs"] * work["tile_size"] ** 2
     assert work["saturated"] > 0  # the scene saturates pixels (alpha reaches 1 - 1e-4)
 
 

@@ -113,6 +113,7 @@ fn rasterize_forward<'py>(
             d.set_item("evaluated", w.evaluated)?;
             d.set_item("contributed", w.contributed)?;
             d.set_item("saturated", w.saturated)?;
+            d.set_item("tile_size", evsplat_raster::splat::TILE)?;
             Some(d)
         }
         None => None,
