@@ -1,13 +1,14 @@
-// One 4-bit pass of a stable LSD radix sort of (key, value) u32 pairs.
+// One pass of a stable LSD radix sort of (key, value) u32 pairs, on a digit of 1 to 6 bits (the
+// depth sort's are 4 bits; the tile sort's as wide as needed to take the fewest passes).
 // histogram: per-workgroup digit counts, stored digit-major (hist[digit * blocks + block]) so
 // that one exclusive scan (scan.wgsl) turns them into global destinations.
 // scatter: each element goes to its digit's destination plus its stable rank in the block.
 
 struct SortPass {
-    shift: u32, // which 4 bits
+    shift: u32, // the digit's lowest bit
+    bits: u32, // the digit's width, at most log2(MAX_DIGITS)
     which: u32, // 0: sort the params.n depth keys; 1: sort the tile keys (count in counters[0])
-    _pad0: u32,
-    _pad1: u32,
+    _pad: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -20,8 +21,8 @@ struct SortPass {
 @group(0) @binding(7) var<storage, read_write> vals_out: array<u32>;
 
 const SORT_BLOCK: u32 = 256u;
-const DIGITS: u32 = 16u; // of 4 bits
-var<workgroup> local_hist: array<atomic<u32>, DIGITS>;
+const MAX_DIGITS: u32 = 64u; // of 6 bits
+var<workgroup> local_hist: array<atomic<u32>, MAX_DIGITS>;
 var<workgroup> block_digits: array<u32, SORT_BLOCK>;
 var<workgroup> block_ranks: array<u32, SORT_BLOCK>;
 
@@ -40,8 +41,12 @@ fn num_blocks() -> u32 {
     return (params.cap + SORT_BLOCK - 1u) / SORT_BLOCK;
 }
 
+fn digits() -> u32 {
+    return 1u << pass_info.bits;
+}
+
 fn digit(key: u32) -> u32 {
-    return (key >> pass_info.shift) & (DIGITS - 1u);
+    return (key >> pass_info.shift) & (digits() - 1u);
 }
 
 @compute @workgroup_size(SORT_BLOCK)
@@ -57,12 +62,12 @@ fn histogram(
     // keys at all) only writes its zero counts (whole workgroup, so the barriers below stay in
     // uniform control flow).
     if (block * SORT_BLOCK >= live_count()) {
-        if (lid < DIGITS && block < nb) {
+        if (lid < digits() && block < nb) {
             hist[lid * nb + block] = 0u;
         }
         return;
     }
-    if (lid < DIGITS) {
+    if (lid < digits()) {
         atomicStore(&local_hist[lid], 0u);
     }
     workgroupBarrier();
@@ -71,7 +76,7 @@ fn histogram(
         atomicAdd(&local_hist[digit(keys_in[i])], 1u);
     }
     workgroupBarrier();
-    if (lid < DIGITS && block < nb) {
+    if (lid < digits() && block < nb) {
         hist[lid * nb + block] = atomicLoad(&local_hist[lid]);
     }
 }
@@ -89,7 +94,7 @@ fn scatter(
     let i = block * SORT_BLOCK + lid;
     let live = i < live_count();
     var key = 0u;
-    var d = DIGITS; // no digit: not a live element
+    var d = MAX_DIGITS; // no digit: not a live element
     if (live) {
         key = keys_in[i];
         d = digit(key);
@@ -97,12 +102,13 @@ fn scatter(
     block_digits[lid] = d;
     workgroupBarrier();
     // Stable ranks within the block: one serial walk of 256 digits (cheap next to a parallel
-    // scan of 16 counters, which spills registers on CPU and GPU alike).
+    // scan of the digit counters, which spills registers on CPU and GPU alike; a parallel count
+    // over digits packed eight to a word was slower on lavapipe).
     if (lid == 0u) {
-        var counts: array<u32, DIGITS>;
+        var counts: array<u32, MAX_DIGITS>; // zeroed once, before the walk
         for (var j = 0u; j < SORT_BLOCK; j = j + 1u) {
             let dj = block_digits[j];
-            if (dj < DIGITS) {
+            if (dj < MAX_DIGITS) {
                 block_ranks[j] = counts[dj];
                 counts[dj] = counts[dj] + 1u;
             }

@@ -99,8 +99,8 @@ def test_intersection_capacity_follows_the_counts_without_losing_any():
     big = (means, quats, scales * 2.0, *rest)  # wide splats: tens of thousands of tile keys
     for scene, size in [(small, 32), (big, 128), (small, 32), (small, 32), (big, 128)]:
         *_, meta = assert_forward_matches(scene, size, size)
-    # Tile pairs of the last render: enough that the capacity grew to 32768 (so the small renders
-    # shrank it back to 4096) and far above 4096, so the last render overflowed the shrunk one.
+    # Tile pairs of the last render: enough that the capacity (1.5x the pairs) grew past 4 x 4096
+    # (so the small renders shrank it back to 4096), so the last render overflowed the shrunk one.
     assert evsplat.rasterize(*big, 128, 128, count_work=True)[3]["work"]["pairs"] > 3 * 4096
 
 

@@ -42,7 +42,7 @@ pub fn run(
         .or_insert_with(|| binds::Backward::new(ctx, b, kernel, p.d));
     let n = render.n as u64;
     let grad_bytes = 4 * n * (GRAD_HEAD + render.d as u64);
-    let sorted = forward::tile_passes(p.tiles_x * p.tiles_y) % 2;
+    let sorted = forward::tile_digits(p.tiles_x * p.tiles_y).0 % 2;
     rec.step("backward rasterize", |enc| {
         if grad_bytes > 0 {
             enc.clear_buffer(&b.grads.buf, 0, Some(grad_bytes));

@@ -4,6 +4,7 @@
 use std::cell::OnceCell;
 
 use super::buffers::{Buffers, Grow};
+use super::forward::DEPTH_PASSES;
 use crate::context::{AtomicMode, GpuContext};
 use crate::Kernel;
 
@@ -108,9 +109,9 @@ impl Forward {
                 ("depth_vals", &b.depth_vals[0].buf),
             ],
         );
-        let (depth_hist, depth_scatter) =
-            sort(ctx, b, &sort_passes[..8], &b.depth_keys, &b.depth_vals);
-        let (tile_hist, tile_scatter) = sort(ctx, b, &sort_passes[8..], &b.tile_keys, &b.tile_vals);
+        let (depth_passes, tile_passes) = sort_passes.split_at(DEPTH_PASSES);
+        let (depth_hist, depth_scatter) = sort(ctx, b, depth_passes, &b.depth_keys, &b.depth_vals);
+        let (tile_hist, tile_scatter) = sort(ctx, b, tile_passes, &b.tile_keys, &b.tile_vals);
         // DEPTH_PASSES is even: the depth-sorted ids end in depth_vals[0].
         let sorted_ids = ("sorted_ids", &b.depth_vals[0].buf);
         let count = bind(
@@ -215,7 +216,7 @@ mod tests {
             isect: super::super::forward::MIN_ISECT_CAP,
         };
         b.ensure(ctx, sizes).expect("room for one Gaussian");
-        let passes: Vec<wgpu::Buffer> = (0..16)
+        let passes: Vec<wgpu::Buffer> = (0..DEPTH_PASSES + super::super::forward::TILE_MAX_PASSES)
             .map(|_| {
                 ctx.device.create_buffer(&wgpu::BufferDescriptor {
                     label: None,

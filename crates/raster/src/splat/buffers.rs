@@ -179,7 +179,9 @@ impl Buffers {
         for b in self.tile_keys.iter_mut().chain(self.tile_vals.iter_mut()) {
             grown |= b.ensure(ctx, f * s.isect)?;
         }
-        grown |= self.hist.ensure(ctx, f * wgsl::DIGITS as u64 * blocks)?;
+        grown |= self
+            .hist
+            .ensure(ctx, f * wgsl::MAX_DIGITS as u64 * blocks)?;
         grown |= self.ranges.ensure(ctx, f * 2 * s.tiles)?;
         grown |= self.image.ensure(ctx, f * s.pixels * s.d)?;
         grown |= self.depth.ensure(ctx, f * s.pixels)?;

@@ -6,24 +6,42 @@ use super::record::{dispatch, dispatch_indirect, Recorder};
 use super::state::State;
 use super::{binds, readback, Camera, ForwardOutput, Gaussians, Params, PassTimes, Render};
 use crate::context::{dispatch_dims, GpuContext, GpuError};
-use crate::wgsl::DIGITS;
+use crate::wgsl::MAX_DIGITS;
 use crate::{Kernel, ScanScratch};
 
-/// Scans per render: one for the tile counts, up to 8 per radix sort (depth, tile).
-pub const SCANS: usize = 17;
-/// 4-bit radix passes over the 32-bit depth keys.
-const DEPTH_PASSES: usize = 8;
-/// Smallest tile-intersection capacity (16 sort blocks); the capacity follows the counts.
+/// The depth sort: 8 radix passes of 4-bit digits over the 32-bit keys (an even count: the
+/// sorted ids end in the first ping-pong buffer).
+pub const DEPTH_PASSES: usize = 8;
+pub const DEPTH_BITS: u32 = 4;
+/// The tile sort's widest digit (MAX_DIGITS in sort.wgsl) and its most passes (32-bit ids).
+const TILE_MAX_BITS: u32 = 6;
+pub const TILE_MAX_PASSES: usize = 6;
+const _: () =
+    assert!(1 << TILE_MAX_BITS <= MAX_DIGITS && TILE_MAX_PASSES as u32 * TILE_MAX_BITS >= 32);
+/// Scans per render: one for the tile counts, one per radix pass.
+pub const SCANS: usize = 1 + DEPTH_PASSES + TILE_MAX_PASSES;
+/// Smallest tile-intersection capacity (16 sort blocks), and the step it grows and shrinks by.
 pub const MIN_ISECT_CAP: u64 = 1 << 12;
 
-/// Radix passes needed for tile ids below `tiles`.
-pub fn tile_passes(tiles: u32) -> usize {
+/// The tile sort's passes and digit width for tile ids below `tiles`: as few passes as digits of
+/// up to 6 bits allow, each digit as narrow as that count allows (a pass costs about the same at
+/// any width, but its histogram scan grows with the digit count). 8x8 tiles at 512^2 have 12-bit
+/// ids: 2 passes of 6 bits instead of 3 of 4.
+pub fn tile_digits(tiles: u32) -> (usize, u32) {
     let bits = if tiles <= 1 {
         0
     } else {
         32 - (tiles - 1).leading_zeros()
     };
-    bits.div_ceil(4) as usize
+    let passes = bits.div_ceil(TILE_MAX_BITS);
+    (
+        passes as usize,
+        if passes == 0 {
+            0
+        } else {
+            bits.div_ceil(passes)
+        },
+    )
 }
 
 /// The radix passes of one sort. The depth sort runs over all `elements`; the tile sort only
@@ -31,6 +49,8 @@ pub fn tile_passes(tiles: u32) -> usize {
 /// histogram keeps the capacity's layout, so the blocks not run are cleared to zero counts).
 struct Sort<'a> {
     name: &'static str,
+    /// Digit width of every pass.
+    bits: u32,
     hist_binds: &'a [wgpu::BindGroup],
     scatter_binds: &'a [wgpu::BindGroup],
     elements: u64,
@@ -48,18 +68,19 @@ impl Sort<'_> {
         let hist = ctx.pipeline(Kernel::SortHistogram, 0);
         let scatter = ctx.pipeline(Kernel::SortScatter, 0);
         let blocks = self.elements.div_ceil(SORT_BLOCK) as u32;
+        let digits = 1u32 << self.bits;
         let dims = dispatch_dims(blocks);
         let passes = (self.hist_binds.iter().zip(self.scatter_binds)).zip(scans.iter_mut());
         for ((hb, sb), scan) in passes {
             rec.step(self.name, |enc| {
                 match self.live {
                     Some(args) => {
-                        enc.clear_buffer(&b.hist.buf, 0, Some(4 * DIGITS as u64 * blocks as u64));
+                        enc.clear_buffer(&b.hist.buf, 0, Some(4 * (digits * blocks) as u64));
                         dispatch_indirect(enc, &hist, hb, args);
                     }
                     None => dispatch(enc, &hist, hb, dims),
                 }
-                scan.encode(ctx, enc, &b.hist.buf, DIGITS * blocks);
+                scan.encode(ctx, enc, &b.hist.buf, digits * blocks);
                 match self.live {
                     Some(args) => dispatch_indirect(enc, &scatter, sb, args),
                     None => dispatch(enc, &scatter, sb, dims),
@@ -90,7 +111,7 @@ pub fn encode(
     let binds = cached.get_or_insert_with(|| binds::Forward::new(ctx, b, sort_passes, p.d));
     let n = p.n;
     let tiles = p.tiles_x * p.tiles_y;
-    let t_passes = tile_passes(tiles);
+    let (t_passes, t_bits) = tile_digits(tiles);
     rec.step("clear", |enc| {
         enc.clear_buffer(&b.counters.buf, 0, None);
         enc.clear_buffer(&b.ranges.buf, 0, Some(8 * tiles as u64));
@@ -107,6 +128,7 @@ pub fn encode(
         let (depth_scans, rest) = scans.split_at_mut(DEPTH_PASSES);
         let depth = Sort {
             name: "sort depth",
+            bits: DEPTH_BITS,
             hist_binds: &binds.depth_hist,
             scatter_binds: &binds.depth_scatter,
             elements: n as u64,
@@ -132,6 +154,7 @@ pub fn encode(
         })?;
         let tile = Sort {
             name: "sort tiles",
+            bits: t_bits,
             hist_binds: &binds.tile_hist[..t_passes],
             scatter_binds: &binds.tile_scatter[..t_passes],
             elements: *isect_cap,
@@ -166,6 +189,14 @@ pub fn encode(
     Ok(())
 }
 
+/// The intersection capacity for `m` tile pairs: 1.5x headroom in steps of MIN_ISECT_CAP (not a
+/// power of two: up to 4x the count, which the histogram scans paid for at every render).
+fn isect_capacity(m: u32) -> u64 {
+    (m as u64 + m as u64 / 2)
+        .next_multiple_of(MIN_ISECT_CAP)
+        .max(MIN_ISECT_CAP)
+}
+
 /// Render `g` from `cam` into `st` as render `id`, read its outputs back and keep what its
 /// backward pass needs in the returned [`Render`].
 pub fn run(
@@ -198,14 +229,13 @@ pub fn run(
         if m as u64 > st.isect_cap {
             // Render again with room for every intersection (rare: the capacity follows the
             // counts of earlier renders).
-            st.isect_cap = (m as u64 + m as u64 / 2).next_power_of_two();
+            st.isect_cap = isect_capacity(m);
             continue;
         }
-        // The tile sort and ranges dispatch over the whole capacity, and on lavapipe every
-        // workgroup costs ~13 µs even with nothing live in it: size the next render's capacity
-        // to this one's count (2x headroom, shrinking only when 8x too large, so renders of
-        // different sizes do not alternate between overflow and re-render).
-        let want = (2 * m as u64).next_power_of_two().max(MIN_ISECT_CAP);
+        // The tile sort's histograms are laid out, cleared and scanned over the whole capacity:
+        // size the next render's capacity to this one's count (shrinking only when 4x too large,
+        // so renders of different sizes do not alternate between overflow and re-render).
+        let want = isect_capacity(m);
         if 4 * want <= st.isect_cap {
             st.isect_cap = want;
         }

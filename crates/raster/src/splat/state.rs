@@ -103,23 +103,20 @@ pub fn lock() -> MutexGuard<'static, Pool> {
 
 impl State {
     fn new(ctx: &GpuContext) -> Self {
-        let sort_passes = (0..2u32)
-            .flat_map(|which| {
-                (0..8u32).map(move |p| wgsl::SortPass {
-                    shift: 4 * p,
-                    which,
-                    _pad0: 0,
-                    _pad1: 0,
-                })
-            })
-            .map(|pass| {
+        // The depth sort's passes are fixed; the tile sort's are written by `prepare`, as its
+        // digits depend on the tile count.
+        let sort_passes = (0..forward::DEPTH_PASSES + forward::TILE_MAX_PASSES)
+            .map(|p| {
                 let b = ctx.device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some("sort pass"),
-                    size: 16,
+                    size: std::mem::size_of::<wgsl::SortPass>() as u64,
                     usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
                     mapped_at_creation: false,
                 });
-                ctx.queue.write_buffer(&b, 0, bytemuck::bytes_of(&pass));
+                if p < forward::DEPTH_PASSES {
+                    let pass = sort_pass(p, forward::DEPTH_BITS, 0);
+                    ctx.queue.write_buffer(&b, 0, bytemuck::bytes_of(&pass));
+                }
                 b
             })
             .collect();
@@ -161,10 +158,28 @@ impl State {
             self.binds = None;
             self.bwd_binds.clear();
         }
+        if self.sizes.is_none_or(|old| old.tiles != sizes.tiles) {
+            let (passes, bits) = forward::tile_digits(tx * ty);
+            for p in 0..passes {
+                let pass = sort_pass(p, bits, 1);
+                let buf = &self.sort_passes[forward::DEPTH_PASSES + p];
+                ctx.queue.write_buffer(buf, 0, bytemuck::bytes_of(&pass));
+            }
+        }
         self.sizes = Some(sizes);
         let p = params(n, d, cam, self.isect_cap);
         ctx.queue
             .write_buffer(&self.bufs.params, 0, bytemuck::bytes_of(&p));
         Ok(p)
+    }
+}
+
+/// Radix pass `p` over digits of `bits` bits of the depth keys (`which` 0) or tile keys (1).
+fn sort_pass(p: usize, bits: u32, which: u32) -> wgsl::SortPass {
+    wgsl::SortPass {
+        shift: p as u32 * bits,
+        bits,
+        which,
+        _pad: 0,
     }
 }
