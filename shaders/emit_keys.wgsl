@@ -45,7 +45,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
                     continue;
                 }
                 if (at < end && at < params.cap) {
-                    tile_keys[at] = ty * params.tiles_x + tx;
+                    tile_keys[at] = (ty - params.band_ty0) * params.tiles_x + tx;
                     tile_vals[at] = g;
                 }
                 at = at + 1u;

@@ -28,7 +28,7 @@ fn main(
     let py = lane_rows(wid.y, lid.y);
     let inside = (py < vec4<u32>(params.height)) & vec4<bool>(px < params.width);
     let centre_x = f32(px) + 0.5;
-    let centre_y = vec4<f32>(py) + 0.5;
+    let centre_y = vec4<f32>(py + params.band_ty0 * TILE) + 0.5; // py is the band's row
     let hw = params.width * params.height;
     let range = ranges[tile];
 

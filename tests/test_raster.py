@@ -311,6 +311,47 @@ def test_subgroup_sums_and_per_invocation_atomics_agree(monkeypatch, atomics):
         assert torch.allclose(a, b, rtol=1e-4, atol=1e-5 * b.abs().max()), name
 
 
+def _render_and_grads(scene, width, height, d):
+    image, depth, alpha, meta = evsplat.rasterize(*scene, width, height, count_work=True)
+    grads, _ = _grads(evsplat.rasterize, scene, width, height, _out_grads(width, height, d, seed=1))
+    return (image, depth, alpha), meta["work"], grads
+
+
+@pytest.mark.parametrize("case", ["pixels", "tile pairs"])
+def test_renders_over_a_forced_binding_limit_are_the_same_in_bands(monkeypatch, case):
+    # EVSPLAT_MAX_BINDING caps the storage-binding size the rasterizer plans with (lavapipe's is
+    # 128 MiB). Over it, the image is rendered in bands of tile rows: per-pixel buffers split by
+    # rows up front, a band whose tile pairs overflow split in halves and rendered again.
+    limit = 16384
+    if case == "pixels":  # 64 x 60 x (3 + 2) floats of output gradients: 75 KiB
+        width, height, d = 64, 60, 3
+        means, quats, scales, opac, *rest = make_scene(200, d, width, height, seed=5)
+        scene = (means, quats, scales * 1.5, opac, *rest)
+    else:  # a narrow image whose rows fit, under Gaussians covering it: 4798 pairs, 19 KiB
+        width, height, d = 16, 64, 1
+        means, quats, scales, opac, *rest = make_scene(300, d, width, height, seed=5)
+        scene = (means * 0.05, quats, scales * 6.0, opac, *rest)
+    whole, work, grads = _render_and_grads(scene, width, height, d)
+    monkeypatch.setenv("EVSPLAT_MAX_BINDING", str(limit))
+    banded, banded_work, banded_grads = _render_and_grads(scene, width, height, d)
+    if case == "pixels":
+        assert 4 * width * height * (d + 2) > 4 * limit
+    else:
+        assert 4 * work["pairs"] > limit and 4 * width * height * 4 <= limit
+    for a, b in zip(whole, banded):
+        assert torch.equal(a, b)  # the same pixels, bit for bit
+    assert work == banded_work
+    for name, a, b in zip(NAMES, banded_grads, grads):
+        assert torch.allclose(a, b, rtol=1e-5, atol=1e-6 * b.abs().max()), name
+
+
+def test_a_render_that_cannot_fit_the_binding_limit_names_the_buffer(monkeypatch):
+    scene = make_scene(400, 3, 32, 32, seed=6)  # 400 Gaussians x 14 inputs: 22 KiB
+    monkeypatch.setenv("EVSPLAT_MAX_BINDING", "16384")
+    with pytest.raises(EvsplatError, match="inputs buffer needs .* storage binding limit"):
+        evsplat.rasterize(*scene, 32, 32)
+
+
 def test_interleaved_renders_each_get_their_own_gradients():
     # More renders in flight than the extension keeps states for (3), with different channel
     # counts, differentiated in reverse order: kept states are reused, evicted ones re-rendered.

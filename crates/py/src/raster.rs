@@ -16,7 +16,7 @@ use crate::gpu::context;
 
 fn raster_err(e: GpuError) -> PyErr {
     match e {
-        GpuError::Invalid(m) => value_err(m),
+        GpuError::Invalid(m) | GpuError::OverLimit(m) => value_err(m),
         other => crate::gpu::gpu_err(other),
     }
 }

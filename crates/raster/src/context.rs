@@ -22,6 +22,9 @@ pub enum GpuError {
     Readback(String),
     #[error("{0}")]
     Invalid(String),
+    /// A buffer would exceed the storage-binding limit (`GpuContext::binding_limit`).
+    #[error("{0}")]
+    OverLimit(String),
 }
 
 /// Which kind of adapter to use, from `EVSPLAT_ADAPTER`.
@@ -176,6 +179,15 @@ impl GpuContext {
             .map(|v| v.eq_ignore_ascii_case("off"))
             .unwrap_or(false);
         self.subgroups && !off
+    }
+
+    /// The storage-binding size the rasterizer plans with: the device's limit, or less where
+    /// `EVSPLAT_MAX_BINDING` (bytes) says so (tests force the chunking of large renders with it).
+    pub fn binding_limit(&self) -> u64 {
+        let device = self.limits.max_storage_buffer_binding_size;
+        (std::env::var("EVSPLAT_MAX_BINDING").ok())
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .map_or(device, |forced| forced.min(device))
     }
 
     /// Whether the device enabled every optional feature `kernel` uses.

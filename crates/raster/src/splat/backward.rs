@@ -2,30 +2,32 @@
 
 use super::binds::{self, raster_bwd_kernel};
 use super::buffers::GRAD_HEAD;
+use super::inputs::Band;
 use super::record::{dispatch, Recorder};
 use super::state::State;
 use super::{forward, readback, Gradients, OutputGrads, PassTimes, Render};
 use crate::context::{AtomicMode, GpuContext, GpuError};
 use crate::Kernel;
 
-/// Differentiate `render` in `st`, rendering it again first when another render replaced its
-/// per-pixel state there.
+/// Differentiate band `band` of `render`, rendered as `id`, in `st` (`grads`: the band's rows),
+/// rendering it again first when another render replaced its per-pixel state there.
 pub fn run(
     ctx: &GpuContext,
     st: &mut State,
     render: &Render,
+    (id, band): (u64, Band),
     grads: &OutputGrads,
     mode: AtomicMode,
     profile: Option<&mut PassTimes>,
 ) -> Result<Gradients, GpuError> {
-    let p = st.prepare(ctx, render.n, render.d, &render.cam)?;
+    let p = st.prepare(ctx, render.n, render.d, &render.cam, band)?;
     let mut rec = Recorder::new(ctx, profile);
-    if st.current != Some(render.id) {
+    if st.current != Some(id) {
         // Render it again (no readback).
         ctx.queue
             .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(&render.inputs));
         forward::encode(ctx, st, &p, &mut rec, false)?;
-        st.current = Some(render.id);
+        st.current = Some(id);
     }
     // The three output gradients lie back to back in `grad_in`: each is written at its offset
     // (no host-side copy into one packed vector).

@@ -22,14 +22,12 @@ impl Grow {
 
     /// Make room for `bytes`; true when the buffer was replaced. Errors past the binding limit.
     fn ensure(&mut self, ctx: &GpuContext, bytes: u64) -> Result<bool, GpuError> {
-        let max = ctx.limits.max_storage_buffer_binding_size;
+        let max = ctx.binding_limit();
         if bytes > max {
-            return Err(GpuError::Invalid(format!(
-                "rasterize: the {} buffer needs {} MiB, over the adapter's {} MiB storage binding \
-                 limit; render fewer Gaussians, fewer feature channels or a smaller image per call",
-                self.label,
-                bytes.div_ceil(1 << 20),
-                max >> 20
+            return Err(GpuError::OverLimit(format!(
+                "rasterize: the {} buffer needs {bytes} bytes, over the {max}-byte storage binding \
+                 limit; render fewer Gaussians or fewer feature channels per call",
+                self.label
             )));
         }
         if bytes <= self.cap {

@@ -2,9 +2,11 @@
 //! rasterize, then the single readback of a render.
 
 use super::buffers::{Buffers, SORT_BLOCK};
+use super::inputs::Band;
+use super::readback::ForwardRead;
 use super::record::{dispatch, dispatch_indirect, Recorder};
 use super::state::State;
-use super::{binds, readback, Camera, ForwardOutput, Gaussians, Params, PassTimes, Render};
+use super::{binds, readback, Camera, Params, PassTimes, TILE};
 use crate::context::{dispatch_dims, GpuContext, GpuError};
 use crate::wgsl::MAX_DIGITS;
 use crate::{Kernel, ScanScratch};
@@ -197,26 +199,32 @@ fn isect_capacity(m: u32) -> u64 {
         .max(MIN_ISECT_CAP)
 }
 
-/// Render `g` from `cam` into `st` as render `id`, read its outputs back and keep what its
-/// backward pass needs in the returned [`Render`].
+/// Render `band` of `cam`'s image of the `n` Gaussians packed in `inputs` (`d` channels) into
+/// `st` as render `id` and read its outputs back. Errors with `GpuError::OverLimit` when a buffer
+/// would exceed the binding limit, the tile pairs included (then a smaller band may fit).
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     ctx: &GpuContext,
     st: &mut State,
-    g: &Gaussians,
+    inputs: &[f32],
+    (n, d): (usize, usize),
     cam: &Camera,
+    band: Band,
     id: u64,
     mut profile: Option<&mut PassTimes>,
     count_work: bool,
-) -> Result<ForwardOutput, GpuError> {
-    let inputs = g.pack();
+) -> Result<ForwardRead, GpuError> {
+    // The state's per-pixel buffers are this render's from here on, even if it fails.
+    st.current = None;
+    let max_cap = ctx.binding_limit() / 4;
+    st.isect_cap = st.isect_cap.min(max_cap);
     loop {
-        let p = st.prepare(ctx, g.len(), g.d, cam)?;
+        let p = st.prepare(ctx, n, d, cam, band)?;
         ctx.queue
-            .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(&inputs));
+            .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(inputs));
         let mut rec = Recorder::new(ctx, profile.as_deref_mut());
         encode(ctx, st, &p, &mut rec, count_work)?;
-        let pixels = cam.width as usize * cam.height as usize;
-        let read = readback::forward(rec, &st.bufs, g.len(), g.d, pixels)?;
+        let read = readback::forward(rec, &st.bufs, n, d, band.pixels(cam.width).0)?;
         let m = read.intersections();
         if read.tiles_disagree() {
             return Err(GpuError::Invalid(
@@ -227,9 +235,18 @@ pub fn run(
             ));
         }
         if m as u64 > st.isect_cap {
+            if m as u64 > max_cap {
+                return Err(GpuError::OverLimit(format!(
+                    "rasterize: {m} tile pairs in rows {}.. need {} bytes, over the {}-byte \
+                     storage binding limit",
+                    band.ty0 * TILE,
+                    4 * m as u64,
+                    4 * max_cap
+                )));
+            }
             // Render again with room for every intersection (rare: the capacity follows the
             // counts of earlier renders).
-            st.isect_cap = isect_capacity(m);
+            st.isect_cap = isect_capacity(m).min(max_cap);
             continue;
         }
         // The tile sort's histograms are laid out, cleared and scanned over the whole capacity:
@@ -240,13 +257,6 @@ pub fn run(
             st.isect_cap = want;
         }
         st.current = Some(id);
-        let render = Render {
-            id,
-            inputs,
-            n: g.len(),
-            d: g.d,
-            cam: *cam,
-        };
-        return Ok(read.output(count_work, render));
+        return Ok(read);
     }
 }

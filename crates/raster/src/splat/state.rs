@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use std::sync::{Mutex, MutexGuard, OnceLock};
 
 use super::buffers::{Buffers, Sizes};
-use super::inputs::{params, Camera};
+use super::inputs::{params, Band, Camera};
 use super::{binds, forward};
 use crate::context::{GpuContext, GpuError};
 use crate::wgsl::{self, Params};
@@ -137,29 +137,34 @@ impl State {
     }
 
     /// Grow buffers for a render of `n` Gaussians with `d` channels and drop bind groups that
-    /// point at replaced buffers; writes and returns the render's uniforms.
+    /// point at replaced buffers; writes and returns the uniforms of the render of `band`.
     pub fn prepare(
         &mut self,
         ctx: &GpuContext,
         n: usize,
         d: usize,
         cam: &Camera,
+        band: Band,
     ) -> Result<Params, GpuError> {
-        let (tx, ty) = cam.tiles();
+        let p = params(n, d, cam, band, self.isect_cap);
+        let tiles = p.tiles_x * p.tiles_y;
         let sizes = Sizes {
             n: n as u64,
             d: d as u64,
-            pixels: cam.width as u64 * cam.height as u64,
-            tiles: tx as u64 * ty as u64,
+            pixels: p.width as u64 * p.height as u64,
+            tiles: tiles as u64,
             isect: self.isect_cap,
         };
         let d_changed = self.sizes.is_some_and(|old| old.d != sizes.d);
-        if self.bufs.ensure(ctx, sizes)? || d_changed {
+        // Over the binding limit, some buffers may have been replaced before the error.
+        let grown = self.bufs.ensure(ctx, sizes);
+        if !matches!(grown, Ok(false)) || d_changed {
             self.binds = None;
             self.bwd_binds.clear();
         }
+        grown?;
         if self.sizes.is_none_or(|old| old.tiles != sizes.tiles) {
-            let (passes, bits) = forward::tile_digits(tx * ty);
+            let (passes, bits) = forward::tile_digits(tiles);
             for p in 0..passes {
                 let pass = sort_pass(p, bits, 1);
                 let buf = &self.sort_passes[forward::DEPTH_PASSES + p];
@@ -167,7 +172,6 @@ impl State {
             }
         }
         self.sizes = Some(sizes);
-        let p = params(n, d, cam, self.isect_cap);
         ctx.queue
             .write_buffer(&self.bufs.params, 0, bytemuck::bytes_of(&p));
         Ok(p)
