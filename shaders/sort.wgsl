@@ -20,7 +20,6 @@ struct SortPass {
 @group(0) @binding(6) var<storage, read_write> keys_out: array<u32>;
 @group(0) @binding(7) var<storage, read_write> vals_out: array<u32>;
 
-const SORT_BLOCK: u32 = 256u;
 const MAX_DIGITS: u32 = 64u; // of 6 bits
 var<workgroup> local_hist: array<atomic<u32>, MAX_DIGITS>;
 var<workgroup> block_digits: array<u32, SORT_BLOCK>;
@@ -49,7 +48,7 @@ fn digit(key: u32) -> u32 {
     return (key >> pass_info.shift) & (digits() - 1u);
 }
 
-@compute @workgroup_size(SORT_BLOCK)
+@compute @workgroup_size(SORT_THREADS)
 fn histogram(
     @builtin(local_invocation_index) lid: u32,
     @builtin(workgroup_id) wid: vec3<u32>,
@@ -71,9 +70,11 @@ fn histogram(
         atomicStore(&local_hist[lid], 0u);
     }
     workgroupBarrier();
-    let i = block * SORT_BLOCK + lid;
-    if (i < live_count()) {
-        atomicAdd(&local_hist[digit(keys_in[i])], 1u);
+    for (var k = 0u; k < SORT_KEYS; k = k + 1u) {
+        let i = block * SORT_BLOCK + k * SORT_THREADS + lid;
+        if (i < live_count()) {
+            atomicAdd(&local_hist[digit(keys_in[i])], 1u);
+        }
     }
     workgroupBarrier();
     if (lid < digits() && block < nb) {
@@ -81,7 +82,7 @@ fn histogram(
     }
 }
 
-@compute @workgroup_size(SORT_BLOCK)
+@compute @workgroup_size(SORT_THREADS)
 fn scatter(
     @builtin(local_invocation_index) lid: u32,
     @builtin(workgroup_id) wid: vec3<u32>,
@@ -91,17 +92,18 @@ fn scatter(
     if (block * SORT_BLOCK >= live_count()) {
         return; // nothing live in this block (see histogram)
     }
-    let i = block * SORT_BLOCK + lid;
-    let live = i < live_count();
-    var key = 0u;
-    var d = MAX_DIGITS; // no digit: not a live element
-    if (live) {
-        key = keys_in[i];
-        d = digit(key);
+    // This invocation's keys: block positions lid, lid + SORT_THREADS, ...
+    for (var k = 0u; k < SORT_KEYS; k = k + 1u) {
+        let j = k * SORT_THREADS + lid;
+        let i = block * SORT_BLOCK + j;
+        var d = MAX_DIGITS; // no digit: not a live element
+        if (i < live_count()) {
+            d = digit(keys_in[i]);
+        }
+        block_digits[j] = d;
     }
-    block_digits[lid] = d;
     workgroupBarrier();
-    // Stable ranks within the block: one serial walk of 256 digits (cheap next to a parallel
+    // Stable ranks within the block: one serial walk of its digits (cheap next to a parallel
     // scan of the digit counters, which spills registers on CPU and GPU alike; a parallel count
     // over digits packed eight to a word was slower on lavapipe).
     if (lid == 0u) {
@@ -115,9 +117,14 @@ fn scatter(
         }
     }
     workgroupBarrier();
-    if (live) {
-        let dst = hist[d * num_blocks() + block] + block_ranks[lid];
-        keys_out[dst] = key;
-        vals_out[dst] = vals_in[i];
+    let nb = num_blocks();
+    for (var k = 0u; k < SORT_KEYS; k = k + 1u) {
+        let j = k * SORT_THREADS + lid;
+        let i = block * SORT_BLOCK + j;
+        if (i < live_count()) {
+            let dst = hist[block_digits[j] * nb + block] + block_ranks[j];
+            keys_out[dst] = keys_in[i];
+            vals_out[dst] = vals_in[i];
+        }
     }
 }

@@ -59,6 +59,14 @@ const MAX_VAR_PX: f32 = 1e12; // cull 2-D variances beyond (1e6 px)^2: keeps the
 const QUAT_EPS2: f32 = 1e-12; // squared-norm floor when normalising quaternions
 const ALPHA_EPS: f32 = 1e-6; // depth = sum(w z) / alpha only where alpha exceeds this, else 0
 const CULLED_KEY: u32 = 0xffffffffu;
+// The radix sorts (sort.wgsl) and the tile-range pass work in blocks of SORT_BLOCK keys, one
+// workgroup of SORT_THREADS invocations per block, each invocation SORT_BLOCK / SORT_THREADS keys
+// (more keys per workgroup: fewer workgroups and barriers, which lavapipe pays for per workgroup;
+// 2048 was no faster, and its 16 KiB of block digits and ranks would exceed the workgroup memory
+// Vulkan guarantees).
+const SORT_BLOCK: u32 = 1024u;
+const SORT_THREADS: u32 = 256u;
+const SORT_KEYS: u32 = SORT_BLOCK / SORT_THREADS;
 // Compositing: a TILE x TILE/4 workgroup covers a tile, each invocation four consecutive pixels of
 // one column as the lanes of vec4s: every Gaussian loaded from the tile list serves four pixels,
 // the per-pixel state is vectors, not arrays indexed by pixel, and neighbouring invocations (run
