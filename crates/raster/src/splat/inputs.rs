@@ -116,14 +116,6 @@ impl Camera {
         (self.width.div_ceil(TILE), self.height.div_ceil(TILE))
     }
 
-    /// The image as one band.
-    pub(super) fn whole(&self) -> Band {
-        Band {
-            ty0: 0,
-            rows: self.height,
-        }
-    }
-
     /// Bands of whole tile rows, each with at most `max_rows` pixel rows (a multiple of TILE).
     pub(super) fn bands(&self, max_rows: u32) -> Vec<Band> {
         let step = (max_rows / TILE).max(1);

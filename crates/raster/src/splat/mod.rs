@@ -114,12 +114,8 @@ pub fn rasterize_forward(
     // The widest per-pixel buffer: the output gradients (d + 2 floats) or the pixel state (4).
     let row_bytes = 4 * cam.width as u64 * (g.d as u64 + 2).max(4);
     let max_rows = (ctx.binding_limit() / row_bytes).min(cam.height as u64) as u32;
-    let mut todo: Vec<Band> = if max_rows >= cam.height {
-        vec![cam.whole()]
-    } else {
-        cam.bands(max_rows)
-    };
-    todo.reverse(); // a stack, top band last
+    let mut todo = cam.bands(max_rows); // one band when the image fits
+    todo.reverse(); // a stack: the top band is popped first
     let (mut bands, mut reads) = (Vec::new(), Vec::new());
     while let Some(band) = todo.pop() {
         let mut pool = state::lock();
