@@ -12,7 +12,8 @@
 @group(0) @binding(4) var<storage, read_write> tile_keys: array<u32>;
 @group(0) @binding(5) var<storage, read_write> tile_vals: array<u32>;
 @group(0) @binding(6) var<storage, read_write> counters: array<u32>;
-// Workgroups (x, y, z) of 256 for the passes over the live keys (tile sort, tile ranges), folded
+// Workgroups (x, y, z), one per SORT_BLOCK live keys, of the passes over them (tile sort, tile
+// ranges), folded
 // into 2-D over 65535 as dispatch_dims (crates/raster/src/context.rs) does.
 @group(0) @binding(7) var<storage, read_write> live_blocks: array<u32>;
 
@@ -25,7 +26,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (rank == 0u) {
         let total = offsets[params.n];
         counters[0] = total;
-        let blocks = max((min(total, params.cap) + 255u) / 256u, 1u);
+        let blocks = max((min(total, params.cap) + SORT_BLOCK - 1u) / SORT_BLOCK, 1u);
         let x = min(blocks, 65535u);
         live_blocks[0] = x;
         live_blocks[1] = (blocks + x - 1u) / x;
@@ -45,7 +46,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
                     continue;
                 }
                 if (at < end && at < params.cap) {
-                    tile_keys[at] = ty * params.tiles_x + tx;
+                    tile_keys[at] = (ty - params.band_ty0) * params.tiles_x + tx;
                     tile_vals[at] = g;
                 }
                 at = at + 1u;

@@ -1,10 +1,13 @@
-// Backward compositing, one 16x4 workgroup per 16x16 tile, four pixels per invocation (vec4 lanes,
+// Backward compositing, one TILE x TILE/4 workgroup per tile, four pixels per invocation (vec4 lanes,
 // see splat_common.wgsl): each pixel replays its list back to front from the stored final
 // transmittance and last contributor (as 3DGS); an invocation sums its pixels' gradients of the
-// 2-D mean, conic, opacity, camera z and features per Gaussian, then adds them with one atomic
-// each.
-// `grads` and grad_add come from grads_float.wgsl (float32 atomicAdd) or grads_cas.wgsl
-// (compare-and-swap), one kernel each (crates/raster/build/main.rs): both share this source.
+// 2-D mean, conic, opacity, camera z and features per Gaussian, group_sum sums them over its
+// group (the invocations with a fragment of that Gaussian) and the group's leader adds each sum
+// to the accumulator with one atomic.
+// Four kernels share this source (crates/raster/build/main.rs): `grads` and grad_add come from
+// grads_float.wgsl (float32 atomicAdd) or grads_cas.wgsl (compare-and-swap), and the group_*
+// functions from reduce_subgroup.wgsl (the group is a subgroup: one atomic per subgroup) or
+// reduce_invocation.wgsl (the group is the invocation: one atomic per invocation).
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> inputs: array<f32>;
@@ -15,7 +18,7 @@
 // dL/dimage (H*W*D), then dL/ddepth (H*W), then dL/dalpha (H*W).
 @group(0) @binding(6) var<storage, read> grad_in: array<f32>;
 
-@compute @workgroup_size(16, 4)
+@compute @workgroup_size(TILE, TILE / 4u)
 fn main(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(local_invocation_id) lid: vec3<u32>,
@@ -25,7 +28,7 @@ fn main(
     let py = lane_rows(wid.y, lid.y);
     let inside = (py < vec4<u32>(params.height)) & vec4<bool>(px < params.width);
     let centre_x = f32(px) + 0.5;
-    let centre_y = vec4<f32>(py) + 0.5;
+    let centre_y = vec4<f32>(py + params.band_ty0 * TILE) + 0.5; // py is the band's row
     let hw = params.width * params.height;
     let range = ranges[tile];
 
@@ -66,7 +69,7 @@ fn main(
         }
         g_tfinal[j] = gt;
     }
-    let n_walk = max(max(last.x, last.y), max(last.z, last.w));
+    let n_walk = group_max(max(max(last.x, last.y), max(last.z, last.w)));
     var t = t_final;
 
     for (var kk = 0u; kk < n_walk; kk = kk + 1u) {
@@ -91,13 +94,15 @@ fn main(
         let one_minus = 1.0 - alpha;
         t = select(t, t / one_minus, hit); // transmittance in front of this fragment
         let w = select(vec4<f32>(0.0), alpha * t, hit);
-        let gb = g * params.grad_stride;
         var g_alpha = vec4<f32>(0.0);
+        // This Gaussian's feature gradients summed over the group: each element written below
+        // before it is read.
+        var g_feat: array<f32, D>;
         let fb = params.off_feat + g * D;
         for (var c = 0u; c < D; c = c + 1u) {
             let f = inputs[fb + c];
             g_alpha = g_alpha + g_img[c] * (f * t - after[c] / one_minus);
-            grad_add(gb + GRAD_HEAD + c, dot(g_img[c], w));
+            g_feat[c] = group_sum(dot(g_img[c], w));
             after[c] = after[c] + f * w;
         }
         g_alpha = g_alpha + g_z * (mo.w * t - after_z / one_minus);
@@ -107,12 +112,29 @@ fn main(
         let ga = select(vec4<f32>(0.0), g_alpha, hit & (raw <= vec4<f32>(ALPHA_MAX)));
         let gp = ga * raw;
         // power = -0.5 (a dx^2 + c dy^2) - b dx dy with (dx, dy) = mean2d - pixel.
-        grad_add(gb + 0u, -dot(gp, co.x * dx + co.y * dy));
-        grad_add(gb + 1u, -dot(gp, co.z * dy + co.y * dx));
-        grad_add(gb + 2u, -0.5 * dx * dx * dot(gp, vec4<f32>(1.0)));
-        grad_add(gb + 3u, -dot(gp, dx * dy));
-        grad_add(gb + 4u, -dot(gp, 0.5 * dy * dy));
-        grad_add(gb + 5u, dot(ga, gauss));
-        grad_add(gb + 6u, dot(g_z, w));
+        let g_mean = vec2<f32>(
+            group_sum(-dot(gp, co.x * dx + co.y * dy)),
+            group_sum(-dot(gp, co.z * dy + co.y * dx)),
+        );
+        let g_conic = vec3<f32>(
+            group_sum(-0.5 * dx * dx * dot(gp, vec4<f32>(1.0))),
+            group_sum(-dot(gp, dx * dy)),
+            group_sum(-dot(gp, 0.5 * dy * dy)),
+        );
+        let g_opacity = group_sum(dot(ga, gauss));
+        let g_depth = group_sum(dot(g_z, w));
+        if (group_leader()) { // after the sums, in the same active invocations
+            let gb = g * params.grad_stride;
+            grad_add(gb + 0u, g_mean.x);
+            grad_add(gb + 1u, g_mean.y);
+            grad_add(gb + 2u, g_conic.x);
+            grad_add(gb + 3u, g_conic.y);
+            grad_add(gb + 4u, g_conic.z);
+            grad_add(gb + 5u, g_opacity);
+            grad_add(gb + 6u, g_depth);
+            for (var c = 0u; c < D; c = c + 1u) {
+                grad_add(gb + GRAD_HEAD + c, g_feat[c]);
+            }
+        }
     }
 }

@@ -1,4 +1,4 @@
-// Forward compositing, one 16x4 workgroup per 16x16 tile, four pixels per invocation (vec4 lanes,
+// Forward compositing, one TILE x TILE/4 workgroup per tile, four pixels per invocation (vec4 lanes,
 // see splat_common.wgsl): each pixel blends the tile's depth-sorted Gaussians front to back until
 // its transmittance would fall below T_MIN; the invocation stops when all four have.
 // Per pixel it also stores what the backward pass replays from: final transmittance, the number
@@ -31,7 +31,7 @@ fn count_add(k: u32, lanes: vec4<u32>) {
     }
 }
 
-@compute @workgroup_size(16, 4)
+@compute @workgroup_size(TILE, TILE / 4u)
 fn main(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(local_invocation_id) lid: vec3<u32>,
@@ -41,7 +41,7 @@ fn main(
     let py = lane_rows(wid.y, lid.y);
     let inside = (py < vec4<u32>(params.height)) & vec4<bool>(px < params.width);
     let centre_x = f32(px) + 0.5;
-    let centre_y = vec4<f32>(py) + 0.5;
+    let centre_y = vec4<f32>(py + params.band_ty0 * TILE) + 0.5; // py is the band's row
     let range = ranges[tile];
     var acc: array<vec4<f32>, D>;
     for (var c = 0u; c < D; c = c + 1u) {

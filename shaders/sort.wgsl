@@ -1,13 +1,14 @@
-// One 4-bit pass of a stable LSD radix sort of (key, value) u32 pairs.
+// One pass of a stable LSD radix sort of (key, value) u32 pairs, on a digit of 1 to 6 bits (the
+// depth sort's are 4 bits; the tile sort's as wide as needed to take the fewest passes).
 // histogram: per-workgroup digit counts, stored digit-major (hist[digit * blocks + block]) so
 // that one exclusive scan (scan.wgsl) turns them into global destinations.
 // scatter: each element goes to its digit's destination plus its stable rank in the block.
 
 struct SortPass {
-    shift: u32, // which 4 bits
+    shift: u32, // the digit's lowest bit
+    bits: u32, // the digit's width, at most log2(MAX_DIGITS)
     which: u32, // 0: sort the params.n depth keys; 1: sort the tile keys (count in counters[0])
-    _pad0: u32,
-    _pad1: u32,
+    _pad: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -19,9 +20,8 @@ struct SortPass {
 @group(0) @binding(6) var<storage, read_write> keys_out: array<u32>;
 @group(0) @binding(7) var<storage, read_write> vals_out: array<u32>;
 
-const SORT_BLOCK: u32 = 256u;
-const DIGITS: u32 = 16u; // of 4 bits
-var<workgroup> local_hist: array<atomic<u32>, DIGITS>;
+const MAX_DIGITS: u32 = 64u; // of 6 bits
+var<workgroup> local_hist: array<atomic<u32>, MAX_DIGITS>;
 var<workgroup> block_digits: array<u32, SORT_BLOCK>;
 var<workgroup> block_ranks: array<u32, SORT_BLOCK>;
 
@@ -40,11 +40,15 @@ fn num_blocks() -> u32 {
     return (params.cap + SORT_BLOCK - 1u) / SORT_BLOCK;
 }
 
-fn digit(key: u32) -> u32 {
-    return (key >> pass_info.shift) & (DIGITS - 1u);
+fn digits() -> u32 {
+    return 1u << pass_info.bits;
 }
 
-@compute @workgroup_size(SORT_BLOCK)
+fn digit(key: u32) -> u32 {
+    return (key >> pass_info.shift) & (digits() - 1u);
+}
+
+@compute @workgroup_size(SORT_THREADS)
 fn histogram(
     @builtin(local_invocation_index) lid: u32,
     @builtin(workgroup_id) wid: vec3<u32>,
@@ -57,26 +61,28 @@ fn histogram(
     // keys at all) only writes its zero counts (whole workgroup, so the barriers below stay in
     // uniform control flow).
     if (block * SORT_BLOCK >= live_count()) {
-        if (lid < DIGITS && block < nb) {
+        if (lid < digits() && block < nb) {
             hist[lid * nb + block] = 0u;
         }
         return;
     }
-    if (lid < DIGITS) {
+    if (lid < digits()) {
         atomicStore(&local_hist[lid], 0u);
     }
     workgroupBarrier();
-    let i = block * SORT_BLOCK + lid;
-    if (i < live_count()) {
-        atomicAdd(&local_hist[digit(keys_in[i])], 1u);
+    for (var k = 0u; k < SORT_KEYS; k = k + 1u) {
+        let i = block * SORT_BLOCK + k * SORT_THREADS + lid;
+        if (i < live_count()) {
+            atomicAdd(&local_hist[digit(keys_in[i])], 1u);
+        }
     }
     workgroupBarrier();
-    if (lid < DIGITS && block < nb) {
+    if (lid < digits() && block < nb) {
         hist[lid * nb + block] = atomicLoad(&local_hist[lid]);
     }
 }
 
-@compute @workgroup_size(SORT_BLOCK)
+@compute @workgroup_size(SORT_THREADS)
 fn scatter(
     @builtin(local_invocation_index) lid: u32,
     @builtin(workgroup_id) wid: vec3<u32>,
@@ -86,32 +92,39 @@ fn scatter(
     if (block * SORT_BLOCK >= live_count()) {
         return; // nothing live in this block (see histogram)
     }
-    let i = block * SORT_BLOCK + lid;
-    let live = i < live_count();
-    var key = 0u;
-    var d = DIGITS; // no digit: not a live element
-    if (live) {
-        key = keys_in[i];
-        d = digit(key);
+    // This invocation's keys: block positions lid, lid + SORT_THREADS, ...
+    for (var k = 0u; k < SORT_KEYS; k = k + 1u) {
+        let j = k * SORT_THREADS + lid;
+        let i = block * SORT_BLOCK + j;
+        var d = MAX_DIGITS; // no digit: not a live element
+        if (i < live_count()) {
+            d = digit(keys_in[i]);
+        }
+        block_digits[j] = d;
     }
-    block_digits[lid] = d;
     workgroupBarrier();
-    // Stable ranks within the block: one serial walk of 256 digits (cheap next to a parallel
-    // scan of 16 counters, which spills registers on CPU and GPU alike).
+    // Stable ranks within the block: one serial walk of its digits (cheap next to a parallel
+    // scan of the digit counters, which spills registers on CPU and GPU alike; a parallel count
+    // over digits packed eight to a word was slower on lavapipe).
     if (lid == 0u) {
-        var counts: array<u32, DIGITS>;
+        var counts: array<u32, MAX_DIGITS>; // zeroed once, before the walk
         for (var j = 0u; j < SORT_BLOCK; j = j + 1u) {
             let dj = block_digits[j];
-            if (dj < DIGITS) {
+            if (dj < MAX_DIGITS) {
                 block_ranks[j] = counts[dj];
                 counts[dj] = counts[dj] + 1u;
             }
         }
     }
     workgroupBarrier();
-    if (live) {
-        let dst = hist[d * num_blocks() + block] + block_ranks[lid];
-        keys_out[dst] = key;
-        vals_out[dst] = vals_in[i];
+    let nb = num_blocks();
+    for (var k = 0u; k < SORT_KEYS; k = k + 1u) {
+        let j = k * SORT_THREADS + lid;
+        let i = block * SORT_BLOCK + j;
+        if (i < live_count()) {
+            let dst = hist[block_digits[j] * nb + block] + block_ranks[j];
+            keys_out[dst] = keys_in[i];
+            vals_out[dst] = vals_in[i];
+        }
     }
 }

@@ -15,11 +15,11 @@ struct Params {
     lim_y_pos: f32,
     lim_y_neg: f32,
     width: u32,
-    height: u32,
+    height: u32, // rows of the band rendered (the image's unless it is rendered in bands)
     n: u32, // Gaussians
     d: u32, // feature channels
     tiles_x: u32,
-    tiles_y: u32,
+    tiles_y: u32, // tile rows of the band
     cap: u32, // capacity of the tile-intersection buffers
     off_quats: u32, // offsets into `inputs` (means start at 0)
     off_scales: u32,
@@ -27,10 +27,20 @@ struct Params {
     off_feat: u32,
     off_bg: u32,
     grad_stride: u32, // floats per Gaussian in the gradient buffer: 8 + d
-    _pad: u32,
+    // The band: its first tile row in the image, and the image's tile rows. A band is rendered as
+    // an image of its own rows (tile lists, pixel buffers) with the image's projection, tile tests
+    // and pixel centres, so its pixels are the whole image's, bit for bit.
+    band_ty0: u32,
+    image_tiles_y: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
-const TILE: u32 = 16u;
+// Tile side in pixels: the compositing passes run one workgroup of TILE x TILE/4 invocations per
+// tile. 8x8 rather than 16x16: the lists are shorter, so each pixel evaluates about half as many
+// Gaussians (docs/benchmarks.md, session 20), for twice the tile keys to sort.
+const TILE: u32 = 8u;
 // Feature channels: the compositing passes use `D`, which the host declares per pipeline
 // (crates/raster/src/kernels.rs) as the render's channel count, 1 to MAX_D, so per-pixel channel
 // loops unroll into registers.
@@ -49,7 +59,15 @@ const MAX_VAR_PX: f32 = 1e12; // cull 2-D variances beyond (1e6 px)^2: keeps the
 const QUAT_EPS2: f32 = 1e-12; // squared-norm floor when normalising quaternions
 const ALPHA_EPS: f32 = 1e-6; // depth = sum(w z) / alpha only where alpha exceeds this, else 0
 const CULLED_KEY: u32 = 0xffffffffu;
-// Compositing: a 16x4 workgroup covers a 16x16 tile, each invocation four consecutive pixels of
+// The radix sorts (sort.wgsl) and the tile-range pass work in blocks of SORT_BLOCK keys, one
+// workgroup of SORT_THREADS invocations per block, each invocation SORT_BLOCK / SORT_THREADS keys
+// (more keys per workgroup: fewer workgroups and barriers, which lavapipe pays for per workgroup;
+// 2048 was no faster, and its 16 KiB of block digits and ranks would exceed the workgroup memory
+// Vulkan guarantees).
+const SORT_BLOCK: u32 = 1024u;
+const SORT_THREADS: u32 = 256u;
+const SORT_KEYS: u32 = SORT_BLOCK / SORT_THREADS;
+// Compositing: a TILE x TILE/4 workgroup covers a tile, each invocation four consecutive pixels of
 // one column as the lanes of vec4s: every Gaussian loaded from the tile list serves four pixels,
 // the per-pixel state is vectors, not arrays indexed by pixel, and neighbouring invocations (run
 // together as SIMD lanes on a CPU, a warp on a GPU) cover a compact block, so a splat that misses
@@ -86,8 +104,10 @@ fn conic_q(co: vec3<f32>, d: vec2<f32>) -> f32 {
 
 // Tiles whose pixels the splat at `m` (conic `co`, `radius` its 3-sigma radius) may reach when its
 // ellipse is q <= q_max: the 3-sigma square shrunk to the opacity-aware extent.
+// Rows limited to the band's; tile rows stay the image's.
 fn cull_rect(m: vec2<f32>, radius: f32, q_max: f32) -> vec4<u32> {
-    return tile_rect(m, min(radius, radius * sqrt(q_max / (-2.0 * POWER_CUT)) + 0.5));
+    let r = min(radius, radius * sqrt(q_max / (-2.0 * POWER_CUT)) + 0.5);
+    return tile_rect(m, r, params.band_ty0, params.band_ty0 + params.tiles_y);
 }
 
 // Does the ellipse q(mean - pixel) <= q_max reach a pixel centre of tile (tx, ty)? The smallest q
@@ -112,15 +132,15 @@ fn tile_hit(m: vec2<f32>, co: vec3<f32>, q_max: f32, tx: u32, ty: u32) -> bool {
     return q <= q_max + CULL_REL * terms;
 }
 
-// Tile rectangle [x0, x1) x [y0, y1) covered by the square of half-side `radius` around `m`.
-fn tile_rect(m: vec2<f32>, radius: f32) -> vec4<u32> {
+// Tile rectangle [x0, x1) x [y0, y1) covered by the square of half-side `radius` around `m`,
+// within the tile rows [ty0, ty1).
+fn tile_rect(m: vec2<f32>, radius: f32, ty0: u32, ty1: u32) -> vec4<u32> {
     let t = f32(TILE);
     let tx = f32(params.tiles_x);
-    let ty = f32(params.tiles_y);
     let x0 = clamp(floor((m.x - radius) / t), 0.0, tx);
     let x1 = clamp(floor((m.x + radius) / t) + 1.0, 0.0, tx);
-    let y0 = clamp(floor((m.y - radius) / t), 0.0, ty);
-    let y1 = clamp(floor((m.y + radius) / t) + 1.0, 0.0, ty);
+    let y0 = clamp(floor((m.y - radius) / t), f32(ty0), f32(ty1));
+    let y1 = clamp(floor((m.y + radius) / t) + 1.0, f32(ty0), f32(ty1));
     return vec4<u32>(u32(x0), u32(y0), u32(x1), u32(y1));
 }
 

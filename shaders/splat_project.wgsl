@@ -90,7 +90,7 @@ fn project_gaussian(i: u32) -> Projected {
     let mid = 0.5 * (a + c);
     let lambda = mid + sqrt(max(0.1, mid * mid - det));
     o.radius = ceil(3.0 * sqrt(lambda));
-    let r = tile_rect(o.mean2d, o.radius);
+    let r = tile_rect(o.mean2d, o.radius, 0u, params.image_tiles_y); // the image's, not the band's
     if (r.z <= r.x || r.w <= r.y) {
         return o;
     }

@@ -7,18 +7,26 @@
 // different threads and a vector-component store may be a read-modify-write of both.
 @group(0) @binding(3) var<storage, read_write> ranges: array<u32>;
 
-@compute @workgroup_size(256)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = gid.x + gid.y * nwg.x * 256u;
+// One workgroup per SORT_BLOCK keys (the tile sort's dispatch), SORT_KEYS keys per invocation.
+@compute @workgroup_size(SORT_THREADS)
+fn main(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+) {
     let m = min(counters[0], params.cap);
-    if (i >= m) {
-        return;
-    }
-    let t = tile_keys[i];
-    if (i == 0u || tile_keys[i - 1u] != t) {
-        ranges[2u * t] = i;
-    }
-    if (i == m - 1u || tile_keys[i + 1u] != t) {
-        ranges[2u * t + 1u] = i + 1u;
+    let first = (wid.x + wid.y * nwg.x) * SORT_BLOCK + lid;
+    for (var k = 0u; k < SORT_KEYS; k = k + 1u) {
+        let i = first + k * SORT_THREADS;
+        if (i >= m) {
+            return;
+        }
+        let t = tile_keys[i];
+        if (i == 0u || tile_keys[i - 1u] != t) {
+            ranges[2u * t] = i;
+        }
+        if (i == m - 1u || tile_keys[i + 1u] != t) {
+            ranges[2u * t + 1u] = i + 1u;
+        }
     }
 }

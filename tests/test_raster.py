@@ -99,17 +99,17 @@ def test_intersection_capacity_follows_the_counts_without_losing_any():
     big = (means, quats, scales * 2.0, *rest)  # wide splats: tens of thousands of tile keys
     for scene, size in [(small, 32), (big, 128), (small, 32), (small, 32), (big, 128)]:
         *_, meta = assert_forward_matches(scene, size, size)
-    # Tile pairs of the last render: enough that the capacity grew to 32768 (so the small renders
-    # shrank it back to 4096) and far above 4096, so the last render overflowed the shrunk one.
+    # Tile pairs of the last render: enough that the capacity (1.5x the pairs) grew past 4 x 4096
+    # (so the small renders shrank it back to 4096), so the last render overflowed the shrunk one.
     assert evsplat.rasterize(*big, 128, 128, count_work=True)[3]["work"]["pairs"] > 3 * 4096
 
 
-def _square_pairs(meta: dict, width: int, height: int) -> int:
+def _square_pairs(meta: dict, width: int, height: int, tile: int) -> int:
     """Tile pairs of the 3-sigma bounding squares (the culling before the exact tile test)."""
     r = meta["radii"].float()[:, None]
-    size = torch.tensor([(width + 15) // 16, (height + 15) // 16])
-    lo = torch.minimum(((meta["means2d"] - r) / 16).floor().clamp(min=0), size)
-    hi = torch.minimum(((meta["means2d"] + r) / 16).floor().add(1).clamp(min=0), size)
+    size = torch.tensor([(width + tile - 1) // tile, (height + tile - 1) // tile])
+    lo = torch.minimum(((meta["means2d"] - r) / tile).floor().clamp(min=0), size)
+    hi = torch.minimum(((meta["means2d"] + r) / tile).floor().add(1).clamp(min=0), size)
     return int((hi - lo).clamp(min=0).prod(dim=1)[meta["visible"]].sum())
 
 
@@ -123,8 +123,8 @@ def test_exact_tile_culling_drops_pairs_but_no_fragment_of_thin_faint_tilted_spl
     opac = torch.exp(torch.rand(400, generator=g) * -5.5).clamp(min=1 / 255)
     scene = (means, quats, scales, opac, feats, view, K)
     *_, meta = assert_forward_matches(scene, width, height)
-    pairs = evsplat.rasterize(*scene, width, height, count_work=True)[3]["work"]["pairs"]
-    assert pairs < 0.6 * _square_pairs(meta, width, height)
+    work = evsplat.rasterize(*scene, width, height, count_work=True)[3]["work"]
+    assert work["pairs"] < 0.6 * _square_pairs(meta, width, height, work["tile_size"])
 
 
 def test_forward_matches_reference_with_rotated_camera_and_off_centre_principal_point():
@@ -260,9 +260,9 @@ def test_work_counts_match_the_reference_fragments_and_leave_the_image_unchanged
     # alpha or transmittance thresholds).
     fragments = _reference_fragments(scene, width, height)
     assert abs(work["contributed"] - fragments) <= 2 + 1e-3 * fragments
-    # Every step is one of a tile list's entries at one of the tile's 256 pixels.
+    # Every step is one of a tile list's entries at one of the tile's pixels.
     assert work["contributed"] <= work["evaluated"]
-    assert work["evaluated"] + work["saturated"] <= work["pairs"] * 256
+    assert work["evaluated"] + work["saturated"] <= work["pairs"] * work["tile_size"] ** 2
     assert work["saturated"] > 0  # the scene saturates pixels (alpha reaches 1 - 1e-4)
 
 
@@ -290,6 +290,66 @@ def test_cas_path_is_selected_by_environment_variable(monkeypatch):
     cas, _ = _grads(evsplat.rasterize, scene, width, height, out)
     for a, b in zip(plain, cas):
         assert torch.allclose(a, b, rtol=1e-4, atol=1e-6 + 1e-5 * b.abs().max())
+
+
+@pytest.mark.parametrize("atomics", ["float", "cas"])
+def test_subgroup_sums_and_per_invocation_atomics_agree(monkeypatch, atomics):
+    # The backward pass sums gradients across subgroups before its atomics where the adapter has
+    # subgroup operations (lavapipe has); EVSPLAT_SUBGROUPS=off makes each invocation add its own.
+    if atomics == "float" and not adapter_info()["float32_atomics"]:
+        pytest.skip("the adapter has no float32 atomics")
+    width, height = 48, 40
+    scene = make_scene(300, 5, width, height, seed=22)
+    out = _out_grads(width, height, 5, seed=3)
+    summed, _ = _grads(evsplat.rasterize, scene, width, height, out, atomics=atomics)
+    monkeypatch.setenv("EVSPLAT_SUBGROUPS", "off")
+    solo, _ = _grads(evsplat.rasterize, scene, width, height, out, atomics=atomics)
+    ref, _ = _grads(render, scene, width, height, out, double=True)
+    for name, a, b, r in zip(NAMES, summed, solo, ref):
+        assert relative_errors(a, r).median() <= 1e-3, name
+        assert relative_errors(b, r).median() <= 1e-3, name
+        assert torch.allclose(a, b, rtol=1e-4, atol=1e-5 * b.abs().max()), name
+
+
+def _render_and_grads(scene, width, height, d):
+    image, depth, alpha, meta = evsplat.rasterize(*scene, width, height, count_work=True)
+    grads, _ = _grads(evsplat.rasterize, scene, width, height, _out_grads(width, height, d, seed=1))
+    return (image, depth, alpha), meta["work"], grads
+
+
+@pytest.mark.parametrize("case", ["pixels", "tile pairs"])
+def test_renders_over_a_forced_binding_limit_are_the_same_in_bands(monkeypatch, case):
+    # EVSPLAT_MAX_BINDING caps the storage-binding size the rasterizer plans with (lavapipe's is
+    # 128 MiB). Over it, the image is rendered in bands of tile rows: per-pixel buffers split by
+    # rows up front, a band whose tile pairs overflow split in halves and rendered again.
+    limit = 16384
+    if case == "pixels":  # 64 x 60 x (3 + 2) floats of output gradients: 75 KiB
+        width, height, d = 64, 60, 3
+        means, quats, scales, opac, *rest = make_scene(200, d, width, height, seed=5)
+        scene = (means, quats, scales * 1.5, opac, *rest)
+    else:  # a narrow image whose rows fit, under Gaussians covering it: 4798 pairs, 19 KiB
+        width, height, d = 16, 64, 1
+        means, quats, scales, opac, *rest = make_scene(300, d, width, height, seed=5)
+        scene = (means * 0.05, quats, scales * 6.0, opac, *rest)
+    whole, work, grads = _render_and_grads(scene, width, height, d)
+    monkeypatch.setenv("EVSPLAT_MAX_BINDING", str(limit))
+    banded, banded_work, banded_grads = _render_and_grads(scene, width, height, d)
+    if case == "pixels":
+        assert 4 * width * height * (d + 2) > 4 * limit
+    else:
+        assert 4 * work["pairs"] > limit and 4 * width * height * 4 <= limit
+    for a, b in zip(whole, banded):
+        assert torch.equal(a, b)  # the same pixels, bit for bit
+    assert work == banded_work
+    for name, a, b in zip(NAMES, banded_grads, grads):
+        assert torch.allclose(a, b, rtol=1e-5, atol=1e-6 * b.abs().max()), name
+
+
+def test_a_render_that_cannot_fit_the_binding_limit_names_the_buffer(monkeypatch):
+    scene = make_scene(400, 3, 32, 32, seed=6)  # 400 Gaussians x 14 inputs: 22 KiB
+    monkeypatch.setenv("EVSPLAT_MAX_BINDING", "16384")
+    with pytest.raises(EvsplatError, match="inputs buffer needs .* storage binding limit"):
+        evsplat.rasterize(*scene, 32, 32)
 
 
 def test_interleaved_renders_each_get_their_own_gradients():

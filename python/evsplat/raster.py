@@ -169,7 +169,8 @@ def rasterize(
     dict, receives per-pass host times in seconds (passes then run one submission each).
     ``count_work`` runs the compositing pass's counting build (slower) and adds meta["work"]:
     tile-Gaussian "pairs" and pixel-Gaussian steps "evaluated", "contributed" (composited) and
-    "saturated" (walked after the pixel's transmittance fell below the cut-off).
+    "saturated" (walked after the pixel's transmittance fell below the cut-off), and the tiles'
+    side in pixels, "tile_size".
 
     Returns image [H,W,D] = sum f_i w_i + T_final * background, depth [H,W] = sum w_i z_i / alpha
     (0 where alpha is 0), alpha [H,W] = 1 - T_final, and meta with "radii" int32 [N] (0 = culled),

@@ -13,7 +13,9 @@ import math
 
 import torch
 
-TILE = 16
+# The renderer's tile side (TILE in shaders/splat_common.wgsl): a Gaussian is visible when its
+# 3-sigma square reaches a tile of the image, whose tiles may extend past its right and bottom edge.
+TILE = 8
 LOW_PASS = 0.3
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99

@@ -15,7 +15,8 @@ pub fn context() -> PyResult<&'static GpuContext> {
     GpuContext::global().map_err(gpu_err)
 }
 
-/// Adapter name, type, backend, driver, float-atomic support and the limits the kernels rely on.
+/// Adapter name, type, backend, driver, float-atomic and subgroup support and the limits the
+/// kernels rely on.
 #[pyfunction]
 fn adapter_info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let ctx = py.detach(context)?;
@@ -27,6 +28,8 @@ fn adapter_info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     d.set_item("driver_info", &ctx.info.driver_info)?;
     d.set_item("float32_atomics", ctx.float_atomics)?;
     d.set_item("atomic_mode", format!("{:?}", ctx.default_atomic_mode()))?;
+    d.set_item("subgroups", ctx.subgroups)?;
+    d.set_item("subgroup_reduce", ctx.subgroup_reduce())?;
     let l = &ctx.limits;
     d.set_item(
         "max_storage_buffer_binding_size",

@@ -16,7 +16,7 @@ use crate::gpu::context;
 
 fn raster_err(e: GpuError) -> PyErr {
     match e {
-        GpuError::Invalid(m) => value_err(m),
+        GpuError::Invalid(m) | GpuError::OverLimit(m) => value_err(m),
         other => crate::gpu::gpu_err(other),
     }
 }
@@ -113,6 +113,7 @@ fn rasterize_forward<'py>(
             d.set_item("evaluated", w.evaluated)?;
             d.set_item("contributed", w.contributed)?;
             d.set_item("saturated", w.saturated)?;
+            d.set_item("tile_size", evsplat_raster::splat::TILE)?;
             Some(d)
         }
         None => None,

@@ -53,15 +53,46 @@ const KERNELS: &[Def] = &[
         constants: &[("COUNT_WORK", 1.0)],
         ..def("RasterizeFwdCount", RASTER_FWD, "main")
     },
-    // The two ways of adding float gradients: the file declaring `grads` and `grad_add` differs.
+    // Two ways of adding float gradients (the file declaring `grads` and `grad_add`) times two
+    // ways of summing them before the atomics (the file declaring `grad_sum`).
     def(
         "RasterizeBwd",
-        &["splat_common", "grads_float", "rasterize_bwd"],
+        &[
+            "splat_common",
+            "grads_float",
+            "reduce_subgroup",
+            "rasterize_bwd",
+        ],
         "main",
     ),
     def(
         "RasterizeBwdCas",
-        &["splat_common", "grads_cas", "rasterize_bwd"],
+        &[
+            "splat_common",
+            "grads_cas",
+            "reduce_subgroup",
+            "rasterize_bwd",
+        ],
+        "main",
+    ),
+    def(
+        "RasterizeBwdSolo",
+        &[
+            "splat_common",
+            "grads_float",
+            "reduce_invocation",
+            "rasterize_bwd",
+        ],
+        "main",
+    ),
+    def(
+        "RasterizeBwdCasSolo",
+        &[
+            "splat_common",
+            "grads_cas",
+            "reduce_invocation",
+            "rasterize_bwd",
+        ],
         "main",
     ),
     def(
@@ -78,7 +109,33 @@ const PER_CHANNEL: &[&str] = &[
     "RasterizeFwdCount",
     "RasterizeBwd",
     "RasterizeBwdCas",
+    "RasterizeBwdSolo",
+    "RasterizeBwdCasSolo",
 ];
+
+/// Files whose kernels need an optional device feature: naga validates them with the capability
+/// and the generated `Kernel::features` names the wgpu feature the device must have enabled.
+const FEATURES: &[(&str, Capabilities, &str)] = &[
+    (
+        "grads_float",
+        Capabilities::SHADER_FLOAT32_ATOMIC,
+        "SHADER_FLOAT32_ATOMIC",
+    ),
+    ("reduce_subgroup", Capabilities::SUBGROUP, "SUBGROUP"),
+];
+
+/// The (naga capabilities, wgpu feature names) a kernel's files need.
+fn needs(k: &Def) -> (Capabilities, Vec<&'static str>) {
+    let mut caps = Capabilities::default();
+    let mut names = Vec::new();
+    for (file, cap, name) in FEATURES {
+        if k.files.contains(file) {
+            caps |= *cap;
+            names.push(*name);
+        }
+    }
+    (caps, names)
+}
 
 /// How the host declares `D` before a per-channel kernel's text (also emitted into `source`).
 macro_rules! d_decl {
@@ -161,14 +218,9 @@ fn write(path: &Path, text: &str) {
 fn check(k: &Def, src: &str) -> (naga::Module, naga::valid::ModuleInfo) {
     let module = naga::front::wgsl::parse_str(src)
         .unwrap_or_else(|e| fail(format!("{}: {}", k.name, e.emit_to_string(src))));
-    // The device enables float32 atomics only where the adapter has them, and only the float
-    // build of the backward pass uses them.
-    let caps = if k.name == "RasterizeBwd" {
-        Capabilities::default() | Capabilities::SHADER_FLOAT32_ATOMIC
-    } else {
-        Capabilities::default()
-    };
-    let info = Validator::new(ValidationFlags::all(), caps)
+    // The device enables optional features only where the adapter has them, and only the kernels
+    // made of the files in FEATURES use them.
+    let info = Validator::new(ValidationFlags::all(), needs(k).0)
         .validate(&module)
         .unwrap_or_else(|e| fail(format!("{}: {}", k.name, e.emit_to_string(src))));
     if !module.entry_points.iter().any(|e| e.name == k.entry) {
@@ -207,7 +259,7 @@ fn kernel_row(
     info: &naga::valid::ModuleInfo,
     parts: &[&(PathBuf, String)],
     per_channel: bool,
-) -> (&'static str, [String; 6]) {
+) -> (&'static str, [String; 7]) {
     let (index, ep) = (module.entry_points.iter().enumerate())
         .find(|(_, e)| e.name == k.entry)
         .unwrap_or_else(|| fail(format!("{}: no entry point {:?}", k.name, k.entry)));
@@ -236,12 +288,19 @@ fn kernel_row(
             format!("&{bindings:?}"),
             format!("&{:?}", k.constants),
             format!("{per_channel}"),
+            format!(
+                "&[{}]",
+                (needs(k).1.iter())
+                    .map(|f| format!("wgpu::Features::{f}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
         ],
     )
 }
 
 /// (doc, name, return type) of the `Kernel` methods that `kernel_row` fills.
-const METHODS: [(&str, &str, &str); 6] = [
+const METHODS: [(&str, &str, &str); 7] = [
     (
         "The WGSL files, concatenated (`D` excluded: see `per_channel`).",
         "text",
@@ -268,9 +327,14 @@ const METHODS: [(&str, &str, &str); 6] = [
         "per_channel",
         "bool",
     ),
+    (
+        "Optional device features the kernel uses (`GpuContext::has` tells whether it may run).",
+        "features",
+        "&'static [wgpu::Features]",
+    ),
 ];
 
-fn emit_kernels(rows: &[(&str, [String; 6])]) -> String {
+fn emit_kernels(rows: &[(&str, [String; 7])]) -> String {
     let mut s =
         String::from("// Generated by crates/raster/build/main.rs from shaders/*.wgsl.\n\n");
     s.push_str(

@@ -22,6 +22,9 @@ pub enum GpuError {
     Readback(String),
     #[error("{0}")]
     Invalid(String),
+    /// A buffer would exceed the storage-binding limit (`GpuContext::binding_limit`).
+    #[error("{0}")]
+    OverLimit(String),
 }
 
 /// Which kind of adapter to use, from `EVSPLAT_ADAPTER`.
@@ -66,6 +69,8 @@ pub struct GpuContext {
     pub limits: wgpu::Limits,
     /// The adapter offers (and the device enabled) float32 atomic add on storage buffers.
     pub float_atomics: bool,
+    /// The adapter offers (and the device enabled) subgroup operations in compute shaders.
+    pub subgroups: bool,
     /// By kernel and channel count (0 for kernels without per-channel loops).
     pipelines: Mutex<HashMap<(Kernel, u32), Arc<wgpu::ComputePipeline>>>,
 }
@@ -85,8 +90,13 @@ impl GpuContext {
                     .map_err(|e| e.to_string())?;
                 if std::env::var_os("EVSPLAT_QUIET").is_none() {
                     eprintln!(
-                        "evsplat: using adapter \"{}\" ({:?}, {:?}, float32 atomics: {})",
-                        ctx.info.name, ctx.info.device_type, ctx.info.backend, ctx.float_atomics
+                        "evsplat: using adapter \"{}\" ({:?}, {:?}, float32 atomics: {}, \
+                         subgroups: {})",
+                        ctx.info.name,
+                        ctx.info.device_type,
+                        ctx.info.backend,
+                        ctx.float_atomics,
+                        ctx.subgroups
                     );
                 }
                 Ok(ctx)
@@ -121,14 +131,10 @@ impl GpuContext {
             })
         })?;
         let info = adapter.get_info();
-        let float_atomics = adapter
-            .features()
-            .contains(wgpu::Features::SHADER_FLOAT32_ATOMIC);
-        let features = if float_atomics {
-            wgpu::Features::SHADER_FLOAT32_ATOMIC
-        } else {
-            wgpu::Features::empty()
-        };
+        // Every optional feature some kernel uses, where the adapter has it.
+        let wanted = (Kernel::ALL.iter().flat_map(|k| k.features()))
+            .fold(wgpu::Features::empty(), |all, f| all | *f);
+        let features = adapter.features() & wanted;
         let limits = adapter.limits();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("evsplat"),
@@ -146,7 +152,8 @@ impl GpuContext {
             queue,
             info,
             limits,
-            float_atomics,
+            float_atomics: features.contains(wgpu::Features::SHADER_FLOAT32_ATOMIC),
+            subgroups: features.contains(wgpu::Features::SUBGROUP),
             pipelines: Mutex::new(HashMap::new()),
         })
     }
@@ -162,6 +169,31 @@ impl GpuContext {
         } else {
             AtomicMode::Cas
         }
+    }
+
+    /// Whether the backward pass sums gradients across subgroups before its atomics: where the
+    /// device has subgroup operations, unless `EVSPLAT_SUBGROUPS=off` forces one atomic per
+    /// invocation.
+    pub fn subgroup_reduce(&self) -> bool {
+        let off = std::env::var("EVSPLAT_SUBGROUPS")
+            .map(|v| v.eq_ignore_ascii_case("off"))
+            .unwrap_or(false);
+        self.subgroups && !off
+    }
+
+    /// The storage-binding size the rasterizer plans with: the device's limit, or less where
+    /// `EVSPLAT_MAX_BINDING` (bytes) says so (tests force the chunking of large renders with it).
+    pub fn binding_limit(&self) -> u64 {
+        let device = self.limits.max_storage_buffer_binding_size;
+        (std::env::var("EVSPLAT_MAX_BINDING").ok())
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .map_or(device, |forced| forced.min(device))
+    }
+
+    /// Whether the device enabled every optional feature `kernel` uses.
+    pub fn runs(&self, kernel: Kernel) -> bool {
+        let enabled = self.device.features();
+        kernel.features().iter().all(|f| enabled.contains(*f))
     }
 
     /// The compute pipeline of `kernel` for `d` feature channels (ignored by kernels without

@@ -6,7 +6,7 @@ import argparse
 import json
 import platform
 
-HELP = "print the GPU adapter, its limits and float-atomic support, and package versions"
+HELP = "print the GPU adapter, its limits, float-atomic and subgroup support, and package versions"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,6 +39,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"adapter      {a['name']} ({a['device_type']}, {a['backend']})")
     print(f"driver       {a['driver']} {a['driver_info']}".rstrip())
     print(f"f32 atomics  {'yes' if a['float32_atomics'] else 'no'} (using {a['atomic_mode']})")
+    sums = "summed across subgroups" if a["subgroup_reduce"] else "one atomic per invocation"
+    print(f"subgroups    {'yes' if a['subgroups'] else 'no'} (gradients {sums})")
     for key in (
         "max_storage_buffer_binding_size",
         "max_buffer_size",

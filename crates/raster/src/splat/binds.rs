@@ -4,6 +4,7 @@
 use std::cell::OnceCell;
 
 use super::buffers::{Buffers, Grow};
+use super::forward::DEPTH_PASSES;
 use crate::context::{AtomicMode, GpuContext};
 use crate::Kernel;
 
@@ -108,9 +109,9 @@ impl Forward {
                 ("depth_vals", &b.depth_vals[0].buf),
             ],
         );
-        let (depth_hist, depth_scatter) =
-            sort(ctx, b, &sort_passes[..8], &b.depth_keys, &b.depth_vals);
-        let (tile_hist, tile_scatter) = sort(ctx, b, &sort_passes[8..], &b.tile_keys, &b.tile_vals);
+        let (depth_passes, tile_passes) = sort_passes.split_at(DEPTH_PASSES);
+        let (depth_hist, depth_scatter) = sort(ctx, b, depth_passes, &b.depth_keys, &b.depth_vals);
+        let (tile_hist, tile_scatter) = sort(ctx, b, tile_passes, &b.tile_keys, &b.tile_vals);
         // DEPTH_PASSES is even: the depth-sorted ids end in depth_vals[0].
         let sorted_ids = ("sorted_ids", &b.depth_vals[0].buf);
         let count = bind(
@@ -170,24 +171,26 @@ impl Forward {
     }
 }
 
-/// The backward compositing kernel for an atomics mode.
-pub fn raster_bwd_kernel(mode: AtomicMode) -> Kernel {
-    match mode {
-        AtomicMode::Float => Kernel::RasterizeBwd,
-        AtomicMode::Cas => Kernel::RasterizeBwdCas,
+/// The backward compositing kernel for an atomics mode, summing across subgroups first or not.
+pub fn raster_bwd_kernel(mode: AtomicMode, subgroups: bool) -> Kernel {
+    match (mode, subgroups) {
+        (AtomicMode::Float, true) => Kernel::RasterizeBwd,
+        (AtomicMode::Cas, true) => Kernel::RasterizeBwdCas,
+        (AtomicMode::Float, false) => Kernel::RasterizeBwdSolo,
+        (AtomicMode::Cas, false) => Kernel::RasterizeBwdCasSolo,
     }
 }
 
-/// Bind groups of the backward passes for one atomics mode.
+/// Bind groups of the backward passes for one backward compositing kernel.
 pub struct Backward {
     pub raster: [wgpu::BindGroup; 2],
     pub project: wgpu::BindGroup,
 }
 
 impl Backward {
-    pub fn new(ctx: &GpuContext, b: &Buffers, mode: AtomicMode, d: u32) -> Self {
+    pub fn new(ctx: &GpuContext, b: &Buffers, raster: Kernel, d: u32) -> Self {
         Self {
-            raster: per_sorted(ctx, b, raster_bwd_kernel(mode), d),
+            raster: per_sorted(ctx, b, raster, d),
             project: bind(ctx, b, Kernel::ProjectBwd, d, &[]),
         }
     }
@@ -213,7 +216,7 @@ mod tests {
             isect: super::super::forward::MIN_ISECT_CAP,
         };
         b.ensure(ctx, sizes).expect("room for one Gaussian");
-        let passes: Vec<wgpu::Buffer> = (0..16)
+        let passes: Vec<wgpu::Buffer> = (0..DEPTH_PASSES + super::super::forward::TILE_MAX_PASSES)
             .map(|_| {
                 ctx.device.create_buffer(&wgpu::BufferDescriptor {
                     label: None,
@@ -224,9 +227,13 @@ mod tests {
             })
             .collect();
         Forward::new(ctx, &b, &passes, 1).raster(ctx, &b, true, 1);
-        Backward::new(ctx, &b, AtomicMode::Cas, 1);
-        if ctx.float_atomics {
-            Backward::new(ctx, &b, AtomicMode::Float, 1);
+        for mode in [AtomicMode::Float, AtomicMode::Cas] {
+            for subgroups in [true, false] {
+                let kernel = raster_bwd_kernel(mode, subgroups);
+                if ctx.runs(kernel) {
+                    Backward::new(ctx, &b, kernel, 1);
+                }
+            }
         }
         ctx.wait().expect("the device survives");
     }

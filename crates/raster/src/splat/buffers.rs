@@ -22,14 +22,12 @@ impl Grow {
 
     /// Make room for `bytes`; true when the buffer was replaced. Errors past the binding limit.
     fn ensure(&mut self, ctx: &GpuContext, bytes: u64) -> Result<bool, GpuError> {
-        let max = ctx.limits.max_storage_buffer_binding_size;
+        let max = ctx.binding_limit();
         if bytes > max {
-            return Err(GpuError::Invalid(format!(
-                "rasterize: the {} buffer needs {} MiB, over the adapter's {} MiB storage binding \
-                 limit; render fewer Gaussians, fewer feature channels or a smaller image per call",
-                self.label,
-                bytes.div_ceil(1 << 20),
-                max >> 20
+            return Err(GpuError::OverLimit(format!(
+                "rasterize: the {} buffer needs {bytes} bytes, over the {max}-byte storage binding \
+                 limit; render fewer Gaussians or fewer feature channels per call",
+                self.label
             )));
         }
         if bytes <= self.cap {
@@ -179,7 +177,9 @@ impl Buffers {
         for b in self.tile_keys.iter_mut().chain(self.tile_vals.iter_mut()) {
             grown |= b.ensure(ctx, f * s.isect)?;
         }
-        grown |= self.hist.ensure(ctx, f * wgsl::DIGITS as u64 * blocks)?;
+        grown |= self
+            .hist
+            .ensure(ctx, f * wgsl::MAX_DIGITS as u64 * blocks)?;
         grown |= self.ranges.ensure(ctx, f * 2 * s.tiles)?;
         grown |= self.image.ensure(ctx, f * s.pixels * s.d)?;
         grown |= self.depth.ensure(ctx, f * s.pixels)?;

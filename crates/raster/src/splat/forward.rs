@@ -2,28 +2,48 @@
 //! rasterize, then the single readback of a render.
 
 use super::buffers::{Buffers, SORT_BLOCK};
+use super::inputs::Band;
+use super::readback::ForwardRead;
 use super::record::{dispatch, dispatch_indirect, Recorder};
 use super::state::State;
-use super::{binds, readback, Camera, ForwardOutput, Gaussians, Params, PassTimes, Render};
+use super::{binds, readback, Camera, Params, PassTimes, TILE};
 use crate::context::{dispatch_dims, GpuContext, GpuError};
-use crate::wgsl::DIGITS;
+use crate::wgsl::MAX_DIGITS;
 use crate::{Kernel, ScanScratch};
 
-/// Scans per render: one for the tile counts, up to 8 per radix sort (depth, tile).
-pub const SCANS: usize = 17;
-/// 4-bit radix passes over the 32-bit depth keys.
-const DEPTH_PASSES: usize = 8;
-/// Smallest tile-intersection capacity (16 sort blocks); the capacity follows the counts.
+/// The depth sort: 8 radix passes of 4-bit digits over the 32-bit keys (an even count: the
+/// sorted ids end in the first ping-pong buffer).
+pub const DEPTH_PASSES: usize = 8;
+pub const DEPTH_BITS: u32 = 4;
+/// The tile sort's widest digit (MAX_DIGITS in sort.wgsl) and its most passes (32-bit ids).
+const TILE_MAX_BITS: u32 = 6;
+pub const TILE_MAX_PASSES: usize = 6;
+const _: () =
+    assert!(1 << TILE_MAX_BITS <= MAX_DIGITS && TILE_MAX_PASSES as u32 * TILE_MAX_BITS >= 32);
+/// Scans per render: one for the tile counts, one per radix pass.
+pub const SCANS: usize = 1 + DEPTH_PASSES + TILE_MAX_PASSES;
+/// Smallest tile-intersection capacity (16 sort blocks), and the step it grows and shrinks by.
 pub const MIN_ISECT_CAP: u64 = 1 << 12;
 
-/// Radix passes needed for tile ids below `tiles`.
-pub fn tile_passes(tiles: u32) -> usize {
+/// The tile sort's passes and digit width for tile ids below `tiles`: as few passes as digits of
+/// up to 6 bits allow, each digit as narrow as that count allows (a pass costs about the same at
+/// any width, but its histogram scan grows with the digit count). 8x8 tiles at 512^2 have 12-bit
+/// ids: 2 passes of 6 bits instead of 3 of 4.
+pub fn tile_digits(tiles: u32) -> (usize, u32) {
     let bits = if tiles <= 1 {
         0
     } else {
         32 - (tiles - 1).leading_zeros()
     };
-    bits.div_ceil(4) as usize
+    let passes = bits.div_ceil(TILE_MAX_BITS);
+    (
+        passes as usize,
+        if passes == 0 {
+            0
+        } else {
+            bits.div_ceil(passes)
+        },
+    )
 }
 
 /// The radix passes of one sort. The depth sort runs over all `elements`; the tile sort only
@@ -31,6 +51,8 @@ pub fn tile_passes(tiles: u32) -> usize {
 /// histogram keeps the capacity's layout, so the blocks not run are cleared to zero counts).
 struct Sort<'a> {
     name: &'static str,
+    /// Digit width of every pass.
+    bits: u32,
     hist_binds: &'a [wgpu::BindGroup],
     scatter_binds: &'a [wgpu::BindGroup],
     elements: u64,
@@ -48,18 +70,19 @@ impl Sort<'_> {
         let hist = ctx.pipeline(Kernel::SortHistogram, 0);
         let scatter = ctx.pipeline(Kernel::SortScatter, 0);
         let blocks = self.elements.div_ceil(SORT_BLOCK) as u32;
+        let digits = 1u32 << self.bits;
         let dims = dispatch_dims(blocks);
         let passes = (self.hist_binds.iter().zip(self.scatter_binds)).zip(scans.iter_mut());
         for ((hb, sb), scan) in passes {
             rec.step(self.name, |enc| {
                 match self.live {
                     Some(args) => {
-                        enc.clear_buffer(&b.hist.buf, 0, Some(4 * DIGITS as u64 * blocks as u64));
+                        enc.clear_buffer(&b.hist.buf, 0, Some(4 * (digits * blocks) as u64));
                         dispatch_indirect(enc, &hist, hb, args);
                     }
                     None => dispatch(enc, &hist, hb, dims),
                 }
-                scan.encode(ctx, enc, &b.hist.buf, DIGITS * blocks);
+                scan.encode(ctx, enc, &b.hist.buf, digits * blocks);
                 match self.live {
                     Some(args) => dispatch_indirect(enc, &scatter, sb, args),
                     None => dispatch(enc, &scatter, sb, dims),
@@ -90,7 +113,7 @@ pub fn encode(
     let binds = cached.get_or_insert_with(|| binds::Forward::new(ctx, b, sort_passes, p.d));
     let n = p.n;
     let tiles = p.tiles_x * p.tiles_y;
-    let t_passes = tile_passes(tiles);
+    let (t_passes, t_bits) = tile_digits(tiles);
     rec.step("clear", |enc| {
         enc.clear_buffer(&b.counters.buf, 0, None);
         enc.clear_buffer(&b.ranges.buf, 0, Some(8 * tiles as u64));
@@ -107,6 +130,7 @@ pub fn encode(
         let (depth_scans, rest) = scans.split_at_mut(DEPTH_PASSES);
         let depth = Sort {
             name: "sort depth",
+            bits: DEPTH_BITS,
             hist_binds: &binds.depth_hist,
             scatter_binds: &binds.depth_scatter,
             elements: n as u64,
@@ -132,6 +156,7 @@ pub fn encode(
         })?;
         let tile = Sort {
             name: "sort tiles",
+            bits: t_bits,
             hist_binds: &binds.tile_hist[..t_passes],
             scatter_binds: &binds.tile_scatter[..t_passes],
             elements: *isect_cap,
@@ -166,26 +191,40 @@ pub fn encode(
     Ok(())
 }
 
-/// Render `g` from `cam` into `st` as render `id`, read its outputs back and keep what its
-/// backward pass needs in the returned [`Render`].
+/// The intersection capacity for `m` tile pairs: 1.5x headroom in steps of MIN_ISECT_CAP (not a
+/// power of two: up to 4x the count, which the histogram scans paid for at every render).
+fn isect_capacity(m: u32) -> u64 {
+    (m as u64 + m as u64 / 2)
+        .next_multiple_of(MIN_ISECT_CAP)
+        .max(MIN_ISECT_CAP)
+}
+
+/// Render `band` of `cam`'s image of the `n` Gaussians packed in `inputs` (`d` channels) into
+/// `st` as render `id` and read its outputs back. Errors with `GpuError::OverLimit` when a buffer
+/// would exceed the binding limit, the tile pairs included (then a smaller band may fit).
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     ctx: &GpuContext,
     st: &mut State,
-    g: &Gaussians,
+    inputs: &[f32],
+    (n, d): (usize, usize),
     cam: &Camera,
+    band: Band,
     id: u64,
     mut profile: Option<&mut PassTimes>,
     count_work: bool,
-) -> Result<ForwardOutput, GpuError> {
-    let inputs = g.pack();
+) -> Result<ForwardRead, GpuError> {
+    // The state's per-pixel buffers are this render's from here on, even if it fails.
+    st.current = None;
+    let max_cap = ctx.binding_limit() / 4;
+    st.isect_cap = st.isect_cap.min(max_cap);
     loop {
-        let p = st.prepare(ctx, g.len(), g.d, cam)?;
+        let p = st.prepare(ctx, n, d, cam, band)?;
         ctx.queue
-            .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(&inputs));
+            .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(inputs));
         let mut rec = Recorder::new(ctx, profile.as_deref_mut());
         encode(ctx, st, &p, &mut rec, count_work)?;
-        let pixels = cam.width as usize * cam.height as usize;
-        let read = readback::forward(rec, &st.bufs, g.len(), g.d, pixels)?;
+        let read = readback::forward(rec, &st.bufs, n, d, band.pixels(cam.width).0)?;
         let m = read.intersections();
         if read.tiles_disagree() {
             return Err(GpuError::Invalid(
@@ -196,27 +235,28 @@ pub fn run(
             ));
         }
         if m as u64 > st.isect_cap {
+            if m as u64 > max_cap {
+                return Err(GpuError::OverLimit(format!(
+                    "rasterize: {m} tile pairs in rows {}.. need {} bytes, over the {}-byte \
+                     storage binding limit",
+                    band.ty0 * TILE,
+                    4 * m as u64,
+                    4 * max_cap
+                )));
+            }
             // Render again with room for every intersection (rare: the capacity follows the
             // counts of earlier renders).
-            st.isect_cap = (m as u64 + m as u64 / 2).next_power_of_two();
+            st.isect_cap = isect_capacity(m).min(max_cap);
             continue;
         }
-        // The tile sort and ranges dispatch over the whole capacity, and on lavapipe every
-        // workgroup costs ~13 µs even with nothing live in it: size the next render's capacity
-        // to this one's count (2x headroom, shrinking only when 8x too large, so renders of
-        // different sizes do not alternate between overflow and re-render).
-        let want = (2 * m as u64).next_power_of_two().max(MIN_ISECT_CAP);
+        // The tile sort's histograms are laid out, cleared and scanned over the whole capacity:
+        // size the next render's capacity to this one's count (shrinking only when 4x too large,
+        // so renders of different sizes do not alternate between overflow and re-render).
+        let want = isect_capacity(m);
         if 4 * want <= st.isect_cap {
             st.isect_cap = want;
         }
         st.current = Some(id);
-        let render = Render {
-            id,
-            inputs,
-            n: g.len(),
-            d: g.d,
-            cam: *cam,
-        };
-        return Ok(read.output(count_work, render));
+        return Ok(read);
     }
 }

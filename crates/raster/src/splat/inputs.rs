@@ -115,13 +115,61 @@ impl Camera {
     pub fn tiles(&self) -> (u32, u32) {
         (self.width.div_ceil(TILE), self.height.div_ceil(TILE))
     }
+
+    /// Bands of whole tile rows, each with at most `max_rows` pixel rows (a multiple of TILE).
+    pub(super) fn bands(&self, max_rows: u32) -> Vec<Band> {
+        let step = (max_rows / TILE).max(1);
+        let tiles_y = self.tiles().1;
+        (0..tiles_y)
+            .step_by(step as usize)
+            .map(|ty0| Band {
+                ty0,
+                rows: (self.height - ty0 * TILE).min(step * TILE),
+            })
+            .collect()
+    }
 }
 
-/// The uniforms of every pass for `n` Gaussians with `d` channels seen from `cam`, with room for
-/// `cap` tile intersections.
-pub(super) fn params(n: usize, d: usize, cam: &Camera, cap: u64) -> Params {
+/// Rows of the image rendered on their own, as an image of those rows: tile rows from `ty0`,
+/// `rows` pixel rows (whole tiles but at the image's bottom edge). Large renders are split into
+/// bands when their per-pixel or tile-pair buffers would exceed the storage-binding limit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Band {
+    pub ty0: u32,
+    pub rows: u32,
+}
+
+impl Band {
+    /// The two halves (by tile rows) of a band of at least two tile rows.
+    pub(super) fn split(self) -> Option<[Band; 2]> {
+        let tile_rows = self.rows.div_ceil(TILE);
+        let top = tile_rows / 2;
+        (top > 0).then(|| {
+            [
+                Band {
+                    ty0: self.ty0,
+                    rows: top * TILE,
+                },
+                Band {
+                    ty0: self.ty0 + top,
+                    rows: self.rows - top * TILE,
+                },
+            ]
+        })
+    }
+
+    /// Pixels of the band in an image `width` wide, and its first pixel's index in the image.
+    pub(super) fn pixels(self, width: u32) -> (usize, usize) {
+        let w = width as usize;
+        (self.rows as usize * w, (self.ty0 * TILE) as usize * w)
+    }
+}
+
+/// The uniforms of every pass for `n` Gaussians with `d` channels seen from `cam`, rendering
+/// `band` of its rows, with room for `cap` tile intersections.
+pub(super) fn params(n: usize, d: usize, cam: &Camera, band: Band, cap: u64) -> Params {
     let (n, d) = (n as u32, d as u32);
-    let (tiles_x, tiles_y) = cam.tiles();
+    let (tiles_x, image_tiles_y) = cam.tiles();
     let mut view = [0f32; 16];
     // Row-major 4x4 in, column-major mat4x4 out.
     for r in 0..4 {
@@ -146,11 +194,11 @@ pub(super) fn params(n: usize, d: usize, cam: &Camera, cap: u64) -> Params {
         lim_y_pos: (h - cy) / fy + 0.3 * tan_y,
         lim_y_neg: cy / fy + 0.3 * tan_y,
         width: cam.width,
-        height: cam.height,
+        height: band.rows,
         n,
         d,
         tiles_x,
-        tiles_y,
+        tiles_y: band.rows.div_ceil(TILE),
         cap: cap as u32,
         off_quats: 3 * n,
         off_scales: 7 * n,
@@ -158,6 +206,10 @@ pub(super) fn params(n: usize, d: usize, cam: &Camera, cap: u64) -> Params {
         off_feat: 11 * n,
         off_bg: (11 + d) * n,
         grad_stride: GRAD_HEAD as u32 + d,
-        _pad: 0,
+        band_ty0: band.ty0,
+        image_tiles_y,
+        _pad0: 0,
+        _pad1: 0,
+        _pad2: 0,
     }
 }

@@ -18,6 +18,7 @@ mod state;
 use crate::context::{AtomicMode, GpuContext, GpuError};
 use crate::wgsl::{self, Params};
 
+use inputs::Band;
 pub use inputs::{Camera, Gaussians};
 pub use wgsl::TILE;
 
@@ -46,15 +47,16 @@ pub struct ForwardOutput {
 }
 
 /// One forward render as its backward pass needs it: the packed inputs and the camera (to render
-/// it again when later renders have taken its buffers) and the id of the per-pixel state it left
+/// it again when later renders have taken its buffers) and, per band of rows it was rendered in
+/// (one unless its buffers would exceed the binding limit), the id of the per-pixel state it left
 /// on the GPU. Made only by [`rasterize_forward`], so a backward always matches a real render.
 #[derive(Debug)]
 pub struct Render {
-    id: u64,
     inputs: Vec<f32>,
     n: usize,
     d: usize,
     cam: Camera,
+    bands: Vec<(u64, Band)>,
 }
 
 /// What the forward compositing pass did, per render (summed over the image's pixels).
@@ -96,18 +98,60 @@ pub type PassTimes = Vec<(&'static str, f64)>;
 
 /// Render `g` from `cam`. With `profile`, each pass is submitted and timed on its own; with
 /// `count_work`, the compositing pass is the (slower) build that fills [`ForwardOutput::work`].
+/// An image whose per-pixel or tile-pair buffers would exceed the storage-binding limit
+/// (`GpuContext::binding_limit`) is rendered in bands of whole tile rows, each as an image of its
+/// own rows, and its rows stacked: the same pixels, bit for bit.
 pub fn rasterize_forward(
     ctx: &GpuContext,
     g: &Gaussians,
     cam: &Camera,
-    profile: Option<&mut PassTimes>,
+    mut profile: Option<&mut PassTimes>,
     count_work: bool,
 ) -> Result<ForwardOutput, GpuError> {
     g.check()?;
     cam.check()?;
-    let mut pool = state::lock();
-    let (id, st) = pool.for_forward(ctx, g.d as u64);
-    forward::run(ctx, st, g, cam, id, profile, count_work)
+    let inputs = g.pack();
+    // The widest per-pixel buffer: the output gradients (d + 2 floats) or the pixel state (4).
+    let row_bytes = 4 * cam.width as u64 * (g.d as u64 + 2).max(4);
+    let max_rows = (ctx.binding_limit() / row_bytes).min(cam.height as u64) as u32;
+    let mut todo = cam.bands(max_rows); // one band when the image fits
+    todo.reverse(); // a stack: the top band is popped first
+    let (mut bands, mut reads) = (Vec::new(), Vec::new());
+    while let Some(band) = todo.pop() {
+        let mut pool = state::lock();
+        let (id, st) = pool.for_forward(ctx, g.d as u64);
+        let dims = (g.len(), g.d);
+        let run = forward::run(
+            ctx,
+            st,
+            &inputs,
+            dims,
+            cam,
+            band,
+            id,
+            profile.as_deref_mut(),
+            count_work,
+        );
+        match (run, band.split()) {
+            // Too many tile pairs (or pixels) for one band: render its halves instead.
+            (Err(GpuError::OverLimit(_)), Some([top, bottom])) => {
+                todo.push(bottom);
+                todo.push(top);
+            }
+            (run, _) => {
+                reads.push(run?);
+                bands.push((id, band));
+            }
+        }
+    }
+    let render = Render {
+        inputs,
+        n: g.len(),
+        d: g.d,
+        cam: *cam,
+        bands,
+    };
+    Ok(readback::output(&reads, count_work, render))
 }
 
 /// Gradients of a loss given its gradients with respect to the outputs of `render` (which is
@@ -138,7 +182,50 @@ pub fn rasterize_backward(
                 .into(),
         ));
     }
-    let mut pool = state::lock();
-    let st = pool.for_backward(ctx, render.id);
-    backward::run(ctx, st, render, grads, mode, profile)
+    let mut total: Option<Gradients> = None;
+    let mut profile = profile;
+    for &(id, band) in &render.bands {
+        // The band's rows of each output gradient.
+        let (px, first) = band.pixels(render.cam.width);
+        let part = OutputGrads {
+            image: &grads.image[first * d..(first + px) * d],
+            depth: &grads.depth[first..first + px],
+            alpha: &grads.alpha[first..first + px],
+        };
+        let mut pool = state::lock();
+        let st = pool.for_backward(ctx, id);
+        let g = backward::run(
+            ctx,
+            st,
+            render,
+            (id, band),
+            &part,
+            mode,
+            profile.as_deref_mut(),
+        )?;
+        match total.as_mut() {
+            Some(t) => t.add(&g),
+            None => total = Some(g),
+        }
+    }
+    total.ok_or_else(|| GpuError::Invalid("rasterize backward: a render without bands".into()))
+}
+
+impl Gradients {
+    /// Add `other`'s gradients (of another band of the same render) to these.
+    fn add(&mut self, other: &Gradients) {
+        let pairs = [
+            (&mut self.means, &other.means),
+            (&mut self.quats, &other.quats),
+            (&mut self.scales, &other.scales),
+            (&mut self.opacities, &other.opacities),
+            (&mut self.features, &other.features),
+            (&mut self.means2d, &other.means2d),
+        ];
+        for (mine, theirs) in pairs {
+            for (a, b) in mine.iter_mut().zip(theirs) {
+                *a += b;
+            }
+        }
+    }
 }

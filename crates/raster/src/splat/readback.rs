@@ -61,33 +61,49 @@ impl ForwardRead {
         self.counters[1] != 0
     }
 
-    pub fn output(self, count_work: bool, render: Render) -> ForwardOutput {
-        let (pixels, n, d) = (self.pixels, self.n, self.d);
-        let (image, rest) = self.floats.split_at(pixels * d);
-        let (depth, rest) = rest.split_at(pixels);
-        let (alpha, rest) = rest.split_at(pixels);
-        let proj = &rest[..8 * n];
-        let m = self.intersections();
+    /// (image, depth, alpha) of the band, and the projected Gaussians.
+    fn parts(&self) -> (&[f32], &[f32], &[f32], &[f32]) {
+        let (image, rest) = self.floats.split_at(self.pixels * self.d);
+        let (depth, rest) = rest.split_at(self.pixels);
+        let (alpha, rest) = rest.split_at(self.pixels);
+        (image, depth, alpha, &rest[..8 * self.n])
+    }
+
+    /// Work counter k (64 bits from two words).
+    fn work(&self, k: usize) -> u64 {
         let c = &self.counters;
-        ForwardOutput {
-            image: image.to_vec(),
-            depth: depth.to_vec(),
-            alpha: alpha.to_vec(),
-            radii: proj.chunks_exact(8).map(|q| q[7] as i32).collect(),
-            means2d: proj.chunks_exact(8).flat_map(|q| [q[0], q[1]]).collect(),
-            depths: proj.chunks_exact(8).map(|q| q[3]).collect(),
-            intersections: m,
-            work: count_work.then(|| {
-                let wide = |k: usize| c[2 + 2 * k] as u64 | (c[3 + 2 * k] as u64) << 32;
-                WorkCounts {
-                    pairs: m as u64,
-                    evaluated: wide(0),
-                    contributed: wide(1),
-                    saturated: wide(2),
-                }
-            }),
-            render,
-        }
+        c[2 + 2 * k] as u64 | (c[3 + 2 * k] as u64) << 32
+    }
+}
+
+/// The render of `render`'s bands, read back in order (top to bottom): their rows stacked, their
+/// counts summed; every band projected the same Gaussians, so the first one's are taken.
+pub fn output(bands: &[ForwardRead], count_work: bool, render: Render) -> ForwardOutput {
+    let (mut image, mut depth, mut alpha) = (Vec::new(), Vec::new(), Vec::new());
+    for band in bands {
+        let (i, d, a, _) = band.parts();
+        image.extend_from_slice(i);
+        depth.extend_from_slice(d);
+        alpha.extend_from_slice(a);
+    }
+    let proj = bands.first().map_or(&[][..], |b| b.parts().3);
+    let sum = |f: &dyn Fn(&ForwardRead) -> u64| bands.iter().map(f).sum::<u64>();
+    let pairs = sum(&|b| b.intersections() as u64);
+    ForwardOutput {
+        image,
+        depth,
+        alpha,
+        radii: proj.chunks_exact(8).map(|q| q[7] as i32).collect(),
+        means2d: proj.chunks_exact(8).flat_map(|q| [q[0], q[1]]).collect(),
+        depths: proj.chunks_exact(8).map(|q| q[3]).collect(),
+        intersections: pairs.min(u32::MAX as u64) as u32,
+        work: count_work.then(|| WorkCounts {
+            pairs,
+            evaluated: sum(&|b| b.work(0)),
+            contributed: sum(&|b| b.work(1)),
+            saturated: sum(&|b| b.work(2)),
+        }),
+        render,
     }
 }
 

@@ -5,10 +5,11 @@ use std::collections::HashMap;
 use std::sync::{Mutex, MutexGuard, OnceLock};
 
 use super::buffers::{Buffers, Sizes};
-use super::inputs::{params, Camera};
+use super::inputs::{params, Band, Camera};
 use super::{binds, forward};
 use crate::context::{GpuContext, GpuError};
 use crate::wgsl::{self, Params};
+use crate::Kernel;
 use crate::ScanScratch;
 
 pub struct State {
@@ -17,8 +18,8 @@ pub struct State {
     pub isect_cap: u64,
     sizes: Option<Sizes>,
     pub binds: Option<binds::Forward>,
-    /// Keyed by whether float atomics are used.
-    pub bwd_binds: HashMap<bool, binds::Backward>,
+    /// Keyed by the backward compositing kernel (atomics mode, subgroup sums or not).
+    pub bwd_binds: HashMap<Kernel, binds::Backward>,
     pub sort_passes: Vec<wgpu::Buffer>,
     pub scans: Vec<ScanScratch>,
     /// The render whose per-pixel state is in the buffers.
@@ -102,23 +103,20 @@ pub fn lock() -> MutexGuard<'static, Pool> {
 
 impl State {
     fn new(ctx: &GpuContext) -> Self {
-        let sort_passes = (0..2u32)
-            .flat_map(|which| {
-                (0..8u32).map(move |p| wgsl::SortPass {
-                    shift: 4 * p,
-                    which,
-                    _pad0: 0,
-                    _pad1: 0,
-                })
-            })
-            .map(|pass| {
+        // The depth sort's passes are fixed; the tile sort's are written by `prepare`, as its
+        // digits depend on the tile count.
+        let sort_passes = (0..forward::DEPTH_PASSES + forward::TILE_MAX_PASSES)
+            .map(|p| {
                 let b = ctx.device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some("sort pass"),
-                    size: 16,
+                    size: std::mem::size_of::<wgsl::SortPass>() as u64,
                     usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
                     mapped_at_creation: false,
                 });
-                ctx.queue.write_buffer(&b, 0, bytemuck::bytes_of(&pass));
+                if p < forward::DEPTH_PASSES {
+                    let pass = sort_pass(p, forward::DEPTH_BITS, 0);
+                    ctx.queue.write_buffer(&b, 0, bytemuck::bytes_of(&pass));
+                }
                 b
             })
             .collect();
@@ -139,31 +137,53 @@ impl State {
     }
 
     /// Grow buffers for a render of `n` Gaussians with `d` channels and drop bind groups that
-    /// point at replaced buffers; writes and returns the render's uniforms.
+    /// point at replaced buffers; writes and returns the uniforms of the render of `band`.
     pub fn prepare(
         &mut self,
         ctx: &GpuContext,
         n: usize,
         d: usize,
         cam: &Camera,
+        band: Band,
     ) -> Result<Params, GpuError> {
-        let (tx, ty) = cam.tiles();
+        let p = params(n, d, cam, band, self.isect_cap);
+        let tiles = p.tiles_x * p.tiles_y;
         let sizes = Sizes {
             n: n as u64,
             d: d as u64,
-            pixels: cam.width as u64 * cam.height as u64,
-            tiles: tx as u64 * ty as u64,
+            pixels: p.width as u64 * p.height as u64,
+            tiles: tiles as u64,
             isect: self.isect_cap,
         };
         let d_changed = self.sizes.is_some_and(|old| old.d != sizes.d);
-        if self.bufs.ensure(ctx, sizes)? || d_changed {
+        // Over the binding limit, some buffers may have been replaced before the error.
+        let grown = self.bufs.ensure(ctx, sizes);
+        if !matches!(grown, Ok(false)) || d_changed {
             self.binds = None;
             self.bwd_binds.clear();
         }
+        grown?;
+        if self.sizes.is_none_or(|old| old.tiles != sizes.tiles) {
+            let (passes, bits) = forward::tile_digits(tiles);
+            for p in 0..passes {
+                let pass = sort_pass(p, bits, 1);
+                let buf = &self.sort_passes[forward::DEPTH_PASSES + p];
+                ctx.queue.write_buffer(buf, 0, bytemuck::bytes_of(&pass));
+            }
+        }
         self.sizes = Some(sizes);
-        let p = params(n, d, cam, self.isect_cap);
         ctx.queue
             .write_buffer(&self.bufs.params, 0, bytemuck::bytes_of(&p));
         Ok(p)
+    }
+}
+
+/// Radix pass `p` over digits of `bits` bits of the depth keys (`which` 0) or tile keys (1).
+fn sort_pass(p: usize, bits: u32, which: u32) -> wgsl::SortPass {
+    wgsl::SortPass {
+        shift: p as u32 * bits,
+        bits,
+        which,
+        _pad: 0,
     }
 }
