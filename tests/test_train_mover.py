@@ -269,7 +269,7 @@ def test_track_loss_is_the_centre_offset_in_radii_and_moves_only_positions():
     opacity = torch.tensor([1.0, 1.0, 2.0], requires_grad=True)
     loss = track.loss(means, opacity, 10_000)
     # Weighted centre (1.25, 0, 3): 0.25 m from the path = half a radius -> 0.25.
-    assert float(loss) == pytest.approx(0.25)
+    assert float(loss.detach()) == pytest.approx(0.25)
     loss.backward()
     assert opacity.grad is None  # the weights are detached
     # Analytic: d/dx_i of |c - g|^2 / r^2 = 2 (c - g) w_i / (sum w r^2), along x only.
