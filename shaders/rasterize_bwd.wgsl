@@ -23,14 +23,9 @@ fn main(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(local_invocation_id) lid: vec3<u32>,
 ) {
-    let tile = wid.x + wid.y * params.tiles_x;
-    let px = wid.x * TILE + lid.x;
-    let py = lane_rows(wid.y, lid.y);
-    let inside = (py < vec4<u32>(params.height)) & vec4<bool>(px < params.width);
-    let centre_x = f32(px) + 0.5;
-    let centre_y = vec4<f32>(py + params.band_ty0 * TILE) + 0.5; // py is the band's row
+    let lanes = pixel_lanes(wid, lid);
     let hw = params.width * params.height;
-    let range = ranges[tile];
+    let range = ranges[lanes.tile];
 
     var last = vec4<u32>(0u);
     var t_final = vec4<f32>(1.0);
@@ -45,10 +40,10 @@ fn main(
         after[c] = vec4<f32>(0.0);
     }
     for (var j = 0u; j < 4u; j = j + 1u) {
-        if (!inside[j]) {
+        if (!lanes.inside[j]) {
             continue;
         }
-        let pi = py[j] * params.width + px;
+        let pi = lanes.py[j] * params.width + lanes.px;
         let a4 = aux[pi];
         t_final[j] = a4.x;
         last[j] = bitcast<u32>(a4.y);
@@ -77,8 +72,8 @@ fn main(
         let g = tile_vals[range.x + k];
         let mo = proj[2u * g];
         let co = proj[2u * g + 1u];
-        let dx = mo.x - centre_x;
-        let dy = vec4<f32>(mo.y) - centre_y;
+        let dx = mo.x - lanes.centre_x;
+        let dy = vec4<f32>(mo.y) - lanes.centre_y;
         let power = splat_powers(co, dx, dy);
         let near = (vec4<u32>(k) < last) & (power >= vec4<f32>(POWER_CUT));
         if (!any(near)) {

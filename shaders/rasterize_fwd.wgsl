@@ -36,13 +36,8 @@ fn main(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(local_invocation_id) lid: vec3<u32>,
 ) {
-    let tile = wid.x + wid.y * params.tiles_x;
-    let px = wid.x * TILE + lid.x;
-    let py = lane_rows(wid.y, lid.y);
-    let inside = (py < vec4<u32>(params.height)) & vec4<bool>(px < params.width);
-    let centre_x = f32(px) + 0.5;
-    let centre_y = vec4<f32>(py + params.band_ty0 * TILE) + 0.5; // py is the band's row
-    let range = ranges[tile];
+    let lanes = pixel_lanes(wid, lid);
+    let range = ranges[lanes.tile];
     var acc: array<vec4<f32>, D>;
     for (var c = 0u; c < D; c = c + 1u) {
         acc[c] = vec4<f32>(0.0);
@@ -50,7 +45,7 @@ fn main(
     var t = vec4<f32>(1.0);
     var wz = vec4<f32>(0.0);
     var last = vec4<u32>(0u);
-    var open = inside; // transmittance still above T_MIN
+    var open = lanes.inside; // transmittance still above T_MIN
     var walked = 0u;
     var n_eval = vec4<u32>(0u);
     var n_used = vec4<u32>(0u);
@@ -60,11 +55,11 @@ fn main(
         let g = tile_vals[idx];
         let mo = proj[2u * g];
         let co = proj[2u * g + 1u];
-        let power = splat_powers(co, mo.x - centre_x, vec4<f32>(mo.y) - centre_y);
+        let power = splat_powers(co, mo.x - lanes.centre_x, vec4<f32>(mo.y) - lanes.centre_y);
         let near = open & (power >= vec4<f32>(POWER_CUT));
         if (COUNT_WORK) {
             n_eval = n_eval + select(vec4<u32>(0u), vec4<u32>(1u), open);
-            n_closed = n_closed + select(vec4<u32>(0u), vec4<u32>(1u), inside & !open);
+            n_closed = n_closed + select(vec4<u32>(0u), vec4<u32>(1u), lanes.inside & !open);
         }
         if (!any(near)) {
             continue; // beyond 3 sigma of all four pixels: no exp, no feature loads
@@ -98,10 +93,10 @@ fn main(
     let a = 1.0 - t;
     let depth = select(vec4<f32>(0.0), wz / a, a > vec4<f32>(ALPHA_EPS));
     for (var j = 0u; j < 4u; j = j + 1u) {
-        if (!inside[j]) {
+        if (!lanes.inside[j]) {
             continue;
         }
-        let pi = py[j] * params.width + px;
+        let pi = lanes.py[j] * params.width + lanes.px;
         for (var c = 0u; c < D; c = c + 1u) {
             out_image[pi * D + c] = acc[c][j] + t[j] * inputs[params.off_bg + c];
         }

@@ -73,9 +73,25 @@ const SORT_KEYS: u32 = SORT_BLOCK / SORT_THREADS;
 // together as SIMD lanes on a CPU, a warp on a GPU) cover a compact block, so a splat that misses
 // the block is skipped by all of them at once.
 
-// Pixel rows of an invocation's four lanes.
-fn lane_rows(tile_y: u32, local_y: u32) -> vec4<u32> {
-    return vec4<u32>(tile_y * TILE + 4u * local_y) + vec4<u32>(0u, 1u, 2u, 3u);
+// An invocation's four pixels in its tile: one column, four consecutive rows (the vec4 lanes).
+struct Lanes {
+    tile: u32, // the tile's index in the band
+    px: u32, // the column
+    py: vec4<u32>, // the rows, in the band
+    inside: vec4<bool>, // inside the image (the last tiles overhang it)
+    centre_x: f32, // pixel centres, in the whole image
+    centre_y: vec4<f32>,
+}
+
+fn pixel_lanes(wid: vec3<u32>, lid: vec3<u32>) -> Lanes {
+    var l: Lanes;
+    l.tile = wid.x + wid.y * params.tiles_x;
+    l.px = wid.x * TILE + lid.x;
+    l.py = vec4<u32>(wid.y * TILE + 4u * lid.y) + vec4<u32>(0u, 1u, 2u, 3u);
+    l.inside = (l.py < vec4<u32>(params.height)) & vec4<bool>(l.px < params.width);
+    l.centre_x = f32(l.px) + 0.5;
+    l.centre_y = vec4<f32>(l.py + params.band_ty0 * TILE) + 0.5;
+    return l;
 }
 
 // Exponents of a splat with conic (a, b, c) in co.xyz at offsets (dx, dy) = mean2d - pixel centre
