@@ -4,12 +4,14 @@
 //! then index without checks and run in parallel with rayon where it pays.
 
 mod accumulate;
+mod columns;
 mod error;
 mod patches;
 mod stream;
 mod voxel;
 
 pub use accumulate::{event_mask, polarity_counts, Bayer, Contrast, PolarityCounts, Threshold};
+pub use columns::Events;
 pub use error::EventError;
 pub use patches::{check_bounds, extract_patches, Patches, Sampling};
 pub use stream::{

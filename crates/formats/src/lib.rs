@@ -13,42 +13,7 @@ mod reader;
 
 pub use reader::{ChunkReader, Encoding};
 
-/// Decoded events in the project's column layout: x, y (pixels), t (µs), p (the format's
-/// polarity value: 0/1 for CD events).
-#[derive(Debug, Default, Clone, PartialEq)]
-pub struct Events {
-    pub x: Vec<u16>,
-    pub y: Vec<u16>,
-    pub t: Vec<i64>,
-    pub p: Vec<i8>,
-}
-
-impl Events {
-    pub fn with_capacity(n: usize) -> Self {
-        Self {
-            x: Vec::with_capacity(n),
-            y: Vec::with_capacity(n),
-            t: Vec::with_capacity(n),
-            p: Vec::with_capacity(n),
-        }
-    }
-
-    pub fn len(&self) -> usize {
-        self.t.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.t.is_empty()
-    }
-
-    #[inline(always)]
-    fn push(&mut self, x: u16, y: u16, t: i64, p: i8) {
-        self.x.push(x);
-        self.y.push(y);
-        self.t.push(t);
-        self.p.push(p);
-    }
-}
+pub use evsplat_events::Events;
 
 /// What a decoder read but did not turn into events.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]

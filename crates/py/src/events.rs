@@ -11,6 +11,24 @@ use crate::errors::value_err;
 use evsplat_events as ev;
 use evsplat_events::{Contrast, EventError, EventSlice, Sensor, Threshold};
 
+/// Owned event columns as numpy arrays: x, y (uint16), t (int64 µs), p (int8).
+pub(crate) type EventArrays<'py> = (
+    Bound<'py, PyArray1<u16>>,
+    Bound<'py, PyArray1<u16>>,
+    Bound<'py, PyArray1<i64>>,
+    Bound<'py, PyArray1<i8>>,
+);
+
+/// Hands `events`' columns to numpy without copying them.
+pub(crate) fn event_arrays(py: Python<'_>, events: ev::Events) -> EventArrays<'_> {
+    (
+        PyArray1::from_vec(py, events.x),
+        PyArray1::from_vec(py, events.y),
+        PyArray1::from_vec(py, events.t),
+        PyArray1::from_vec(py, events.p),
+    )
+}
+
 /// A contrast threshold from Python: a float, or a contiguous float32 array with one value per
 /// pixel (flattened row-major).
 #[derive(FromPyObject)]

@@ -4,20 +4,12 @@
 use std::fs::File;
 use std::io::{Seek, SeekFrom};
 
-use numpy::PyArray1;
 use pyo3::exceptions::PyOSError;
 use pyo3::prelude::*;
 
 use crate::errors::value_err;
+use crate::events::{event_arrays, EventArrays};
 use evsplat_formats::{ChunkReader, Encoding};
-
-/// One chunk's arrays: x, y (uint16), t (int64 µs), p (int8).
-type Chunk<'py> = (
-    Bound<'py, PyArray1<u16>>,
-    Bound<'py, PyArray1<u16>>,
-    Bound<'py, PyArray1<i64>>,
-    Bound<'py, PyArray1<i8>>,
-);
 
 /// The event words of a recording from byte `offset` on ("evt2", "evt3" or "dat"), read
 /// through a buffer of `block` bytes.
@@ -49,16 +41,15 @@ impl EventFileDecoder {
     }
 
     /// The next chunk of at most `max_events` events; empty arrays at the end of the file.
-    fn next_chunk<'py>(&mut self, py: Python<'py>, max_events: usize) -> PyResult<Chunk<'py>> {
+    fn next_chunk<'py>(
+        &mut self,
+        py: Python<'py>,
+        max_events: usize,
+    ) -> PyResult<EventArrays<'py>> {
         let ev = py
             .detach(|| self.inner.next_chunk(max_events))
             .map_err(PyOSError::new_err)?;
-        Ok((
-            PyArray1::from_vec(py, ev.x),
-            PyArray1::from_vec(py, ev.y),
-            PyArray1::from_vec(py, ev.t),
-            PyArray1::from_vec(py, ev.p),
-        ))
+        Ok(event_arrays(py, ev))
     }
 
     /// (CD events before the first time base, words of undefined types, bytes after the last

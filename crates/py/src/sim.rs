@@ -2,21 +2,14 @@
 
 use numpy::ndarray::Array;
 use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2, PyReadonlyArray3,
-    PyReadonlyArrayDyn,
+    IntoPyArray, PyArray2, PyArray3, PyReadonlyArray2, PyReadonlyArray3, PyReadonlyArrayDyn,
 };
 use pyo3::prelude::*;
 
 use crate::errors::value_err;
+use crate::events::{event_arrays, EventArrays};
 use evsplat_sim::render::{self, Pose, Primitive};
 use evsplat_sim::{Bayer, SimConfig};
-
-type EventArrays<'py> = (
-    Bound<'py, PyArray1<u16>>,
-    Bound<'py, PyArray1<u16>>,
-    Bound<'py, PyArray1<i64>>,
-    Bound<'py, PyArray1<i8>>,
-);
 
 #[pyclass(module = "evsplat._core")]
 struct EventSimulator {
@@ -68,12 +61,7 @@ impl EventSimulator {
         let data = frame.as_slice()?;
         let inner = &mut self.inner;
         let ev = py.detach(|| inner.push(t_us, data)).map_err(value_err)?;
-        Ok((
-            PyArray1::from_vec(py, ev.x),
-            PyArray1::from_vec(py, ev.y),
-            PyArray1::from_vec(py, ev.t),
-            PyArray1::from_vec(py, ev.p),
-        ))
+        Ok(event_arrays(py, ev))
     }
 }
 

@@ -75,24 +75,8 @@ struct Pixel {
     hot: bool,
 }
 
-/// Events as struct-of-arrays, sorted by t (then y, x).
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Events {
-    pub x: Vec<u16>,
-    pub y: Vec<u16>,
-    pub t: Vec<i64>,
-    pub p: Vec<i8>,
-}
-
-impl Events {
-    pub fn len(&self) -> usize {
-        self.t.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.t.is_empty()
-    }
-}
+/// Events as columns, sorted by t (then y, x).
+pub use evsplat_events::Events;
 
 type Ev = (i64, u16, u16, i8); // (t, y, x, p): sort order t, then y, then x
 
