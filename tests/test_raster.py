@@ -181,7 +181,12 @@ def test_gradients_match_reference_autograd(d):
     for name, a, b in zip(NAMES, gpu, ref):
         rel = relative_errors(a, b)
         assert rel.median() <= 1e-3, (name, rel.median())
-        assert rel.max() <= 1e-2, (name, rel.max())
+        # Every entry within 1% of itself, or within 5e-5 of the largest: an entry far below the
+        # largest is a sum of per-pixel terms that cancel, and float32 atomics add those terms in
+        # the device's order (an NVIDIA H200 left 1.9e-5 of the largest on one such opacity
+        # gradient, lavapipe 0.9e-5; the float32 torch reference 0.15e-5).
+        bound = 1e-2 * b.abs() + 5e-5 * b.abs().max()
+        assert ((a - b).abs() <= bound).all(), (name, ((a - b).abs() / bound).max())
 
 
 def test_means2d_grad_is_filled_with_screen_space_gradient():

@@ -153,7 +153,11 @@ fn fail(msg: String) -> ! {
 }
 
 fn main() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shaders");
+    // Read at run time: env! would bake in the path this script was compiled at, and a target
+    // directory shared by two checkouts (CI's and a developer's) would then read the other's shaders.
+    let manifest = std::env::var("CARGO_MANIFEST_DIR")
+        .unwrap_or_else(|e| fail(format!("CARGO_MANIFEST_DIR: {e}")));
+    let dir = Path::new(&manifest).join("../../shaders");
     let dir = dir
         .canonicalize()
         .unwrap_or_else(|e| fail(format!("{}: {e}", dir.display())));
