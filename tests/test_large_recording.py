@@ -1,10 +1,12 @@
 """A long recording at small scale (2 M events, `evsplat bench large`'s generator and dataset
 folder): a 50 ms window costs the same events read at the start, middle and end of the file,
-and training streams its long windows in bounded slices instead of loading them. The oracle is
+training streams its long windows in bounded slices instead of loading them, a capped read
+(the spin's) thins a window slice by slice, and the benchmark runs end to end. The oracle is
 the store's count of events the file gave (``events_read``, ``largest_read``), never a time."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -80,3 +82,31 @@ def test_training_streams_long_windows_in_slices_never_the_whole_window(
     # ... yet the file never gave more than one slice at once.
     store = stores[-1]
     assert store.largest_read <= slice_events
+
+
+def test_a_capped_read_keeps_every_kth_event_one_slice_at_a_time(recording, monkeypatch):
+    monkeypatch.setattr(event_store, "READ_CHUNK", 30_000)
+    t0, t1 = 100_000, 400_000  # 30% of the recording: ~600 000 events
+    with open_store(recording / "events.h5") as store:
+        whole = store.read(t0, t1)
+        store.largest_read = 0
+        thinned = store.read(t0, t1, most=50_000)
+        assert store.largest_read <= 30_000
+    step = -(-len(whole) // 50_000)
+    assert len(thinned) <= 50_000
+    for k in "xytp":
+        np.testing.assert_array_equal(getattr(thinned, k), getattr(whole, k)[::step])
+
+
+def test_bench_large_runs_end_to_end_and_leaves_nothing(tmp_path, capsys):
+    from evsplat.cli import main
+
+    args = ["bench", "large", "--events=300000", "--iters=1", "--windows=2", "--json"]
+    assert main([*args, f"--dir={tmp_path}"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    commands = [c["command"].split()[1] for c in result["children"]]
+    assert commands == ["convert", "check", "train"]
+    assert all(c["peak_rss_mb"] > 0 for c in result["children"])
+    for kind in ("warm", "cold"):
+        assert set(result[f"windows_{kind}"]) == {"start", "middle", "end"}
+    assert not list(tmp_path.iterdir())  # the scratch folder is deleted

@@ -152,11 +152,23 @@ class EventStore:
         ev = EventStream.from_arrays(x, y, t, p, self.width, self.height, self.source)
         return self._transform(ev) if self._transform else ev
 
-    def read(self, t0_us: int, t1_us: int) -> EventStream:
+    def read(self, t0_us: int, t1_us: int, most: int | None = None) -> EventStream:
         """The events with t0 <= t < t1 (empty when t1 <= t0 or outside the recording), read
         from the slice the index points to: the window plus at most its two end milliseconds
-        (read twice: to locate the window, then from HDF5's chunk cache)."""
-        return self._stream(*self.window(t0_us, t1_us))
+        (read twice: to locate the window, then from HDF5's chunk cache). A window of more
+        than ``most`` events is thinned to every k-th event (k the smallest that keeps at most
+        ``most``), streamed in slices: memory holds one slice and the result."""
+        i0, i1 = self.window(t0_us, t1_us)
+        if most is None or i1 - i0 <= most:
+            return self._stream(i0, i1)
+        step = -(-(i1 - i0) // max(int(most), 1))
+        size = max(READ_CHUNK // step, 1) * step  # slices start on a kept event
+        kept = []
+        for s in range(i0, i1, size):
+            ev = self._stream(s, min(s + size, i1))
+            kept.append([getattr(ev, k)[::step].copy() for k in "xytp"])  # the slice is freed
+        x, y, t, p = (np.concatenate(column) for column in zip(*kept))
+        return EventStream(x, y, t, p, self.width, self.height, self.source)
 
     def window(self, t0_us: int, t1_us: int) -> tuple[int, int]:
         """Index range [i0, i1) of the events with t0 <= t < t1, found from the slices of its two
