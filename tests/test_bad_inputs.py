@@ -104,6 +104,33 @@ def _directory(path: Path) -> None:
     path.mkdir()
 
 
+def _index(edit: Callable[[np.ndarray], None]) -> Callable[[Path], None]:
+    """Rewrites the file's millisecond index by ``edit`` (in place on an int64 copy)."""
+
+    def f(path: Path) -> None:
+        with h5py.File(path, "r+") as h5:
+            idx = h5["ms_to_idx"][()].astype(np.int64)
+            edit(idx)
+            del h5["ms_to_idx"]
+            h5["ms_to_idx"] = idx.astype(np.uint64)
+
+    return f
+
+
+def _index_one_early(idx: np.ndarray) -> None:
+    """Every inner entry one event early: structurally sound, wrong for any window."""
+    idx[1:-1] = np.maximum(idx[1:-1] - 1, idx[0])
+
+
+def _first_half(path: Path) -> None:
+    """The recording cut at 300 ms (of the poses' 600 ms), index and all."""
+    from evsplat.data.event_files import read_events
+    from evsplat.data.event_writer import write_events_h5
+
+    ev = read_events(path)
+    write_events_h5(path, ev.slice(0, int(np.searchsorted(ev.t, 300_000))))
+
+
 def _text(name: str, edit: Callable[[str], str]) -> Callable[[Path, Path, Path], list[str]]:
     """A dataset whose text file ``name`` is rewritten by ``edit``."""
 
@@ -323,8 +350,28 @@ ROWS: list[Row] = [
         lambda w, d, r: _train_argv(d / "meta.json", w),
         ("meta.json", "dataset folder"),
     ),  # fmt: skip
+    Row(
+        "ms index that disagrees with the timestamps",
+        _events(_index(_index_one_early)),
+        ("events.h5", "disagrees with the timestamps", "re-convert"),
+    ),
+    Row(
+        "ms index pointing past the last event",
+        _events(_index(lambda idx: idx.__setitem__(-1, idx[-1] + 10**6))),
+        ("events.h5", "outside the file's", "re-convert"),
+    ),
+    Row(
+        "recording shorter than the poses",
+        _events(_first_half),
+        ("events.h5", "shorter than the data's time range", "meta.json"),
+    ),
     # CLI flags
     Row("--iters 0", lambda w, d, r: [*_train_argv(d, w)[:-1], "0"], ("--iters", "at least 1")),
+    Row(
+        "--time-range outside the recording",
+        lambda w, d, r: [*_train_argv(d, w), "--time-range", "0.5:0.9"],
+        ("--time-range", "not inside the recording", "0 <= START < END <= 0.6"),
+    ),
     Row(
         "--preset that does not exist",
         lambda w, d, r: [*_train_argv(d, w)[:-3], "huge"],

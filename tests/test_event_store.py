@@ -205,13 +205,13 @@ def test_train_on_a_time_range_reads_windows_inside_it_only(ball, tmp_path, monk
     from evsplat.run_state import RunState
 
     reads = []
-    real = EventStore.read
+    real = EventStore.window  # every time-window read locates its events through it
 
     def spy(self, t0, t1):
         reads.append((t0, t1))
         return real(self, t0, t1)
 
-    monkeypatch.setattr(EventStore, "read", spy)
+    monkeypatch.setattr(EventStore, "window", spy)
     run = tmp_path / "run"
     argv = ["train", str(ball), "--out", str(run), "--preset", "tiny", "--iters", "3"]
     assert main([*argv, "--time-range", "0.2:0.45", "--no-progress"]) == 0

@@ -50,10 +50,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the rows as JSON")
 
 
-def synthetic_chunks(n: int, rate: float, seed: int, size: int = 1 << 20) -> Iterator[Chunk]:
-    """``n`` events on a 1280x720 sensor at ``rate`` events/s, in row runs (an edge crossing
-    a row fires a few neighbouring pixels at once, mean run 4 px) sorted by time."""
+def synthetic_chunks(
+    n: int, rate: float, seed: int, size: int = 1 << 20, width: int = 1280, height: int = 720
+) -> Iterator[Chunk]:
+    """``n`` events on a ``width`` x ``height`` sensor at ``rate`` events/s, in row runs (an
+    edge crossing a row fires a few neighbouring pixels at once, mean run 4 px, cut at the
+    sensor's edge) sorted by time."""
     rng = np.random.default_rng(seed)
+    margin = min(64, width // 4)
     t0 = 0
     done = 0
     while done < n:
@@ -63,9 +67,9 @@ def synthetic_chunks(n: int, rate: float, seed: int, size: int = 1 << 20) -> Ite
         run_id = np.repeat(np.arange(len(runs)), runs)[:count]
         span = count / rate * 1e6
         t_run = t0 + np.sort(rng.integers(0, max(1, int(span)), len(runs)))
-        y_run = rng.integers(0, 720, len(runs))
-        x_run = rng.integers(0, 1280 - 64, len(runs))
-        x = (x_run[run_id] + np.arange(count) - first).astype(np.uint16)
+        y_run = rng.integers(0, height, len(runs))
+        x_run = rng.integers(0, width - margin, len(runs))
+        x = np.minimum(x_run[run_id] + np.arange(count) - first, width - 1).astype(np.uint16)
         p = rng.integers(0, 2, count).astype(np.int8)
         yield x, y_run[run_id].astype(np.uint16), t_run[run_id], p
         t0, done = int(t_run[-1]) + 1, done + count

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from evsplat.data.distortion import LensDistortion, Rectifier
+from evsplat.data.event_index import MS
 from evsplat.data.event_store import EventStore, open_store, verify_store
 from evsplat.data.poses import read_tum
 from evsplat.data.simulator import BAYER_PATTERNS
@@ -323,6 +324,27 @@ def _events(
     return store
 
 
+#: How far into the data's time range (a share of it) its events may start, or before its end
+#: stop, e.g. a quiet scene's first event (the simulated tiny scenes': 0.04-0.05%).
+COVERAGE_SLACK = 0.01
+
+
+def _coverage(c: _Checker, store: EventStore, t0: int, t1: int) -> None:
+    """The events must span meta.json's time range: training draws windows all over it, and
+    one past the recording's end would teach the model that nothing moved there."""
+    if store.count == 0:
+        return
+    slack = max(MS, round(COVERAGE_SLACK * (t1 - t0)))
+    first, last = store.t_first_us, store.t_last_us
+    if first <= t0 + slack and last >= t1 - slack:
+        return
+    c.fail(
+        f"{store.path}: the recording spans [{first}, {last}] µs, shorter than the data's time "
+        f"range [{t0}, {t1}] µs (meta.json t_start_us/t_end_us, which the poses cover); set "
+        f"them inside the recording in {c.root / 'meta.json'}, or re-convert the full recording"
+    )
+
+
 def _inspect(root: str | os.PathLike, verify: bool = False) -> tuple[list[str], Dataset | None]:
     root = Path(root)
     c = _Checker(root)
@@ -343,6 +365,8 @@ def _inspect(root: str | os.PathLike, verify: bool = False) -> tuple[list[str], 
     size = (meta["width"], meta["height"]) if meta else (intr[1], intr[2]) if intr else None
     t0, t1 = (meta["t_start_us"], meta["t_end_us"]) if meta else (None, None)
     events = _events(c, root / "events.h5", size, intr, verify)
+    if events is not None and meta is not None:
+        _coverage(c, events, t0, t1)
     traj = _trajectory(c, "poses.txt", t0, t1) if (root / "poses.txt").is_file() else None
     gt = _trajectory(c, "poses_gt.txt", t0, t1) if (root / "poses_gt.txt").is_file() else None
     # With two different sensor sizes on record, image sizes cannot be judged (one line above).

@@ -16,6 +16,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from evsplat import _core
 from evsplat.data.event_files import (
     READ_CHUNK,
     h5_events_group,
@@ -34,7 +35,7 @@ from evsplat.data.event_index import (
     sidecar_path,
 )
 from evsplat.data.events import MAX_SIDE, EventStream
-from evsplat.errors import EvsplatError
+from evsplat.errors import EvsplatError, core_call
 
 #: HDF5 chunk cache per column: a few decompressed chunks stay warm between nearby windows,
 #: and a small file is read from disk once (4 columns: 64 MiB at most).
@@ -118,15 +119,15 @@ class EventStore:
         self.index_source = index_source
         self._transform = transform
         self.count = len(self._columns[2])
+        # Events the file gave (their timestamps read), in all and in the largest single slice:
+        # what a read cost and what memory held (the large-file tests' oracle).
+        self.events_read = self.largest_read = 0
         ends = self._t(0, 1), self._t(self.count - 1, self.count)
         self.t_first_us = int(ends[0][0]) if self.count else None
         self.t_last_us = int(ends[1][0]) if self.count else None
         prov = f.get("provenance")
         self.provenance = dict(prov.attrs) if isinstance(prov, h5py.Group) else {}
         check_index(self.ms_to_idx, self.origin, self.count, self.t_last_us, self.source)
-
-    def _t(self, i0: int, i1: int) -> np.ndarray:
-        return _absolute(self._columns[2][max(i0, 0) : i1], self._t_offset, self.source)
 
     def close(self) -> None:
         self._file.close()
@@ -137,18 +138,79 @@ class EventStore:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def read(self, t0_us: int, t1_us: int) -> EventStream:
-        """The events with t0 <= t < t1 (empty when t1 <= t0 or outside the recording), read
-        from the slice the index points to: the window plus at most its two end milliseconds."""
-        t0_us, t1_us = int(t0_us), int(t1_us)
-        if t1_us <= t0_us or self.count == 0:
-            i0 = i1 = 0
-            t = np.zeros(0, np.int64)
-        else:
-            i0, i1, t = self._locate(t0_us, t1_us)
+    def _t(self, i0: int, i1: int) -> np.ndarray:
+        """Timestamps of events [i0, i1); every read goes through here, so it counts them."""
+        t = self._columns[2][max(i0, 0) : i1]
+        self.events_read += len(t)
+        self.largest_read = max(self.largest_read, len(t))
+        return _absolute(t, self._t_offset, self.source)
+
+    def _stream(self, i0: int, i1: int) -> EventStream:
+        """Events [i0, i1) as a validated stream, with the store's transform applied."""
         x, y, p = (self._columns[k][i0:i1] for k in (0, 1, 3))
+        t = self._t(i0, i1)
         ev = EventStream.from_arrays(x, y, t, p, self.width, self.height, self.source)
         return self._transform(ev) if self._transform else ev
+
+    def read(self, t0_us: int, t1_us: int, most: int | None = None) -> EventStream:
+        """The events with t0 <= t < t1 (empty when t1 <= t0 or outside the recording), read
+        from the slice the index points to: the window plus at most its two end milliseconds
+        (read twice: to locate the window, then from HDF5's chunk cache). A window of more
+        than ``most`` events is thinned to every k-th event (k the smallest that keeps at most
+        ``most``), streamed in slices: memory holds one slice and the result."""
+        i0, i1 = self.window(t0_us, t1_us)
+        if most is None or i1 - i0 <= most:
+            return self._stream(i0, i1)
+        step = -(-(i1 - i0) // max(int(most), 1))
+        size = max(READ_CHUNK // step, 1) * step  # slices start on a kept event
+        kept = []
+        for s in range(i0, i1, size):
+            ev = self._stream(s, min(s + size, i1))
+            kept.append([getattr(ev, k)[::step].copy() for k in "xytp"])  # the slice is freed
+        x, y, t, p = (np.concatenate(column) for column in zip(*kept))
+        return EventStream(x, y, t, p, self.width, self.height, self.source)
+
+    def window(self, t0_us: int, t1_us: int) -> tuple[int, int]:
+        """Index range [i0, i1) of the events with t0 <= t < t1, found from the slices of its two
+        end milliseconds (what lies between is not read)."""
+        t0_us, t1_us = int(t0_us), int(t1_us)
+        if t1_us <= t0_us or self.count == 0:
+            return 0, 0
+        i0 = self._first_at(t0_us)
+        return i0, max(self._first_at(t1_us), i0)
+
+    def time_at(self, i: int) -> int:
+        """The timestamp of event ``i`` (µs)."""
+        return int(self._t(i, i + 1)[0])
+
+    def split_equal_count(self, i0: int, i1: int, m: int) -> np.ndarray:
+        """int64[m+1] boundaries splitting events [i0, i1) into m sub-windows whose counts
+        differ by at most one (as :meth:`EventStream.split_equal_count`)."""
+        return core_call(self.source, _core.split_equal_count, self.count, int(i0), int(i1), int(m))
+
+    def accumulate(
+        self, i0: int, i1: int, c_pos: float, c_neg: float
+    ) -> tuple[np.ndarray, np.ndarray, int]:
+        """ESI, event mask (see :meth:`EventStream.esi_and_mask`) and event count of events
+        [i0, i1), read in slices of at most READ_CHUNK events: a window of any length (a
+        fraction of a long recording) holds 13 bytes per event of one slice in memory, never
+        the whole window's."""
+        esi = np.zeros((self.height, self.width), np.float32)
+        mask = np.zeros((self.height, self.width), bool)
+        count = 0
+        for s in range(i0, i1, READ_CHUNK):
+            ev = self._stream(s, min(s + READ_CHUNK, i1))
+            part, hit = ev.esi_and_mask(0, len(ev), c_pos, c_neg)
+            esi += part
+            mask |= hit
+            count += len(ev)
+        return esi, mask, count
+
+    def esi_and_mask(
+        self, t0_us: int, t1_us: int, c_pos: float, c_neg: float
+    ) -> tuple[np.ndarray, np.ndarray, int]:
+        """ESI, event mask and event count of [t0, t1), streamed (see :meth:`accumulate`)."""
+        return self.accumulate(*self.window(t0_us, t1_us), c_pos, c_neg)
 
     def _bucket(self, t_us: int) -> tuple[int, int, list[tuple[int, int]]]:
         """[a, b]: where the first event at or after ``t_us`` lies, and the (ms, entry) pairs
@@ -165,14 +227,10 @@ class EventStore:
         used = [(k, int(idx[k]))] + ([(k + 1, b)] if k + 1 < n else [])
         return int(idx[k]), b, used
 
-    def _locate(self, t0_us: int, t1_us: int) -> tuple[int, int, np.ndarray]:
-        """(i0, i1, t of the events [i0, i1)) for the window [t0, t1)."""
-        a0, b0, used0 = self._bucket(t0_us)
-        a1, b1, used1 = self._bucket(t1_us)
-        # One read of t over both ends, with a neighbour each side to check the entries used.
-        lo, hi = max(a0 - 1, 0), min(b1 + 1, self.count)
-        t = self._t(lo, hi)
-        for k, j in used0 + used1:
+    def _check_entries(self, used: list[tuple[int, int]], t: np.ndarray, lo: int) -> None:
+        """Each (ms, entry) used against the timestamps ``t`` of events [lo, ...): the entry's
+        event is the first at or after the millisecond's start."""
+        for k, j in used:
             start = self.origin + k * MS
             if (j < self.count and t[j - lo] < start) or (j > 0 and t[j - 1 - lo] >= start):
                 raise EvsplatError(
@@ -180,10 +238,14 @@ class EventStore:
                     f"first event at or after {start} µs is elsewhere); run `evsplat check` on "
                     f"it and re-convert the file{self._cache_hint()}"
                 )
-        i0 = a0 + int(np.searchsorted(t[a0 - lo : b0 - lo], t0_us, side="left"))
-        i1 = a1 + int(np.searchsorted(t[a1 - lo : b1 - lo], t1_us, side="left"))
-        i1 = max(i1, i0)
-        return i0, i1, t[i0 - lo : i1 - lo]
+
+    def _first_at(self, t_us: int) -> int:
+        """Index of the first event at or after ``t_us``, from its millisecond's slice only."""
+        a, b, used = self._bucket(t_us)
+        lo = max(a - 1, 0)
+        t = self._t(lo, min(b + 1, self.count))  # a neighbour each side checks the entries
+        self._check_entries(used, t, lo)
+        return a + int(np.searchsorted(t[a - lo : b - lo], t_us, side="left"))
 
     def _cache_hint(self) -> str:
         cached = "cached" in self.index_source

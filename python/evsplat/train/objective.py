@@ -63,8 +63,10 @@ def motion_losses(
     if lc.w_motion <= 0:
         return out
     span = int(lc.motion_window * (data.t_end_us - data.t_start_us))
-    ev = data.events.read(t1, min(t1 + span, data.t_end_us))
-    if len(ev) >= lc.patch_m:
+    # By event index, each sub-window's ESI streamed: the window is 2% of the recording.
+    store = data.events
+    i0, i1 = store.window(t1, min(t1 + span, data.t_end_us))
+    if i1 - i0 >= lc.patch_m:
         gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
         idx = select_visible(
             out1.meta["means2d"],
@@ -75,12 +77,12 @@ def motion_losses(
             gen,
         )
         if idx.numel() > 0:
-            bounds = ev.split_equal_count(0, len(ev), lc.patch_m)
+            bounds = store.split_equal_count(i0, i1, lc.patch_m)
             frames, centres = [], []
             for j in range(lc.patch_m):
                 a, b = int(bounds[j]), int(bounds[j + 1])
-                frames.append(torch.from_numpy(ev.esi(a, b, data.c_pos, data.c_neg)))
-                t_mid = 0.5 * (int(ev.t[a]) + int(ev.t[max(b - 1, a)]))
+                frames.append(torch.from_numpy(store.accumulate(a, b, data.c_pos, data.c_neg)[0]))
+                t_mid = 0.5 * (store.time_at(a) + store.time_at(max(b - 1, a)))
                 means = deformed_means(
                     model,
                     mlp,

@@ -73,13 +73,14 @@ class Views:
         return bayer_select(change.permute(1, 2, 0), self.channel_map)
 
     def esi(self, t0: int, t1: int, coarse: bool = False) -> tuple[torch.Tensor, torch.Tensor, int]:
-        """(ESI, event mask, event count) of [t0, t1), 2x2-binned for a coarse render."""
-        ev = self.data.events.read(t0, t1)
-        esi, mask = ev.esi_and_mask(0, len(ev), self.data.c_pos, self.data.c_neg)
+        """(ESI, event mask, event count) of [t0, t1), 2x2-binned for a coarse render. The
+        events are streamed, not loaded: L_e's windows span up to 30% of the recording."""
+        data = self.data
+        esi, mask, count = data.events.esi_and_mask(t0, t1, data.c_pos, data.c_neg)
         esi, mask = torch.from_numpy(esi), torch.from_numpy(mask)
         if coarse:
             esi, mask = bin_events(esi, mask, self.channel_map)
-        return esi, mask, len(ev)
+        return esi, mask, count
 
     def pose(self, t_us: float) -> np.ndarray:
         return self.data.trajectory.pose(float(t_us))
