@@ -302,12 +302,11 @@ def test_place_on_mover_moves_rows_and_clears_their_optimizer_state():
 
 # ---- on the simulator's scenes: the path against the ground truth -------------------------
 
-WARMUP = 200  # the warm-up of a 2000-iteration tiny run (10%)
+WARMUP = 200  # the tiny preset's warm-up (10% of 2000 iterations)
 
 
 def _warmed_up(data_dir, run_dir) -> Trainer:
     cfg = preset("tiny")
-    cfg.schedule.iterations = 2000
     cfg.skips.early_stop = False
     cfg.schedule.grad_norms_every = 0
     trainer = Trainer(load_dataset(data_dir), cfg, run_dir)

@@ -305,13 +305,11 @@ PRESETS: dict[str, dict] = {
     # schedule needs larger colour and scale learning rates than 3DGS's 30k-iteration ones
     # (documented choice: 10x and 2x). One torch thread: at 96x96 torch's ops gain nothing
     # from more, and on a CPU adapter idle workers spin on the cores lavapipe needs
-    # (docs/benchmarks.md). 4000 iterations: against 2000, the ball's tracking error fell from
-    # 1.64 +- 0.20 to 0.90 +- 0.12 px and its mask PSNR rose by 0.9 dB (3 seeds each,
-    # docs/results.md, session 21), for about twice the demo's time.
+    # (docs/benchmarks.md).
     "tiny": {
         "num_gaussians": 1500,
         "threads": 1,
-        "schedule": {"iterations": 4000},
+        "schedule": {"iterations": 2000},
         "model": {
             "mlp_width": 64,
             "mlp_depth": 4,
