@@ -6,6 +6,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+use evsplat_raster::host;
 use evsplat_raster::{
     rasterize_backward as gpu_backward, rasterize_forward as gpu_forward, AtomicMode, Camera,
     Gaussians, GpuError, OutputGrads, PassTimes, Render,
@@ -53,8 +54,9 @@ fn times_dict<'py>(py: Python<'py>, times: &PassTimes) -> PyResult<Bound<'py, Py
 }
 
 /// Forward render. Arrays are flat float32; returns image (H*W*D), depth, alpha, radii, means2d,
-/// depths, intersections, state (for the backward), (when `profile`) per-pass host times in seconds and (when
-/// `count_work`) the compositing pass's step counts, else None.
+/// depths, intersections, state (for the backward), (when `profile`) per-pass host times in
+/// seconds, the call's host phases in seconds ("host") and (when `count_work`) the compositing
+/// pass's step counts, else None.
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
 #[pyo3(signature = (means, quats, scales, opacities, features, d, background, viewmat, k, width, height, near, far, profile=false, count_work=false))]
@@ -92,20 +94,25 @@ fn rasterize_forward<'py>(
         (near, far),
     )?;
     let mut times = PassTimes::new();
+    host::take(); // this call's phases only
     let out = py.detach(|| {
         let ctx = context()?;
         gpu_forward(ctx, &g, &cam, profile.then_some(&mut times), count_work).map_err(raster_err)
     })?;
-    let r = PyDict::new(py);
-    r.set_item("image", PyArray1::from_vec(py, out.image))?;
-    r.set_item("depth", PyArray1::from_vec(py, out.depth))?;
-    r.set_item("alpha", PyArray1::from_vec(py, out.alpha))?;
-    r.set_item("radii", PyArray1::from_vec(py, out.radii))?;
-    r.set_item("means2d", PyArray1::from_vec(py, out.means2d))?;
-    r.set_item("depths", PyArray1::from_vec(py, out.depths))?;
-    r.set_item("intersections", out.intersections)?;
-    r.set_item("state", Bound::new(py, RenderState(out.render))?)?;
+    let r = host::time("numpy results", || -> PyResult<_> {
+        let r = PyDict::new(py);
+        r.set_item("image", PyArray1::from_vec(py, out.image))?;
+        r.set_item("depth", PyArray1::from_vec(py, out.depth))?;
+        r.set_item("alpha", PyArray1::from_vec(py, out.alpha))?;
+        r.set_item("radii", PyArray1::from_vec(py, out.radii))?;
+        r.set_item("means2d", PyArray1::from_vec(py, out.means2d))?;
+        r.set_item("depths", PyArray1::from_vec(py, out.depths))?;
+        r.set_item("intersections", out.intersections)?;
+        r.set_item("state", Bound::new(py, RenderState(out.render))?)?;
+        Ok(r)
+    })?;
     r.set_item("times", times_dict(py, &times)?)?;
+    r.set_item("host", times_dict(py, &host::take())?)?;
     let work = match out.work {
         Some(w) => {
             let d = PyDict::new(py);
@@ -123,7 +130,8 @@ fn rasterize_forward<'py>(
 }
 
 /// Backward of the render `state`: the loss gradients w.r.t. its image, depth and alpha (flat
-/// float32) in; gradients of means, quats, scales, opacities, features and means2d out.
+/// float32) in; gradients of means, quats, scales, opacities, features and means2d out, and the
+/// call's host phases in seconds ("host").
 /// `atomics` is "float", "cas" or None (the adapter's default, `EVSPLAT_ATOMICS=cas` forces CAS).
 #[pyfunction]
 #[pyo3(signature = (state, grad_image, grad_depth, grad_alpha, atomics=None, profile=false))]
@@ -153,19 +161,24 @@ fn rasterize_backward<'py>(
     };
     let render = &state.get().0;
     let mut times = PassTimes::new();
+    host::take(); // this call's phases only
     let out = py.detach(|| {
         let ctx = context()?;
         let mode = mode.unwrap_or_else(|| ctx.default_atomic_mode());
         gpu_backward(ctx, render, &grads, mode, profile.then_some(&mut times)).map_err(raster_err)
     })?;
-    let r = PyDict::new(py);
-    r.set_item("means", PyArray1::from_vec(py, out.means))?;
-    r.set_item("quats", PyArray1::from_vec(py, out.quats))?;
-    r.set_item("scales", PyArray1::from_vec(py, out.scales))?;
-    r.set_item("opacities", PyArray1::from_vec(py, out.opacities))?;
-    r.set_item("features", PyArray1::from_vec(py, out.features))?;
-    r.set_item("means2d", PyArray1::from_vec(py, out.means2d))?;
+    let r = host::time("numpy results", || -> PyResult<_> {
+        let r = PyDict::new(py);
+        r.set_item("means", PyArray1::from_vec(py, out.means))?;
+        r.set_item("quats", PyArray1::from_vec(py, out.quats))?;
+        r.set_item("scales", PyArray1::from_vec(py, out.scales))?;
+        r.set_item("opacities", PyArray1::from_vec(py, out.opacities))?;
+        r.set_item("features", PyArray1::from_vec(py, out.features))?;
+        r.set_item("means2d", PyArray1::from_vec(py, out.means2d))?;
+        Ok(r)
+    })?;
     r.set_item("times", times_dict(py, &times)?)?;
+    r.set_item("host", times_dict(py, &host::take())?)?;
     Ok(r)
 }
 

@@ -293,16 +293,16 @@ impl GpuContext {
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.wait()?;
+        crate::host::time("wait", || self.wait())?;
         rx.recv()
             .map_err(|e| GpuError::Readback(e.to_string()))?
             .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let out = {
+        let out = crate::host::time("copy out of staging", || {
             let view = slice
                 .get_mapped_range()
                 .map_err(|e| GpuError::Readback(e.to_string()))?;
-            view[..bytes as usize].to_vec()
-        };
+            Ok::<_, GpuError>(view[..bytes as usize].to_vec())
+        })?;
         staging.unmap();
         Ok(out)
     }

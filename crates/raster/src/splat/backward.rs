@@ -7,6 +7,7 @@ use super::record::{dispatch, Recorder};
 use super::state::State;
 use super::{forward, readback, Gradients, OutputGrads, PassTimes, Render};
 use crate::context::{AtomicMode, GpuContext, GpuError};
+use crate::host;
 use crate::Kernel;
 
 /// Differentiate band `band` of `render`, rendered as `id`, in `st` (`grads`: the band's rows),
@@ -20,23 +21,29 @@ pub fn run(
     mode: AtomicMode,
     profile: Option<&mut PassTimes>,
 ) -> Result<Gradients, GpuError> {
-    let p = st.prepare(ctx, render.n, render.d, &render.cam, band)?;
+    let p = host::time("prepare buffers", || {
+        st.prepare(ctx, render.n, render.d, &render.cam, band)
+    })?;
     let mut rec = Recorder::new(ctx, profile);
     if st.current != Some(id) {
         // Render it again (no readback).
-        ctx.queue
-            .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(&render.inputs));
-        forward::encode(ctx, st, &p, &mut rec, false)?;
+        host::time("write inputs", || {
+            let bytes = bytemuck::cast_slice(&render.inputs);
+            ctx.queue.write_buffer(&st.bufs.inputs.buf, 0, bytes)
+        });
+        host::time("encode", || forward::encode(ctx, st, &p, &mut rec, false))?;
         st.current = Some(id);
     }
     // The three output gradients lie back to back in `grad_in`: each is written at its offset
     // (no host-side copy into one packed vector).
-    let mut offset = 0;
-    for part in [grads.image, grads.depth, grads.alpha] {
-        let bytes: &[u8] = bytemuck::cast_slice(part);
-        ctx.queue.write_buffer(&st.bufs.grad_in.buf, offset, bytes);
-        offset += bytes.len() as u64;
-    }
+    host::time("write output gradients", || {
+        let mut offset = 0;
+        for part in [grads.image, grads.depth, grads.alpha] {
+            let bytes: &[u8] = bytemuck::cast_slice(part);
+            ctx.queue.write_buffer(&st.bufs.grad_in.buf, offset, bytes);
+            offset += bytes.len() as u64;
+        }
+    });
     let b = &st.bufs;
     let kernel = raster_bwd_kernel(mode, ctx.subgroup_reduce());
     let binds = (st.bwd_binds)

@@ -8,6 +8,7 @@ use super::record::{dispatch, dispatch_indirect, Recorder};
 use super::state::State;
 use super::{binds, readback, Camera, Params, PassTimes, TILE};
 use crate::context::{dispatch_dims, GpuContext, GpuError};
+use crate::host;
 use crate::wgsl::MAX_DIGITS;
 use crate::{Kernel, ScanScratch};
 
@@ -219,11 +220,13 @@ pub fn run(
     let max_cap = ctx.binding_limit() / 4;
     st.isect_cap = st.isect_cap.min(max_cap);
     loop {
-        let p = st.prepare(ctx, n, d, cam, band)?;
-        ctx.queue
-            .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(inputs));
+        let p = host::time("prepare buffers", || st.prepare(ctx, n, d, cam, band))?;
+        host::time("write inputs", || {
+            let bytes = bytemuck::cast_slice(inputs);
+            ctx.queue.write_buffer(&st.bufs.inputs.buf, 0, bytes)
+        });
         let mut rec = Recorder::new(ctx, profile.as_deref_mut());
-        encode(ctx, st, &p, &mut rec, count_work)?;
+        host::time("encode", || encode(ctx, st, &p, &mut rec, count_work))?;
         let read = readback::forward(rec, &st.bufs, n, d, band.pixels(cam.width).0)?;
         let m = read.intersections();
         if read.tiles_disagree() {

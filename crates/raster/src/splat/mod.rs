@@ -16,6 +16,7 @@ mod record;
 mod state;
 
 use crate::context::{AtomicMode, GpuContext, GpuError};
+use crate::host;
 use crate::wgsl::{self, Params};
 
 use inputs::Band;
@@ -110,7 +111,7 @@ pub fn rasterize_forward(
 ) -> Result<ForwardOutput, GpuError> {
     g.check()?;
     cam.check()?;
-    let inputs = g.pack();
+    let inputs = host::time("pack inputs", || g.pack());
     // The widest per-pixel buffer: the output gradients (d + 2 floats) or the pixel state (4).
     let row_bytes = 4 * cam.width as u64 * (g.d as u64 + 2).max(4);
     let max_rows = (ctx.binding_limit() / row_bytes).min(cam.height as u64) as u32;
@@ -151,7 +152,9 @@ pub fn rasterize_forward(
         cam: *cam,
         bands,
     };
-    Ok(readback::output(&reads, count_work, render))
+    Ok(host::time("unpack", || {
+        readback::output(&reads, count_work, render)
+    }))
 }
 
 /// Gradients of a loss given its gradients with respect to the outputs of `render` (which is

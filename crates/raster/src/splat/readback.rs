@@ -5,6 +5,7 @@ use super::buffers::{Buffers, COUNTER_WORDS, GRAD_HEAD, PARAM_GRADS};
 use super::record::Recorder;
 use super::{ForwardOutput, Gradients, Render, WorkCounts};
 use crate::context::GpuError;
+use crate::host;
 
 /// A forward render as read back: image, depth, alpha, the projected Gaussians (8 floats each)
 /// and the counters.
@@ -41,13 +42,13 @@ pub fn forward(
     }
     let raw = rec.finish(&b.staging, at)?;
     let (floats, counters) = raw.split_at(raw.len() - 4 * COUNTER_WORDS as usize);
-    Ok(ForwardRead {
+    Ok(host::time("unpack", || ForwardRead {
         floats: bytemuck::pod_collect_to_vec(floats),
         counters: bytemuck::pod_collect_to_vec(counters),
         pixels,
         n,
         d,
-    })
+    }))
 }
 
 impl ForwardRead {
@@ -125,7 +126,13 @@ pub fn gradients(
             .copy_buffer_to_buffer(&b.param_grads.buf, 0, &b.staging, grad_bytes, param_bytes);
     }
     let raw = rec.finish(&b.staging, grad_bytes + param_bytes)?;
-    let all: Vec<f32> = bytemuck::pod_collect_to_vec(&raw);
+    Ok(host::time("unpack", || split_gradients(&raw, n, d)))
+}
+
+/// The gradients of each input, from the accumulator and the parameter gradients as read back.
+fn split_gradients(raw: &[u8], n: usize, d: usize) -> Gradients {
+    let stride = GRAD_HEAD as usize + d;
+    let all: Vec<f32> = bytemuck::pod_collect_to_vec(raw);
     let (acc, params) = all.split_at(n * stride);
     let mut out = Gradients {
         means: Vec::with_capacity(3 * n),
@@ -146,5 +153,5 @@ pub fn gradients(
         out.quats.extend_from_slice(&q[3..7]);
         out.scales.extend_from_slice(&q[7..10]);
     }
-    Ok(out)
+    out
 }

@@ -4,6 +4,7 @@ use std::time::Instant;
 
 use super::PassTimes;
 use crate::context::{GpuContext, GpuError};
+use crate::host;
 
 /// Encodes passes into one command encoder, or (profiling) submits and times each on its own.
 pub struct Recorder<'a> {
@@ -46,8 +47,9 @@ impl<'a> Recorder<'a> {
 
     /// Submit the remaining work (and copies), wait, and map `bytes` of `staging`.
     pub fn finish(self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, GpuError> {
-        self.ctx.queue.submit([self.enc.finish()]);
-        self.ctx.map_read(staging, bytes)
+        let ctx = self.ctx;
+        host::time("submit", || ctx.queue.submit([self.enc.finish()]));
+        ctx.map_read(staging, bytes)
     }
 }
 
