@@ -19,8 +19,6 @@ import time
 from collections import defaultdict
 from typing import Any, Callable
 
-import torch
-
 from evsplat import raster
 from evsplat.bench.raster import _scene, _weights
 
@@ -109,9 +107,15 @@ def main() -> None:
             )  # fmt: skip
         )
         for side in ("fwd", "bwd"):
-            native = sum(v for k, v in med.items() if k.startswith(f"{side} native: "))
-            if native:
-                med[f"{side} native: PyO3 conversions, rest"] = med[f"{side} native call"] - native
+            rust = med.pop(f"{side} native: rust call", None)
+            if rust is None:  # a build without phase times
+                continue
+            numpy = med.get(f"{side} native: numpy results", 0.0)
+            phases = sum(v for k, v in med.items() if k.startswith(f"{side} native: ")) - numpy
+            med[f"{side} native: other Rust work"] = rust - phases
+            med[f"{side} native: PyO3 argument conversion"] = (
+                med[f"{side} native call"] - rust - numpy
+            )
         med["bwd wrapper rest"] = med["bwd wrapper (Function.backward)"] - med["bwd native call"]
         med["bwd torch autograd rest"] = med["bwd call"] - med["bwd wrapper (Function.backward)"]
         print(f"\n{size}x{size}, {n} Gaussians, D={args.channels}: medians of {args.repeats} "

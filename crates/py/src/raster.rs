@@ -94,10 +94,15 @@ fn rasterize_forward<'py>(
         (near, far),
     )?;
     let mut times = PassTimes::new();
-    host::take(); // this call's phases only
-    let out = py.detach(|| {
-        let ctx = context()?;
-        gpu_forward(ctx, &g, &cam, profile.then_some(&mut times), count_work).map_err(raster_err)
+    // This call's phases only; "rust call" is the whole Rust side, its phases included (what is
+    // left of the call is PyO3's argument conversion).
+    host::take();
+    let out = host::time("rust call", || {
+        py.detach(|| {
+            let ctx = context()?;
+            gpu_forward(ctx, &g, &cam, profile.then_some(&mut times), count_work)
+                .map_err(raster_err)
+        })
     })?;
     let r = host::time("numpy results", || -> PyResult<_> {
         let r = PyDict::new(py);
@@ -129,15 +134,23 @@ fn rasterize_forward<'py>(
     Ok(r)
 }
 
-/// Backward of the render `state`: the loss gradients w.r.t. its image, depth and alpha (flat
+/// Backward of the render `state`: its inputs (as given to `rasterize_forward`: read only when
+/// the render must be redone) and the loss gradients w.r.t. its image, depth and alpha (flat
 /// float32) in; gradients of means, quats, scales, opacities, features and means2d out, and the
 /// call's host phases in seconds ("host").
 /// `atomics` is "float", "cas" or None (the adapter's default, `EVSPLAT_ATOMICS=cas` forces CAS).
 #[pyfunction]
-#[pyo3(signature = (state, grad_image, grad_depth, grad_alpha, atomics=None, profile=false))]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (state, means, quats, scales, opacities, features, background, grad_image, grad_depth, grad_alpha, atomics=None, profile=false))]
 fn rasterize_backward<'py>(
     py: Python<'py>,
     state: &Bound<'py, RenderState>,
+    means: F32<'py>,
+    quats: F32<'py>,
+    scales: F32<'py>,
+    opacities: F32<'py>,
+    features: F32<'py>,
+    background: F32<'py>,
     grad_image: F32<'py>,
     grad_depth: F32<'py>,
     grad_alpha: F32<'py>,
@@ -160,12 +173,26 @@ fn rasterize_backward<'py>(
         alpha: grad_alpha.as_slice()?,
     };
     let render = &state.get().0;
+    let g = Gaussians {
+        means: means.as_slice()?,
+        quats: quats.as_slice()?,
+        scales: scales.as_slice()?,
+        opacities: opacities.as_slice()?,
+        features: features.as_slice()?,
+        d: render.channels(),
+        background: background.as_slice()?,
+    };
     let mut times = PassTimes::new();
-    host::take(); // this call's phases only
-    let out = py.detach(|| {
-        let ctx = context()?;
-        let mode = mode.unwrap_or_else(|| ctx.default_atomic_mode());
-        gpu_backward(ctx, render, &grads, mode, profile.then_some(&mut times)).map_err(raster_err)
+    // This call's phases only; "rust call" is the whole Rust side, its phases included (what is
+    // left of the call is PyO3's argument conversion).
+    host::take();
+    let out = host::time("rust call", || {
+        py.detach(|| {
+            let ctx = context()?;
+            let mode = mode.unwrap_or_else(|| ctx.default_atomic_mode());
+            let profile = profile.then_some(&mut times);
+            gpu_backward(ctx, render, &g, &grads, mode, profile).map_err(raster_err)
+        })
     })?;
     let r = host::time("numpy results", || -> PyResult<_> {
         let r = PyDict::new(py);
