@@ -46,20 +46,24 @@ def _check(name: str, t: object, shape: tuple[int | None, ...]) -> torch.Tensor:
     if not ok:
         want = "[" + ", ".join("*" if w is None else str(w) for w in shape) + "]"
         raise EvsplatError(f"rasterize: {name} has shape {list(t.shape)}, expected {want}")
-    if not bool(torch.isfinite(t).all()):
+    # numpy's isfinite: torch's took 53 ms per 3 M floats here (~300 ms of a 1 M Gaussian call).
+    if not np.isfinite(t.detach().numpy()).all():
         raise EvsplatError(f"rasterize: {name} contains NaN or Inf; pass finite values")
     return t
 
 
+def _inputs(means, quats, scales, opacities, features, background) -> dict[str, np.ndarray]:
+    """The Gaussians as the core takes them: flat float32 views (no copy when contiguous)."""
+    names = ("means", "quats", "scales", "opacities", "features", "background")
+    return {
+        k: _flat(t) for k, t in zip(names, (means, quats, scales, opacities, features, background))
+    }
+
+
 def _args(means, quats, scales, opacities, features, viewmat, K, background, cam: _Camera):
     return dict(
-        means=_flat(means),
-        quats=_flat(quats),
-        scales=_flat(scales),
-        opacities=_flat(opacities),
-        features=_flat(features),
+        **_inputs(means, quats, scales, opacities, features, background),
         d=features.shape[1],
-        background=_flat(background),
         viewmat=_flat(viewmat),
         k=_flat(K),
         width=cam.width,
@@ -99,8 +103,10 @@ class _Rasterize(torch.autograd.Function):
         radii = torch.from_numpy(out["radii"])
         means2d = torch.from_numpy(out["means2d"]).reshape(n, 2)
         depths = torch.from_numpy(out["depths"])
-        # The render's state (its inputs included) is all the backward needs.
+        # The render's state and its inputs (to render it again when later renders took its
+        # buffers; saved so that torch rejects their in-place change before the backward).
         ctx.render = out["state"]
+        ctx.save_for_backward(means, quats, scales, opacities, features, background)
         ctx.cam = cam
         ctx.shape = (n, d)
         ctx.means2d_grad = means2d_grad
@@ -119,6 +125,7 @@ class _Rasterize(torch.autograd.Function):
         out = _core_call(
             _core.rasterize_backward,
             ctx.render,
+            **_inputs(*ctx.saved_tensors),
             grad_image=grad(g_image, (h, w, d)),
             grad_depth=grad(g_depth, (h, w)),
             grad_alpha=grad(g_alpha, (h, w)),

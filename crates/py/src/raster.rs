@@ -6,6 +6,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+use evsplat_raster::host;
 use evsplat_raster::{
     rasterize_backward as gpu_backward, rasterize_forward as gpu_forward, AtomicMode, Camera,
     Gaussians, GpuError, OutputGrads, PassTimes, Render,
@@ -53,8 +54,9 @@ fn times_dict<'py>(py: Python<'py>, times: &PassTimes) -> PyResult<Bound<'py, Py
 }
 
 /// Forward render. Arrays are flat float32; returns image (H*W*D), depth, alpha, radii, means2d,
-/// depths, intersections, state (for the backward), (when `profile`) per-pass host times in seconds and (when
-/// `count_work`) the compositing pass's step counts, else None.
+/// depths, intersections, state (for the backward), (when `profile`) per-pass host times in
+/// seconds, the call's host phases in seconds ("host") and (when `count_work`) the compositing
+/// pass's step counts, else None.
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
 #[pyo3(signature = (means, quats, scales, opacities, features, d, background, viewmat, k, width, height, near, far, profile=false, count_work=false))]
@@ -92,20 +94,30 @@ fn rasterize_forward<'py>(
         (near, far),
     )?;
     let mut times = PassTimes::new();
-    let out = py.detach(|| {
-        let ctx = context()?;
-        gpu_forward(ctx, &g, &cam, profile.then_some(&mut times), count_work).map_err(raster_err)
+    // This call's phases only; "rust call" is the whole Rust side, its phases included (what is
+    // left of the call is PyO3's argument conversion).
+    host::take();
+    let out = host::time("rust call", || {
+        py.detach(|| {
+            let ctx = context()?;
+            gpu_forward(ctx, &g, &cam, profile.then_some(&mut times), count_work)
+                .map_err(raster_err)
+        })
     })?;
-    let r = PyDict::new(py);
-    r.set_item("image", PyArray1::from_vec(py, out.image))?;
-    r.set_item("depth", PyArray1::from_vec(py, out.depth))?;
-    r.set_item("alpha", PyArray1::from_vec(py, out.alpha))?;
-    r.set_item("radii", PyArray1::from_vec(py, out.radii))?;
-    r.set_item("means2d", PyArray1::from_vec(py, out.means2d))?;
-    r.set_item("depths", PyArray1::from_vec(py, out.depths))?;
-    r.set_item("intersections", out.intersections)?;
-    r.set_item("state", Bound::new(py, RenderState(out.render))?)?;
+    let r = host::time("numpy results", || -> PyResult<_> {
+        let r = PyDict::new(py);
+        r.set_item("image", PyArray1::from_vec(py, out.image))?;
+        r.set_item("depth", PyArray1::from_vec(py, out.depth))?;
+        r.set_item("alpha", PyArray1::from_vec(py, out.alpha))?;
+        r.set_item("radii", PyArray1::from_vec(py, out.radii))?;
+        r.set_item("means2d", PyArray1::from_vec(py, out.means2d))?;
+        r.set_item("depths", PyArray1::from_vec(py, out.depths))?;
+        r.set_item("intersections", out.intersections)?;
+        r.set_item("state", Bound::new(py, RenderState(out.render))?)?;
+        Ok(r)
+    })?;
     r.set_item("times", times_dict(py, &times)?)?;
+    r.set_item("host", times_dict(py, &host::take())?)?;
     let work = match out.work {
         Some(w) => {
             let d = PyDict::new(py);
@@ -122,14 +134,23 @@ fn rasterize_forward<'py>(
     Ok(r)
 }
 
-/// Backward of the render `state`: the loss gradients w.r.t. its image, depth and alpha (flat
-/// float32) in; gradients of means, quats, scales, opacities, features and means2d out.
+/// Backward of the render `state`: its inputs (as given to `rasterize_forward`: read only when
+/// the render must be redone) and the loss gradients w.r.t. its image, depth and alpha (flat
+/// float32) in; gradients of means, quats, scales, opacities, features and means2d out, and the
+/// call's host phases in seconds ("host").
 /// `atomics` is "float", "cas" or None (the adapter's default, `EVSPLAT_ATOMICS=cas` forces CAS).
 #[pyfunction]
-#[pyo3(signature = (state, grad_image, grad_depth, grad_alpha, atomics=None, profile=false))]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (state, means, quats, scales, opacities, features, background, grad_image, grad_depth, grad_alpha, atomics=None, profile=false))]
 fn rasterize_backward<'py>(
     py: Python<'py>,
     state: &Bound<'py, RenderState>,
+    means: F32<'py>,
+    quats: F32<'py>,
+    scales: F32<'py>,
+    opacities: F32<'py>,
+    features: F32<'py>,
+    background: F32<'py>,
     grad_image: F32<'py>,
     grad_depth: F32<'py>,
     grad_alpha: F32<'py>,
@@ -152,20 +173,39 @@ fn rasterize_backward<'py>(
         alpha: grad_alpha.as_slice()?,
     };
     let render = &state.get().0;
+    let g = Gaussians {
+        means: means.as_slice()?,
+        quats: quats.as_slice()?,
+        scales: scales.as_slice()?,
+        opacities: opacities.as_slice()?,
+        features: features.as_slice()?,
+        d: render.channels(),
+        background: background.as_slice()?,
+    };
     let mut times = PassTimes::new();
-    let out = py.detach(|| {
-        let ctx = context()?;
-        let mode = mode.unwrap_or_else(|| ctx.default_atomic_mode());
-        gpu_backward(ctx, render, &grads, mode, profile.then_some(&mut times)).map_err(raster_err)
+    // This call's phases only; "rust call" is the whole Rust side, its phases included (what is
+    // left of the call is PyO3's argument conversion).
+    host::take();
+    let out = host::time("rust call", || {
+        py.detach(|| {
+            let ctx = context()?;
+            let mode = mode.unwrap_or_else(|| ctx.default_atomic_mode());
+            let profile = profile.then_some(&mut times);
+            gpu_backward(ctx, render, &g, &grads, mode, profile).map_err(raster_err)
+        })
     })?;
-    let r = PyDict::new(py);
-    r.set_item("means", PyArray1::from_vec(py, out.means))?;
-    r.set_item("quats", PyArray1::from_vec(py, out.quats))?;
-    r.set_item("scales", PyArray1::from_vec(py, out.scales))?;
-    r.set_item("opacities", PyArray1::from_vec(py, out.opacities))?;
-    r.set_item("features", PyArray1::from_vec(py, out.features))?;
-    r.set_item("means2d", PyArray1::from_vec(py, out.means2d))?;
+    let r = host::time("numpy results", || -> PyResult<_> {
+        let r = PyDict::new(py);
+        r.set_item("means", PyArray1::from_vec(py, out.means))?;
+        r.set_item("quats", PyArray1::from_vec(py, out.quats))?;
+        r.set_item("scales", PyArray1::from_vec(py, out.scales))?;
+        r.set_item("opacities", PyArray1::from_vec(py, out.opacities))?;
+        r.set_item("features", PyArray1::from_vec(py, out.features))?;
+        r.set_item("means2d", PyArray1::from_vec(py, out.means2d))?;
+        Ok(r)
+    })?;
     r.set_item("times", times_dict(py, &times)?)?;
+    r.set_item("host", times_dict(py, &host::take())?)?;
     Ok(r)
 }
 

@@ -283,26 +283,32 @@ impl GpuContext {
         let mut enc = self.device.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(src, 0, &staging, 0, bytes.next_multiple_of(4));
         self.queue.submit([enc.finish()]);
-        self.map_read(&staging, bytes)
+        self.map_read(&staging, bytes, <[u8]>::to_vec)
     }
 
-    /// Map an already-filled MAP_READ buffer and copy out its first `bytes` bytes.
-    pub fn map_read(&self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, GpuError> {
+    /// Map an already-filled MAP_READ buffer and hand its first `bytes` bytes to `read` (which
+    /// copies what it needs out of the mapping: nothing else does).
+    pub fn map_read<T>(
+        &self,
+        staging: &wgpu::Buffer,
+        bytes: u64,
+        read: impl FnOnce(&[u8]) -> T,
+    ) -> Result<T, GpuError> {
         let slice = staging.slice(..bytes.next_multiple_of(4));
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.wait()?;
+        crate::host::time("wait", || self.wait())?;
         rx.recv()
             .map_err(|e| GpuError::Readback(e.to_string()))?
             .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let out = {
+        let out = crate::host::time("copy out of staging", || {
             let view = slice
                 .get_mapped_range()
                 .map_err(|e| GpuError::Readback(e.to_string()))?;
-            view[..bytes as usize].to_vec()
-        };
+            Ok::<_, GpuError>(read(&view[..bytes as usize]))
+        })?;
         staging.unmap();
         Ok(out)
     }

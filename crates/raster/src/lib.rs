@@ -1,6 +1,7 @@
 //! wgpu compute context and the GPU passes of the Gaussian splatting rasterizer.
 
 pub mod context;
+pub mod host;
 pub mod kernels;
 pub mod scan;
 pub mod splat;

@@ -5,37 +5,46 @@ use super::buffers::GRAD_HEAD;
 use super::inputs::Band;
 use super::record::{dispatch, Recorder};
 use super::state::State;
-use super::{forward, readback, Gradients, OutputGrads, PassTimes, Render};
+use super::{forward, readback, Gaussians, Gradients, OutputGrads, PassTimes, Render};
 use crate::context::{AtomicMode, GpuContext, GpuError};
+use crate::host;
 use crate::Kernel;
 
-/// Differentiate band `band` of `render`, rendered as `id`, in `st` (`grads`: the band's rows),
-/// rendering it again first when another render replaced its per-pixel state there.
+/// Differentiate band `band` of `render` (of inputs `g`), rendered as `id`, in `st` (`grads`: the
+/// band's rows), rendering it again first when another render replaced its per-pixel state there.
 pub fn run(
     ctx: &GpuContext,
     st: &mut State,
-    render: &Render,
+    (render, g): (&Render, &Gaussians),
     (id, band): (u64, Band),
     grads: &OutputGrads,
     mode: AtomicMode,
     profile: Option<&mut PassTimes>,
 ) -> Result<Gradients, GpuError> {
-    let p = st.prepare(ctx, render.n, render.d, &render.cam, band)?;
+    let p = host::time("prepare buffers", || {
+        st.prepare(ctx, render.n, render.d, &render.cam, band)
+    })?;
     let mut rec = Recorder::new(ctx, profile);
-    if st.current != Some(id) {
-        // Render it again (no readback).
-        ctx.queue
-            .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(&render.inputs));
-        forward::encode(ctx, st, &p, &mut rec, false)?;
-        st.current = Some(id);
+    // One upload: the inputs when the render must be redone, then the three output gradients,
+    // back to back as they lie in `grad_in`.
+    let rerender = st.current != Some(id);
+    let mut parts = Vec::with_capacity(9);
+    if rerender {
+        parts.extend(g.parts());
     }
-    // The three output gradients lie back to back in `grad_in`: each is written at its offset
-    // (no host-side copy into one packed vector).
-    let mut offset = 0;
-    for part in [grads.image, grads.depth, grads.alpha] {
-        let bytes: &[u8] = bytemuck::cast_slice(part);
-        ctx.queue.write_buffer(&st.bufs.grad_in.buf, offset, bytes);
-        offset += bytes.len() as u64;
+    parts.extend([grads.image, grads.depth, grads.alpha]);
+    let b = &st.bufs;
+    let bytes = host::time("write output gradients", || b.upload.write(ctx, &parts))?;
+    let out_bytes = 4 * (grads.image.len() + grads.depth.len() + grads.alpha.len()) as u64;
+    let input_bytes = bytes - out_bytes;
+    if input_bytes > 0 {
+        (rec.enc).copy_buffer_to_buffer(&b.upload.buf, 0, &b.inputs.buf, 0, input_bytes);
+    }
+    (rec.enc).copy_buffer_to_buffer(&b.upload.buf, input_bytes, &b.grad_in.buf, 0, out_bytes);
+    if rerender {
+        // Render it again (no readback).
+        host::time("encode", || forward::encode(ctx, st, &p, &mut rec, false))?;
+        st.current = Some(id);
     }
     let b = &st.bufs;
     let kernel = raster_bwd_kernel(mode, ctx.subgroup_reduce());

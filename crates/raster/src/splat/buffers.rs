@@ -1,6 +1,9 @@
 //! Persistent GPU buffers of the splatting passes: grown geometrically, never shrunk, with the
 //! bind groups rebuilt only after a buffer grew.
 
+use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::Arc;
+
 use crate::context::{GpuContext, GpuError};
 use crate::wgsl;
 
@@ -43,6 +46,91 @@ impl Grow {
     }
 }
 
+/// The host-visible buffer a call's inputs are written into and copied from into the storage
+/// buffers. It stays mapped between calls (mapped again in each call's own wait), so a call
+/// writes its inputs straight into it: no packed host copy, and no staging buffer allocated per
+/// call as `Queue::write_buffer` does (a fresh host-visible allocation the size of the inputs).
+pub struct Upload {
+    pub buf: wgpu::Buffer,
+    cap: u64,
+    /// UNMAPPED, PENDING (asked for, not yet mapped) or MAPPED: wgpu 30 has no map state query.
+    state: Arc<AtomicU8>,
+}
+
+const UNMAPPED: u8 = 0;
+const PENDING: u8 = 1;
+const MAPPED: u8 = 2;
+
+impl Upload {
+    fn new(ctx: &GpuContext, bytes: u64) -> Self {
+        let buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("splat upload"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_WRITE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: true,
+        });
+        Self {
+            buf,
+            cap: bytes,
+            state: Arc::new(AtomicU8::new(MAPPED)),
+        }
+    }
+
+    /// Write `parts` back to back from the start of the buffer and unmap it for the copies out of
+    /// it; returns the bytes written. Maps it first when an earlier call left it unmapped (one that
+    /// failed before its wait): the device is idle then, so the wait only runs the callback.
+    pub fn write(&self, ctx: &GpuContext, parts: &[&[f32]]) -> Result<u64, GpuError> {
+        let bytes = 4 * parts.iter().map(|p| p.len() as u64).sum::<u64>();
+        if bytes > self.cap {
+            return Err(GpuError::Invalid(format!(
+                "rasterize: {bytes} bytes of inputs for a {}-byte upload buffer",
+                self.cap
+            )));
+        }
+        if bytes == 0 {
+            return Ok(0);
+        }
+        if self.state.load(Ordering::Acquire) != MAPPED {
+            self.remap();
+            ctx.wait()?;
+            if self.state.load(Ordering::Acquire) != MAPPED {
+                return Err(GpuError::Readback(
+                    "the upload buffer could not be mapped".into(),
+                ));
+            }
+        }
+        {
+            let mut view = self
+                .buf
+                .slice(..bytes)
+                .get_mapped_range_mut()
+                .map_err(|e| GpuError::Readback(format!("upload buffer: {e}")))?;
+            let mut at = 0;
+            for part in parts {
+                let src: &[u8] = bytemuck::cast_slice(part);
+                view.slice(at..at + src.len()).copy_from_slice(src);
+                at += src.len();
+            }
+        }
+        self.state.store(UNMAPPED, Ordering::Release);
+        self.buf.unmap();
+        Ok(bytes)
+    }
+
+    /// Ask for the buffer to be mapped again once the work submitted so far is done.
+    pub fn remap(&self) {
+        if self.state.load(Ordering::Acquire) == UNMAPPED {
+            self.state.store(PENDING, Ordering::Release);
+            let state = self.state.clone();
+            self.buf
+                .slice(..)
+                .map_async(wgpu::MapMode::Write, move |r| {
+                    state.store(if r.is_ok() { MAPPED } else { UNMAPPED }, Ordering::Release);
+                });
+        }
+    }
+}
+
 /// What one render needs room for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Sizes {
@@ -77,6 +165,7 @@ pub struct Buffers {
     pub live_blocks: wgpu::Buffer,
     pub staging: wgpu::Buffer,
     staging_cap: u64,
+    pub upload: Upload,
 }
 
 pub const SORT_BLOCK: u64 = wgsl::SORT_BLOCK as u64;
@@ -125,6 +214,7 @@ impl Buffers {
             }),
             staging: Self::staging_buffer(ctx, 16),
             staging_cap: 16,
+            upload: Upload::new(ctx, 16),
         }
     }
 
@@ -163,11 +253,10 @@ impl Buffers {
     /// Grow every buffer to fit `s`; true when any bind group must be rebuilt.
     pub fn ensure(&mut self, ctx: &GpuContext, s: Sizes) -> Result<bool, GpuError> {
         let f = 4u64;
+        let input_bytes = f * (s.n * (INPUT_FLOATS + s.d) + s.d);
         let blocks = s.n.div_ceil(SORT_BLOCK).max(s.isect.div_ceil(SORT_BLOCK));
         let mut grown = false;
-        grown |= self
-            .inputs
-            .ensure(ctx, f * (s.n * (INPUT_FLOATS + s.d) + s.d))?;
+        grown |= self.inputs.ensure(ctx, input_bytes)?;
         grown |= self.counters.ensure(ctx, 4 * COUNTER_WORDS)?;
         grown |= self.proj.ensure(ctx, f * 8 * s.n)?;
         for b in self.depth_keys.iter_mut().chain(self.depth_vals.iter_mut()) {
@@ -194,6 +283,11 @@ impl Buffers {
             let cap = download.next_power_of_two();
             self.staging = Self::staging_buffer(ctx, cap);
             self.staging_cap = cap;
+        }
+        // A backward that renders again uploads the inputs and the output gradients together.
+        let upload = input_bytes + f * s.pixels * (s.d + 2);
+        if upload > self.upload.cap {
+            self.upload = Upload::new(ctx, upload.next_power_of_two());
         }
         Ok(grown)
     }

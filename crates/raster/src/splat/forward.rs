@@ -6,8 +6,9 @@ use super::inputs::Band;
 use super::readback::ForwardRead;
 use super::record::{dispatch, dispatch_indirect, Recorder};
 use super::state::State;
-use super::{binds, readback, Camera, Params, PassTimes, TILE};
+use super::{binds, readback, Camera, Gaussians, Params, PassTimes, TILE};
 use crate::context::{dispatch_dims, GpuContext, GpuError};
+use crate::host;
 use crate::wgsl::MAX_DIGITS;
 use crate::{Kernel, ScanScratch};
 
@@ -191,6 +192,20 @@ pub fn encode(
     Ok(())
 }
 
+/// Write `g` into the upload buffer and record its copy into the inputs buffer (first in `rec`).
+pub fn upload_inputs(
+    ctx: &GpuContext,
+    st: &State,
+    g: &Gaussians,
+    rec: &mut Recorder,
+) -> Result<(), GpuError> {
+    let b = &st.bufs;
+    let bytes = host::time("write inputs", || b.upload.write(ctx, &g.parts()))?;
+    rec.enc
+        .copy_buffer_to_buffer(&b.upload.buf, 0, &b.inputs.buf, 0, bytes);
+    Ok(())
+}
+
 /// The intersection capacity for `m` tile pairs: 1.5x headroom in steps of MIN_ISECT_CAP (not a
 /// power of two: up to 4x the count, which the histogram scans paid for at every render).
 fn isect_capacity(m: u32) -> u64 {
@@ -199,32 +214,33 @@ fn isect_capacity(m: u32) -> u64 {
         .max(MIN_ISECT_CAP)
 }
 
-/// Render `band` of `cam`'s image of the `n` Gaussians packed in `inputs` (`d` channels) into
-/// `st` as render `id` and read its outputs back. Errors with `GpuError::OverLimit` when a buffer
+/// Render `band` of `cam`'s image of `g` into `st` as render `id` and read its outputs back (the
+/// projected Gaussians too when `with_proj`). Errors with `GpuError::OverLimit` when a buffer
 /// would exceed the binding limit, the tile pairs included (then a smaller band may fit).
 #[allow(clippy::too_many_arguments)]
 pub fn run(
     ctx: &GpuContext,
     st: &mut State,
-    inputs: &[f32],
-    (n, d): (usize, usize),
+    g: &Gaussians,
     cam: &Camera,
     band: Band,
     id: u64,
     mut profile: Option<&mut PassTimes>,
     count_work: bool,
+    with_proj: bool,
 ) -> Result<ForwardRead, GpuError> {
+    let (n, d) = (g.len(), g.d);
     // The state's per-pixel buffers are this render's from here on, even if it fails.
     st.current = None;
     let max_cap = ctx.binding_limit() / 4;
     st.isect_cap = st.isect_cap.min(max_cap);
     loop {
-        let p = st.prepare(ctx, n, d, cam, band)?;
-        ctx.queue
-            .write_buffer(&st.bufs.inputs.buf, 0, bytemuck::cast_slice(inputs));
+        let p = host::time("prepare buffers", || st.prepare(ctx, n, d, cam, band))?;
         let mut rec = Recorder::new(ctx, profile.as_deref_mut());
-        encode(ctx, st, &p, &mut rec, count_work)?;
-        let read = readback::forward(rec, &st.bufs, n, d, band.pixels(cam.width).0)?;
+        upload_inputs(ctx, st, g, &mut rec)?;
+        host::time("encode", || encode(ctx, st, &p, &mut rec, count_work))?;
+        let pixels = band.pixels(cam.width).0;
+        let read = readback::forward(rec, &st.bufs, (n, d), pixels, with_proj)?;
         let m = read.intersections();
         if read.tiles_disagree() {
             return Err(GpuError::Invalid(

@@ -1,7 +1,7 @@
 //! What a render is asked for: the Gaussians and the camera, checked at the boundary, and the
 //! uniforms (`Params`) every pass reads.
 
-use super::buffers::{GRAD_HEAD, INPUT_FLOATS};
+use super::buffers::GRAD_HEAD;
 use super::{MAX_FEATURES, TILE};
 use crate::context::GpuError;
 use crate::wgsl::Params;
@@ -71,21 +71,17 @@ impl Gaussians<'_> {
         Ok(())
     }
 
-    /// All inputs in one array (the single upload): means, quats, scales, opacities, features,
-    /// background, at the offsets recorded in `Params`.
-    pub(super) fn pack(&self) -> Vec<f32> {
-        let mut v = Vec::with_capacity(self.len() * (INPUT_FLOATS as usize + self.d) + self.d);
-        for part in [
+    /// The inputs in the order they lie back to back in the inputs buffer (at the offsets
+    /// recorded in `Params`).
+    pub(super) fn parts(&self) -> [&[f32]; 6] {
+        [
             self.means,
             self.quats,
             self.scales,
             self.opacities,
             self.features,
             self.background,
-        ] {
-            v.extend_from_slice(part);
-        }
-        v
+        ]
     }
 }
 

@@ -4,7 +4,7 @@
 //! by tile -> tile ranges -> rasterize. Backward: rasterize_bwd -> project_bwd.
 //! Buffers, bind groups and pipelines persist in a small per-process pool of render states; each
 //! forward is one upload and one download, and so is each backward. A forward returns a
-//! [`Render`] handle that its backward takes.
+//! [`Render`] handle that its backward takes, with the same inputs.
 
 mod backward;
 mod binds;
@@ -16,6 +16,7 @@ mod record;
 mod state;
 
 use crate::context::{AtomicMode, GpuContext, GpuError};
+use crate::host;
 use crate::wgsl::{self, Params};
 
 use inputs::Band;
@@ -46,13 +47,13 @@ pub struct ForwardOutput {
     pub render: Render,
 }
 
-/// One forward render as its backward pass needs it: the packed inputs and the camera (to render
-/// it again when later renders have taken its buffers) and, per band of rows it was rendered in
-/// (one unless its buffers would exceed the binding limit), the id of the per-pixel state it left
-/// on the GPU. Made only by [`rasterize_forward`], so a backward always matches a real render.
+/// One forward render as its backward pass needs it: the camera (to render it again, with the
+/// inputs the backward is given, when later renders have taken its buffers) and, per band of rows
+/// it was rendered in (one unless its buffers would exceed the binding limit), the id of the
+/// per-pixel state it left on the GPU. Made only by [`rasterize_forward`], so a backward always
+/// matches a real render.
 #[derive(Debug)]
 pub struct Render {
-    inputs: Vec<f32>,
     n: usize,
     d: usize,
     cam: Camera,
@@ -110,7 +111,6 @@ pub fn rasterize_forward(
 ) -> Result<ForwardOutput, GpuError> {
     g.check()?;
     cam.check()?;
-    let inputs = g.pack();
     // The widest per-pixel buffer: the output gradients (d + 2 floats) or the pixel state (4).
     let row_bytes = 4 * cam.width as u64 * (g.d as u64 + 2).max(4);
     let max_rows = (ctx.binding_limit() / row_bytes).min(cam.height as u64) as u32;
@@ -120,17 +120,16 @@ pub fn rasterize_forward(
     while let Some(band) = todo.pop() {
         let mut pool = state::lock();
         let (id, st) = pool.for_forward(ctx, g.d as u64);
-        let dims = (g.len(), g.d);
         let run = forward::run(
             ctx,
             st,
-            &inputs,
-            dims,
+            g,
             cam,
             band,
             id,
             profile.as_deref_mut(),
             count_work,
+            reads.is_empty(), // every band projects the same Gaussians: read them once
         );
         match (run, band.split()) {
             // Too many tile pairs (or pixels) for one band: render its halves instead.
@@ -145,24 +144,36 @@ pub fn rasterize_forward(
         }
     }
     let render = Render {
-        inputs,
         n: g.len(),
         d: g.d,
         cam: *cam,
         bands,
     };
-    Ok(readback::output(&reads, count_work, render))
+    Ok(host::time("unpack", || {
+        readback::output(reads, count_work, render)
+    }))
 }
 
-/// Gradients of a loss given its gradients with respect to the outputs of `render` (which is
-/// rendered again first when later renders have replaced it in the buffers).
+/// Gradients of a loss given its gradients with respect to the outputs of `render`, whose inputs
+/// `g` were (it is rendered again first when later renders have replaced it in the buffers).
 pub fn rasterize_backward(
     ctx: &GpuContext,
     render: &Render,
+    g: &Gaussians,
     grads: &OutputGrads,
     mode: AtomicMode,
     profile: Option<&mut PassTimes>,
 ) -> Result<Gradients, GpuError> {
+    g.check()?;
+    if g.len() != render.n || g.d != render.d {
+        return Err(GpuError::Invalid(format!(
+            "rasterize backward: inputs of {} Gaussians with {} channels for a render of {} with {}",
+            g.len(),
+            g.d,
+            render.n,
+            render.d
+        )));
+    }
     let pixels = render.cam.width as usize * render.cam.height as usize;
     let d = render.d;
     if grads.image.len() != pixels * d || grads.depth.len() != pixels || grads.alpha.len() != pixels
@@ -194,21 +205,28 @@ pub fn rasterize_backward(
         };
         let mut pool = state::lock();
         let st = pool.for_backward(ctx, id);
-        let g = backward::run(
+        let band_grads = backward::run(
             ctx,
             st,
-            render,
+            (render, g),
             (id, band),
             &part,
             mode,
             profile.as_deref_mut(),
         )?;
         match total.as_mut() {
-            Some(t) => t.add(&g),
-            None => total = Some(g),
+            Some(t) => t.add(&band_grads),
+            None => total = Some(band_grads),
         }
     }
     total.ok_or_else(|| GpuError::Invalid("rasterize backward: a render without bands".into()))
+}
+
+impl Render {
+    /// Feature channels of the render.
+    pub fn channels(&self) -> usize {
+        self.d
+    }
 }
 
 impl Gradients {

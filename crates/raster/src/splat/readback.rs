@@ -1,35 +1,56 @@
 //! The one download of each pass: what is copied into the staging buffer, in which order, and
-//! how it is taken apart on the host.
+//! how it is taken apart on the host: straight out of the mapped staging buffer into the vectors
+//! handed to numpy, one copy of each value.
+
+use std::borrow::Cow;
 
 use super::buffers::{Buffers, COUNTER_WORDS, GRAD_HEAD, PARAM_GRADS};
 use super::record::Recorder;
 use super::{ForwardOutput, Gradients, Render, WorkCounts};
 use crate::context::GpuError;
 
-/// A forward render as read back: image, depth, alpha, the projected Gaussians (8 floats each)
-/// and the counters.
-pub struct ForwardRead {
-    floats: Vec<f32>,
-    counters: Vec<u32>,
-    pixels: usize,
-    n: usize,
-    d: usize,
+/// What the projection leaves per Gaussian that the caller gets.
+#[derive(Default)]
+struct Projected {
+    radii: Vec<i32>,
+    means2d: Vec<f32>,
+    depths: Vec<f32>,
 }
 
-/// Copy a forward render's outputs to the host (submitting what `rec` recorded).
+/// A band of a forward render as read back: its image, depth and alpha rows, the projected
+/// Gaussians (read with the first band only: every band projects the same) and the counters.
+pub struct ForwardRead {
+    image: Vec<f32>,
+    depth: Vec<f32>,
+    alpha: Vec<f32>,
+    proj: Option<Projected>,
+    counters: [u32; COUNTER_WORDS as usize],
+}
+
+/// `bytes` as floats: borrowed (mapped memory is aligned), copied only if it were not.
+fn floats(bytes: &[u8]) -> Cow<'_, [f32]> {
+    match bytemuck::try_cast_slice(bytes) {
+        Ok(f) => Cow::Borrowed(f),
+        Err(_) => Cow::Owned(bytemuck::pod_collect_to_vec(bytes)),
+    }
+}
+
+/// Copy a forward render's outputs (and, with `with_proj`, its projected Gaussians) to the host,
+/// submitting what `rec` recorded.
 pub fn forward(
     mut rec: Recorder,
     b: &Buffers,
-    n: usize,
-    d: usize,
+    (n, d): (usize, usize),
     pixels: usize,
+    with_proj: bool,
 ) -> Result<ForwardRead, GpuError> {
-    let (n64, d64, px) = (n as u64, d as u64, pixels as u64);
+    let (d64, px) = (d as u64, pixels as u64);
+    let proj_floats = if with_proj { 8 * n } else { 0 };
     let parts: [(&wgpu::Buffer, u64); 5] = [
         (&b.image.buf, 4 * px * d64),
         (&b.depth.buf, 4 * px),
         (&b.alpha.buf, 4 * px),
-        (&b.proj.buf, 4 * 8 * n64),
+        (&b.proj.buf, 4 * proj_floats as u64),
         (&b.counters.buf, 4 * COUNTER_WORDS),
     ];
     let mut at = 0;
@@ -39,14 +60,27 @@ pub fn forward(
         }
         at += bytes;
     }
-    let raw = rec.finish(&b.staging, at)?;
-    let (floats, counters) = raw.split_at(raw.len() - 4 * COUNTER_WORDS as usize);
-    Ok(ForwardRead {
-        floats: bytemuck::pod_collect_to_vec(floats),
-        counters: bytemuck::pod_collect_to_vec(counters),
-        pixels,
-        n,
-        d,
+    rec.finish(b, at, |raw| {
+        let all = floats(raw);
+        let (image, rest) = all.split_at(pixels * d);
+        let (depth, rest) = rest.split_at(pixels);
+        let (alpha, rest) = rest.split_at(pixels);
+        let (proj, words) = rest.split_at(proj_floats);
+        let mut counters = [0; COUNTER_WORDS as usize];
+        for (c, w) in counters.iter_mut().zip(words) {
+            *c = w.to_bits();
+        }
+        ForwardRead {
+            image: image.to_vec(),
+            depth: depth.to_vec(),
+            alpha: alpha.to_vec(),
+            proj: with_proj.then(|| Projected {
+                radii: proj.chunks_exact(8).map(|q| q[7] as i32).collect(),
+                means2d: proj.chunks_exact(8).flat_map(|q| [q[0], q[1]]).collect(),
+                depths: proj.chunks_exact(8).map(|q| q[3]).collect(),
+            }),
+            counters,
+        }
     })
 }
 
@@ -61,14 +95,6 @@ impl ForwardRead {
         self.counters[1] != 0
     }
 
-    /// (image, depth, alpha) of the band, and the projected Gaussians.
-    fn parts(&self) -> (&[f32], &[f32], &[f32], &[f32]) {
-        let (image, rest) = self.floats.split_at(self.pixels * self.d);
-        let (depth, rest) = rest.split_at(self.pixels);
-        let (alpha, rest) = rest.split_at(self.pixels);
-        (image, depth, alpha, &rest[..8 * self.n])
-    }
-
     /// Work counter k (64 bits from two words).
     fn work(&self, k: usize) -> u64 {
         let c = &self.counters;
@@ -76,33 +102,37 @@ impl ForwardRead {
     }
 }
 
-/// The render of `render`'s bands, read back in order (top to bottom): their rows stacked, their
-/// counts summed; every band projected the same Gaussians, so the first one's are taken.
-pub fn output(bands: &[ForwardRead], count_work: bool, render: Render) -> ForwardOutput {
-    let (mut image, mut depth, mut alpha) = (Vec::new(), Vec::new(), Vec::new());
-    for band in bands {
-        let (i, d, a, _) = band.parts();
-        image.extend_from_slice(i);
-        depth.extend_from_slice(d);
-        alpha.extend_from_slice(a);
-    }
-    let proj = bands.first().map_or(&[][..], |b| b.parts().3);
+/// The render of `render`'s bands, read back in order (top to bottom): their rows stacked (the
+/// usual single band's vectors moved, not copied), their counts summed, the first band's
+/// projected Gaussians.
+pub fn output(bands: Vec<ForwardRead>, count_work: bool, render: Render) -> ForwardOutput {
     let sum = |f: &dyn Fn(&ForwardRead) -> u64| bands.iter().map(f).sum::<u64>();
     let pairs = sum(&|b| b.intersections() as u64);
+    let work = count_work.then(|| WorkCounts {
+        pairs,
+        evaluated: sum(&|b| b.work(0)),
+        contributed: sum(&|b| b.work(1)),
+        saturated: sum(&|b| b.work(2)),
+    });
+    let mut bands = bands.into_iter();
+    let (mut image, mut depth, mut alpha, proj) = match bands.next() {
+        Some(b) => (b.image, b.depth, b.alpha, b.proj.unwrap_or_default()),
+        None => Default::default(),
+    };
+    for band in bands {
+        image.extend_from_slice(&band.image);
+        depth.extend_from_slice(&band.depth);
+        alpha.extend_from_slice(&band.alpha);
+    }
     ForwardOutput {
         image,
         depth,
         alpha,
-        radii: proj.chunks_exact(8).map(|q| q[7] as i32).collect(),
-        means2d: proj.chunks_exact(8).flat_map(|q| [q[0], q[1]]).collect(),
-        depths: proj.chunks_exact(8).map(|q| q[3]).collect(),
+        radii: proj.radii,
+        means2d: proj.means2d,
+        depths: proj.depths,
         intersections: pairs.min(u32::MAX as u64) as u32,
-        work: count_work.then(|| WorkCounts {
-            pairs,
-            evaluated: sum(&|b| b.work(0)),
-            contributed: sum(&|b| b.work(1)),
-            saturated: sum(&|b| b.work(2)),
-        }),
+        work,
         render,
     }
 }
@@ -124,8 +154,15 @@ pub fn gradients(
         rec.enc
             .copy_buffer_to_buffer(&b.param_grads.buf, 0, &b.staging, grad_bytes, param_bytes);
     }
-    let raw = rec.finish(&b.staging, grad_bytes + param_bytes)?;
-    let all: Vec<f32> = bytemuck::pod_collect_to_vec(&raw);
+    rec.finish(b, grad_bytes + param_bytes, |raw| {
+        split_gradients(raw, n, d)
+    })
+}
+
+/// The gradients of each input, from the accumulator and the parameter gradients as read back.
+fn split_gradients(raw: &[u8], n: usize, d: usize) -> Gradients {
+    let stride = GRAD_HEAD as usize + d;
+    let all = floats(raw);
     let (acc, params) = all.split_at(n * stride);
     let mut out = Gradients {
         means: Vec::with_capacity(3 * n),
@@ -146,5 +183,5 @@ pub fn gradients(
         out.quats.extend_from_slice(&q[3..7]);
         out.scales.extend_from_slice(&q[7..10]);
     }
-    Ok(out)
+    out
 }

@@ -2,8 +2,10 @@
 
 use std::time::Instant;
 
+use super::buffers::Buffers;
 use super::PassTimes;
 use crate::context::{GpuContext, GpuError};
+use crate::host;
 
 /// Encodes passes into one command encoder, or (profiling) submits and times each on its own.
 pub struct Recorder<'a> {
@@ -44,10 +46,19 @@ impl<'a> Recorder<'a> {
         Ok(())
     }
 
-    /// Submit the remaining work (and copies), wait, and map `bytes` of `staging`.
-    pub fn finish(self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, GpuError> {
-        self.ctx.queue.submit([self.enc.finish()]);
-        self.ctx.map_read(staging, bytes)
+    /// Submit the remaining work (and copies), ask for `b`'s upload buffer to be mapped again
+    /// for the next call once the copies out of it are done (in this call's wait), wait, and
+    /// hand the first `bytes` of `b`'s staging buffer to `read`.
+    pub fn finish<T>(
+        self,
+        b: &Buffers,
+        bytes: u64,
+        read: impl FnOnce(&[u8]) -> T,
+    ) -> Result<T, GpuError> {
+        let ctx = self.ctx;
+        host::time("submit", || ctx.queue.submit([self.enc.finish()]));
+        b.upload.remap();
+        ctx.map_read(&b.staging, bytes, read)
     }
 }
 
