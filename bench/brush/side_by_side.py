@@ -6,7 +6,8 @@ folder, then alternates, round by round, evsplat's timed calls (in this process,
 in this folder; see README.md), and compares the two images (and, converted to evsplat's
 parameters, the gradients). With ``--reference`` the dense torch oracle of evsplat's tests
 renders the scene twice, with evsplat's conventions and with Brush's (no 3-sigma cut, alpha
-clamp 0.999), to say which part of the image difference the conventions explain.
+clamp 0.999), to say which part of the image difference the conventions explain;
+``--reference-grads`` does the same for the gradients (small sizes only).
 
 Run from the repository root with evsplat importable, e.g.::
 
@@ -81,15 +82,40 @@ def brush_grads_as_evsplat(g: np.ndarray, params: list[torch.Tensor]) -> list[np
     return [t[:, 0:3], t[:, 3:7], t[:, 7:10] / scales, raw / (opac * (1 - opac)), sh / SH_C0]
 
 
-def grad_stats(ours: list[torch.Tensor], theirs: list[np.ndarray]) -> dict:
+def grad_stats(ours: list, theirs: list[np.ndarray]) -> dict:
+    """Per parameter: cosine similarity and relative L2 error |a - b| / |a| (a = ``ours``)."""
     out = {}
     for name, a, b in zip(("means", "quats", "scales", "opacities", "colours"), ours, theirs):
-        a = a.numpy().astype(np.float64).reshape(-1)
-        b = b.reshape(-1)
-        cos = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300))
-        rel = np.abs(a - b) / np.maximum(np.abs(a), 1e-6 * np.abs(a).max())
-        out[name] = {"cosine": cos, "median rel": float(np.median(rel))}
+        a = np.asarray(a, dtype=np.float64).reshape(-1)
+        b = np.asarray(b, dtype=np.float64).reshape(-1)
+        na, nb = np.linalg.norm(a), np.linalg.norm(b)
+        out[name] = {
+            "cosine": float(a @ b / max(na * nb, 1e-300)),
+            "rel L2": float(np.linalg.norm(a - b) / max(na, 1e-300)),
+        }
     return out
+
+
+def reference_grads(size: int, n: int, brush_conventions: bool) -> list[np.ndarray]:
+    """The dense oracle's gradients of the loss Brush's binary uses (no depth term), with
+    evsplat's or Brush's conventions."""
+    ref = bench._reference()
+    params, view, K = bench._scene(size, n, 3)
+    w_img, _w_depth, w_alpha = bench._weights(size, 3)
+    leaves = [p.clone().requires_grad_(True) for p in params]
+    rows = max(1, bench.REF_PAIRS // (size * n))
+    saved = (ref.POWER_CUT, ref.ALPHA_MAX)
+    try:
+        if brush_conventions:
+            ref.POWER_CUT, ref.ALPHA_MAX = -math.inf, 0.999
+        for r0 in range(0, size, rows):
+            r1 = min(size, r0 + rows)
+            image, _depth, alpha, _ = ref.render(*leaves, view, K, size, size, rows=(r0, r1))
+            loss = (image * w_img[r0:r1]).sum() + (alpha * w_alpha[r0:r1]).sum()
+            loss.backward()
+    finally:
+        ref.POWER_CUT, ref.ALPHA_MAX = saved
+    return [p.grad.numpy() for p in leaves]
 
 
 def reference_images(size: int, n: int) -> dict[str, np.ndarray]:
@@ -125,6 +151,7 @@ def main() -> int:
     p.add_argument("--rounds", type=int, default=2, help="rounds of evsplat then Brush")
     p.add_argument("--dir", type=Path, help="scene folder (default: a temporary one)")
     p.add_argument("--reference", default="256", help="sizes to render with the torch oracle")
+    p.add_argument("--reference-grads", default="", help="sizes to differentiate with it")
     p.add_argument("--json", type=Path, help="write all samples and comparisons here")
     args = p.parse_args()
 
@@ -134,6 +161,7 @@ def main() -> int:
           f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}")  # fmt: skip
     root = args.dir or Path(tempfile.mkdtemp(prefix="evsplat-brush-"))
     ref_sizes = {int(s) for s in args.reference.split(",") if s}
+    ref_grad_sizes = {int(s) for s in args.reference_grads.split(",") if s}
     report = []
     for case in args.cases.split(","):
         size, n = (int(v) for v in case.lower().split("x"))
@@ -175,7 +203,14 @@ def main() -> int:
         weights = (w_img, torch.zeros_like(w_depth), w_alpha)
         grads = bench._gpu_call(params, view, K, size, True, weights, atomics="float")[4]
         g_brush = np.fromfile(folder / "brush_grads.f32", dtype="<f4")
-        gstats = grad_stats(grads, brush_grads_as_evsplat(g_brush, params))
+        g_theirs = brush_grads_as_evsplat(g_brush, params)
+        gstats = {"evsplat vs Brush": grad_stats(grads, g_theirs)}
+        if size in ref_grad_sizes:
+            g_ref = reference_grads(size, n, False)
+            g_ref_b = reference_grads(size, n, True)
+            gstats["oracle vs evsplat (evsplat conventions)"] = grad_stats(g_ref, grads)
+            gstats["oracle vs Brush (Brush conventions)"] = grad_stats(g_ref_b, g_theirs)
+            gstats["oracle: evsplat vs Brush conventions"] = grad_stats(g_ref, g_ref_b)
 
         def med(v: list[float]) -> float:
             return statistics.median(v)
@@ -207,8 +242,9 @@ def main() -> int:
         for name, s in images.items():
             print(f"image {name}: max |diff| {s['max']:.2e}, mean {s['mean']:.2e}, "
                   f"PSNR {s['psnr']:.1f} dB, pixels > 1e-3: {s['pixels > 1e-3']:.4f}")  # fmt: skip
-        for name, s in gstats.items():
-            print(f"grad {name}: cosine {s['cosine']:.5f}, median rel {s['median rel']:.2e}")
+        for name, per in gstats.items():
+            cells = ", ".join(f"{k} {s['cosine']:.6f} / {s['rel L2']:.1e}" for k, s in per.items())
+            print(f"gradients {name} (cosine / relative L2): {cells}")
         print(flush=True)
     if args.json:
         args.json.write_text(json.dumps(report, indent=1))
