@@ -124,18 +124,20 @@ async fn host(t: Tensor<1>) -> Vec<f32> {
 }
 
 /// Forward: upload, render (f32 RGBA, `TextureMode::Float`, or Brush's packed u8 viewer
-/// path), read the image back. Returns the image and (visible, tile pairs).
-async fn forward(scene: &Scene, device: &Device, mode: TextureMode) -> (Vec<f32>, u32, u32) {
+/// path), read the image back. Returns the image (f32 mode), (visible, tile pairs) and the
+/// sum of the image's bytes (a checksum of what came back, either mode).
+async fn forward(scene: &Scene, device: &Device, mode: TextureMode) -> (Vec<f32>, u32, u32, u64) {
     let s = splats(scene, device);
     let size = glam::uvec2(scene.size, scene.size);
     let (img, aux) = render_splats(s, &camera(scene), size, Vec3::ZERO, None, mode).await;
     let n = img.shape().num_elements();
     let data = img.reshape([n]).into_data_async().await.expect("readback");
+    let checksum = data.as_bytes().iter().map(|&b| u64::from(b)).sum();
     let image = match mode {
         TextureMode::Float => data.into_vec::<f32>().expect("f32"),
         TextureMode::Packed => Vec::new(),
     };
-    (image, aux.num_visible, aux.num_intersections)
+    (image, aux.num_visible, aux.num_intersections, checksum)
 }
 
 /// Forward + backward: upload, render with the backward bookkeeping, loss = sum(w_img * rgb)
@@ -212,17 +214,26 @@ async fn main() {
     let ad = inner.clone().autodiff();
 
     let mut results: Vec<(String, Vec<f64>, Vec<f64>)> = Vec::new();
+    // Per timed forward call: visible, tile pairs (as the render read them back), checksum.
+    let mut counts: Vec<String> = Vec::new();
     // Warm-up (kernel compilation, pipelines, buffers), then the timed calls.
-    let (image, visible, pairs) = forward(&scene, &inner, TextureMode::Float).await;
-    let (_, _, _) = forward(&scene, &inner, TextureMode::Packed).await;
+    let (image, visible, pairs, _) = forward(&scene, &inner, TextureMode::Float).await;
+    forward(&scene, &inner, TextureMode::Packed).await;
     let grads = forward_backward(&scene, &ad).await;
     for name in ["fwd", "fwd packed", "fwd+bwd"] {
         let (mut wall, mut cpu) = (Vec::new(), Vec::new());
         for _ in 0..repeats {
             let (t0, c0) = (Instant::now(), cpu_seconds());
             match name {
-                "fwd" => drop(forward(&scene, &inner, TextureMode::Float).await),
-                "fwd packed" => drop(forward(&scene, &inner, TextureMode::Packed).await),
+                "fwd" | "fwd packed" => {
+                    let mode = if name == "fwd" {
+                        TextureMode::Float
+                    } else {
+                        TextureMode::Packed
+                    };
+                    let (_, v, p, sum) = forward(&scene, &inner, mode).await;
+                    counts.push(format!("[\"{name}\", {v}, {p}, {sum}]"));
+                }
                 _ => drop(forward_backward(&scene, &ad).await),
             }
             wall.push(t0.elapsed().as_secs_f64());
@@ -237,6 +248,7 @@ async fn main() {
         format!("\"adapter\": \"{adapter}\""),
         format!("\"visible\": {visible}"),
         format!("\"tile_pairs\": {pairs}"),
+        format!("\"counts\": [{}]", counts.join(", ")),
     ];
     for (name, mut wall, mut cpu) in results {
         fields.push(format!("\"{name}\": {}", fmt_list(&wall)));
