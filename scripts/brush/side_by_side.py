@@ -11,7 +11,7 @@ clamp 0.999), to say which part of the image difference the conventions explain;
 
 Run from the repository root with evsplat importable, e.g.::
 
-    OMP_NUM_THREADS=1 PYTHONPATH=python python bench/brush/side_by_side.py \\
+    OMP_NUM_THREADS=1 PYTHONPATH=python python scripts/brush/side_by_side.py \\
         --brush $HOME/.cache/evsplat/target-brush/release/evsplat-brush-bench
 """
 
