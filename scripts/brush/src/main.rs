@@ -1,5 +1,5 @@
 //! Times Brush's rasterizer (brush-render, burn + cubecl on wgpu) on a scene written by
-//! `bench/brush/side_by_side.py`, and writes its image and gradients for comparison.
+//! `scripts/brush/side_by_side.py`, and writes its image and gradients for comparison.
 //!
 //! Usage: `evsplat-brush-bench SCENE_DIR REPEATS`. SCENE_DIR holds `scene.json` (n, size,
 //! focal) and `scene.f32` (little-endian float32: means 3n, quats 4n (w, x, y, z), scales 3n
