@@ -45,6 +45,6 @@ PY
 # expression, in the host code that asks whether the adapter has float atomic adds.
 sed -i 's/Type::new(ElemType::Float(FloatKind::F32))/Type::new(burn_cubecl::cubecl::prelude::StorageType::Scalar(ElemType::Float(FloatKind::F32)))/' \
     crates/brush-render/src/bwd/render_bwd.rs
-mkdir -p "$here/vendor"
-ln -sfn "$BRUSH_DIR" "$here/vendor/brush"
-echo "Brush $(git rev-parse --short HEAD) ready at $BRUSH_DIR (linked as scripts/brush/vendor/brush)"
+mkdir -p "$here/../vendor"
+ln -sfn "$BRUSH_DIR" "$here/../vendor/brush"
+echo "Brush $(git rev-parse --short HEAD) ready at $BRUSH_DIR (linked as scripts/vendor/brush)"
