@@ -53,7 +53,7 @@ class Deformation:
 def classify_static(
     mlp: DeformationMLP, means: Tensor, pixels_per_unit: Tensor, cfg: SkipConfig
 ) -> tuple[Tensor, Tensor, Deformation]:
-    """([N] bool static, [N] bool still within the looser ``cfg.static_scene_px``, the
+    """([N] bool static, [N] bool still within the looser ``cfg.static_scene_*`` bounds, the
     time-averaged deformation) from ``cfg.static_times`` times in [0, 1].
 
     A Gaussian is static when its deformation hardly *changes* with time: Δx stays within
@@ -73,11 +73,16 @@ def classify_static(
         mean.dx[a : a + CHUNK], mean.dq[a : a + CHUNK] = dx.mean(0), dq.mean(0)
         mean.ds[a : a + CHUNK] = ds.mean(0)
         moved_px = (dx - dx.mean(0)).norm(dim=-1).amax(0) * pixels_per_unit[a : a + CHUNK]
-        turned = ((dq - dq.mean(0)).norm(dim=-1).amax(0) <= cfg.static_dq) & (
-            (ds - ds.mean(0)).abs().amax(-1).amax(0) <= cfg.static_ds
+        turned = (dq - dq.mean(0)).norm(dim=-1).amax(0)
+        scaled = (ds - ds.mean(0)).abs().amax(-1).amax(0)
+        static[a : a + CHUNK] = (
+            (moved_px <= cfg.static_px) & (turned <= cfg.static_dq) & (scaled <= cfg.static_ds)
         )
-        static[a : a + CHUNK] = (moved_px <= cfg.static_px) & turned
-        scene_static[a : a + CHUNK] = (moved_px <= cfg.static_scene_px) & turned
+        scene_static[a : a + CHUNK] = (
+            (moved_px <= cfg.static_scene_px)
+            & (turned <= cfg.static_scene_dq)
+            & (scaled <= cfg.static_scene_ds)
+        )
     return static, scene_static, mean
 
 
