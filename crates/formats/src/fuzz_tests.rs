@@ -13,9 +13,11 @@ use crate::Encoding;
 
 /// The seed files of one encoding, in name order.
 fn seeds(folder: &str) -> Vec<Vec<u8>> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("fuzz/seeds")
-        .join(folder);
+    // cargo sets CARGO_MANIFEST_DIR when it runs the tests; env! would bake in the checkout the
+    // binary was compiled in, which a target directory shared with CI's checkout reuses.
+    let manifest = std::env::var("CARGO_MANIFEST_DIR")
+        .unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").to_string());
+    let dir = Path::new(&manifest).join("fuzz/seeds").join(folder);
     let mut paths: Vec<_> = std::fs::read_dir(&dir)
         .unwrap_or_else(|e| panic!("{}: {e}; run scripts/fuzz_seeds.py", dir.display()))
         .map(|entry| entry.expect("a seed directory entry").path())
