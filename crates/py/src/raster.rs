@@ -53,6 +53,39 @@ fn times_dict<'py>(py: Python<'py>, times: &PassTimes) -> PyResult<Bound<'py, Py
     Ok(d)
 }
 
+/// The Gaussians of a call, borrowed from its numpy arguments (as `rasterize_forward` takes
+/// them; the backward takes them again to redo the render when it must).
+fn gaussians<'a>(
+    [means, quats, scales, opacities, features, background]: [&'a F32<'_>; 6],
+    d: usize,
+) -> PyResult<Gaussians<'a>> {
+    Ok(Gaussians {
+        means: means.as_slice()?,
+        quats: quats.as_slice()?,
+        scales: scales.as_slice()?,
+        opacities: opacities.as_slice()?,
+        features: features.as_slice()?,
+        d,
+        background: background.as_slice()?,
+    })
+}
+
+/// The Rust side of a call, with the GIL released and timed as the host phase "rust call"
+/// (its own phases included; what is left of the call is PyO3's argument conversion). Phases
+/// of earlier calls are dropped first, so `add_times` reports this call's only.
+fn timed_call<T: Send>(py: Python<'_>, f: impl Send + FnOnce() -> PyResult<T>) -> PyResult<T> {
+    host::take();
+    host::time("rust call", || py.detach(f))
+}
+
+/// Adds the per-pass times ("times", filled when profiling) and the call's host phases
+/// ("host") to its result.
+fn add_times(r: &Bound<'_, PyDict>, times: &PassTimes) -> PyResult<()> {
+    let py = r.py();
+    r.set_item("times", times_dict(py, times)?)?;
+    r.set_item("host", times_dict(py, &host::take())?)
+}
+
 /// Forward render. Arrays are flat float32; returns image (H*W*D), depth, alpha, radii, means2d,
 /// depths, intersections, state (for the backward), (when `profile`) per-pass host times in
 /// seconds, the call's host phases in seconds ("host") and (when `count_work`) the compositing
@@ -78,15 +111,8 @@ fn rasterize_forward<'py>(
     profile: bool,
     count_work: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let g = Gaussians {
-        means: means.as_slice()?,
-        quats: quats.as_slice()?,
-        scales: scales.as_slice()?,
-        opacities: opacities.as_slice()?,
-        features: features.as_slice()?,
-        d,
-        background: background.as_slice()?,
-    };
+    let inputs = [&means, &quats, &scales, &opacities, &features, &background];
+    let g = gaussians(inputs, d)?;
     let cam = camera(
         viewmat.as_slice()?,
         k.as_slice()?,
@@ -94,15 +120,9 @@ fn rasterize_forward<'py>(
         (near, far),
     )?;
     let mut times = PassTimes::new();
-    // This call's phases only; "rust call" is the whole Rust side, its phases included (what is
-    // left of the call is PyO3's argument conversion).
-    host::take();
-    let out = host::time("rust call", || {
-        py.detach(|| {
-            let ctx = context()?;
-            gpu_forward(ctx, &g, &cam, profile.then_some(&mut times), count_work)
-                .map_err(raster_err)
-        })
+    let out = timed_call(py, || {
+        let ctx = context()?;
+        gpu_forward(ctx, &g, &cam, profile.then_some(&mut times), count_work).map_err(raster_err)
     })?;
     let r = host::time("numpy results", || -> PyResult<_> {
         let r = PyDict::new(py);
@@ -116,8 +136,7 @@ fn rasterize_forward<'py>(
         r.set_item("state", Bound::new(py, RenderState(out.render))?)?;
         Ok(r)
     })?;
-    r.set_item("times", times_dict(py, &times)?)?;
-    r.set_item("host", times_dict(py, &host::take())?)?;
+    add_times(&r, &times)?;
     let work = match out.work {
         Some(w) => {
             let d = PyDict::new(py);
@@ -173,26 +192,14 @@ fn rasterize_backward<'py>(
         alpha: grad_alpha.as_slice()?,
     };
     let render = &state.get().0;
-    let g = Gaussians {
-        means: means.as_slice()?,
-        quats: quats.as_slice()?,
-        scales: scales.as_slice()?,
-        opacities: opacities.as_slice()?,
-        features: features.as_slice()?,
-        d: render.channels(),
-        background: background.as_slice()?,
-    };
+    let inputs = [&means, &quats, &scales, &opacities, &features, &background];
+    let g = gaussians(inputs, render.channels())?;
     let mut times = PassTimes::new();
-    // This call's phases only; "rust call" is the whole Rust side, its phases included (what is
-    // left of the call is PyO3's argument conversion).
-    host::take();
-    let out = host::time("rust call", || {
-        py.detach(|| {
-            let ctx = context()?;
-            let mode = mode.unwrap_or_else(|| ctx.default_atomic_mode());
-            let profile = profile.then_some(&mut times);
-            gpu_backward(ctx, render, &g, &grads, mode, profile).map_err(raster_err)
-        })
+    let out = timed_call(py, || {
+        let ctx = context()?;
+        let mode = mode.unwrap_or_else(|| ctx.default_atomic_mode());
+        let profile = profile.then_some(&mut times);
+        gpu_backward(ctx, render, &g, &grads, mode, profile).map_err(raster_err)
     })?;
     let r = host::time("numpy results", || -> PyResult<_> {
         let r = PyDict::new(py);
@@ -204,8 +211,7 @@ fn rasterize_backward<'py>(
         r.set_item("means2d", PyArray1::from_vec(py, out.means2d))?;
         Ok(r)
     })?;
-    r.set_item("times", times_dict(py, &times)?)?;
-    r.set_item("host", times_dict(py, &host::take())?)?;
+    add_times(&r, &times)?;
     Ok(r)
 }
 
