@@ -66,15 +66,15 @@ def test_training_streams_long_windows_in_slices_never_the_whole_window(
     monkeypatch.setattr(event_store, "READ_CHUNK", slice_events)
     stores: list[EventStore] = []
     windows: list[int] = []
-    real = EventStore.esi_and_mask
+    real = EventStore.accumulate
 
-    def spy(self, t0, t1, c_pos, c_neg):
-        out = real(self, t0, t1, c_pos, c_neg)
+    def spy(self, i0, i1, c_pos, c_neg):
+        out = real(self, i0, i1, c_pos, c_neg)
         stores.append(self)
         windows.append(out[2])
         return out
 
-    monkeypatch.setattr(EventStore, "esi_and_mask", spy)
+    monkeypatch.setattr(EventStore, "accumulate", spy)
     train(recording, tmp_path / "run", preset_name="tiny", iterations=3, progress=False)
     # L_e's windows (2-30% of the recording) hold far more events than a slice (and L_m's
     # 2% twice one)...

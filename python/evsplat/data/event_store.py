@@ -206,12 +206,6 @@ class EventStore:
             count += len(ev)
         return esi, mask, count
 
-    def esi_and_mask(
-        self, t0_us: int, t1_us: int, c_pos: float, c_neg: float
-    ) -> tuple[np.ndarray, np.ndarray, int]:
-        """ESI, event mask and event count of [t0, t1), streamed (see :meth:`accumulate`)."""
-        return self.accumulate(*self.window(t0_us, t1_us), c_pos, c_neg)
-
     def _bucket(self, t_us: int) -> tuple[int, int, list[tuple[int, int]]]:
         """[a, b]: where the first event at or after ``t_us`` lies, and the (ms, entry) pairs
         of the index that say so (checked against the timestamps by the caller)."""

@@ -75,8 +75,8 @@ class Views:
     def esi(self, t0: int, t1: int, coarse: bool = False) -> tuple[torch.Tensor, torch.Tensor, int]:
         """(ESI, event mask, event count) of [t0, t1), 2x2-binned for a coarse render. The
         events are streamed, not loaded: L_e's windows span up to 30% of the recording."""
-        data = self.data
-        esi, mask, count = data.events.esi_and_mask(t0, t1, data.c_pos, data.c_neg)
+        data, store = self.data, self.data.events
+        esi, mask, count = store.accumulate(*store.window(t0, t1), data.c_pos, data.c_neg)
         esi, mask = torch.from_numpy(esi), torch.from_numpy(mask)
         if coarse:
             esi, mask = bin_events(esi, mask, self.channel_map)
