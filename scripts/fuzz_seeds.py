@@ -1,9 +1,14 @@
 """Writes the fuzzers' seed corpus, crates/formats/fuzz/seeds/<encoding>/*.bin: valid event
-words (no header) from evsplat.data.formats.prophesee_writer. Run from the repository root:
+words (no header) from evsplat.data.formats.prophesee_writer, and ROS 1 bags (rosbag/*.bin)
+written by rosbags with each chunk compression, their bag header's 4 KB of padding cut (the
+reader skips it by its length; the fuzzers need not mutate it). Run from the repository root:
 `python scripts/fuzz_seeds.py`."""
 
 from __future__ import annotations
 
+import struct
+import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +24,44 @@ def events(seed: int, n: int, t0: int, span: int, width: int = 1280, height: int
     return rng.integers(0, width, n), rng.integers(0, height, n), t, rng.integers(0, 2, n)
 
 
+def write_bag(path: Path, x, y, t, p, compression: str) -> bytes:
+    """A small ROS 1 bag: dvs_msgs/EventArray messages of ~50 events in chunks of ~1 KB, a
+    pose topic beside them; returned without the bag header's padding."""
+    from rosbags.rosbag1 import Writer
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    from test_formats import _event_array, _pose
+
+    from evsplat.data.formats import rosbag
+
+    store = rosbag.typestore(ros1=True)
+    writer = Writer(path)
+    if compression != "none":
+        writer.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
+    writer.chunk_threshold = 1024
+    with writer:
+        conn = writer.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=store)
+        pose = writer.add_connection("/pose", "geometry_msgs/msg/PoseStamped", typestore=store)
+        for part in np.array_split(np.arange(len(x)), max(1, len(x) // 50)):
+            stamp = int(t[part[-1]]) + 1
+            msg = _event_array(store, "dvs_msgs", x[part], y[part], t[part], p[part], stamp)
+            writer.write(conn, stamp * 1000, store.serialize_ros1(msg, "dvs_msgs/msg/EventArray"))
+            msg = _pose(store, stamp, (0.0, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0))
+            writer.write(
+                pose, stamp * 1000, store.serialize_ros1(msg, "geometry_msgs/msg/PoseStamped")
+            )
+    data = path.read_bytes()
+    # The bag header record after the 13-byte line: header, then its data (the padding).
+    (header_len,) = struct.unpack_from("<I", data, 13)
+    pad_at = 13 + 4 + header_len
+    (pad,) = struct.unpack_from("<I", data, pad_at)
+    header = bytearray(data[17:pad_at])
+    key = header.find(b"index_pos=")
+    (index_pos,) = struct.unpack_from("<Q", header, key + 10)
+    struct.pack_into("<Q", header, key + 10, index_pos - pad)
+    return data[:17] + bytes(header) + struct.pack("<I", 0) + data[pad_at + 4 + pad :]
+
+
 def main() -> None:
     cases = {
         "sparse": events(1, 200, 1_000_000, 2_000_000),  # new time words for most events
@@ -30,6 +73,13 @@ def main() -> None:
         folder.mkdir(parents=True, exist_ok=True)
         for name, (x, y, t, p) in cases.items():
             (folder / f"{name}.bin").write_bytes(Encoder(encoding).encode(x, y, t, p))
+    folder = SEEDS / "rosbag"
+    folder.mkdir(parents=True, exist_ok=True)
+    x, y, t, p = cases["sparse"]
+    with tempfile.TemporaryDirectory() as tmp:
+        for compression in ("none", "lz4", "bz2"):
+            bag = write_bag(Path(tmp) / f"{compression}.bag", x, y, t, p, compression)
+            (folder / f"{compression}.bin").write_bytes(bag)
 
 
 if __name__ == "__main__":

@@ -82,3 +82,89 @@ pub fn decode_all(
         all.p.extend(chunk.p);
     }
 }
+
+/// The same properties for a ROS 1 bag (`rosbag::BagReader`, every event-array connection):
+/// the reader refuses exactly the inputs without the bag line; chunks are full but the last
+/// and hold at most twice `max_events` capacity; each record buffer holds at most twice the
+/// input or the largest unpacked chunk (no allocation from a corrupt length: a compressed
+/// chunk may rightly unpack to more than the input); at most one event per 13 unpacked
+/// bytes; `truncated_bytes` within the input;
+/// buffer and chunk sizes change nothing; a truncated copy decodes to a prefix; it all ends.
+pub fn decode_bag_checked(data: &[u8]) -> Option<(Events, Stats)> {
+    let start = Instant::now();
+    let Some((events, stats, unpacked)) = decode_bag_all(data, 1 << 16, 1 << 16) else {
+        assert!(!data.starts_with(crate::rosbag::MAGIC), "a bag refused");
+        return None;
+    };
+    assert!(
+        data.starts_with(crate::rosbag::MAGIC),
+        "not a bag, yet read"
+    );
+    assert!(stats.truncated_bytes as usize <= data.len());
+    assert!(
+        events.len() * crate::rosbag::EVENT <= unpacked,
+        "more events than unpacked bytes"
+    );
+    for (block, max_events) in [(1, 1), (data.len() % 61 + 1, data.len() % 29 + 1)] {
+        let other = decode_bag_all(data, block, max_events);
+        assert!(
+            other == Some((events.clone(), stats, unpacked)),
+            "block {block}, chunk {max_events} differ"
+        );
+    }
+    let cut = data.len() * 2 / 3;
+    if cut >= crate::rosbag::MAGIC.len() {
+        let (head, _, _) = decode_bag_all(&data[..cut], 4096, 4096).expect("a cut bag opens");
+        let n = head.len();
+        assert!(n <= events.len(), "a truncated copy has more events");
+        assert!(
+            head.x == events.x[..n]
+                && head.y == events.y[..n]
+                && head.t == events.t[..n]
+                && head.p == events.p[..n],
+            "a truncated copy's events are not a prefix"
+        );
+    }
+    assert!(start.elapsed() < HANG, "took {:?}", start.elapsed());
+    Some((events, stats))
+}
+
+/// Every event of the bag `data` through a `block`-byte read buffer in chunks of `max_events`,
+/// its stats and the bytes its chunks unpacked to; None when it is not a bag.
+pub fn decode_bag_all(
+    data: &[u8],
+    block: usize,
+    max_events: usize,
+) -> Option<(Events, Stats, usize)> {
+    let limit = max_events.max(1);
+    let mut reader = crate::rosbag::BagReader::new(data, None, block).ok()?;
+    let mut all = Events::default();
+    let mut last = limit;
+    loop {
+        let chunk = match reader.next_chunk(max_events) {
+            Ok(chunk) => chunk,
+            Err(e) => panic!("reading a slice failed: {e}"),
+        };
+        assert!(chunk.len() <= limit, "chunk of {} > {limit}", chunk.len());
+        let capacity = [chunk.x.capacity(), chunk.y.capacity(), chunk.t.capacity()];
+        assert!(
+            capacity.iter().all(|&c| c <= (2 * limit).max(8)),
+            "chunk capacity {capacity:?}"
+        );
+        let (buffers, largest, unpacked) = reader.buffers();
+        let bound = 2 * data.len().max(largest).max(32);
+        assert!(
+            buffers.iter().all(|&c| c <= bound),
+            "buffers {buffers:?} > {bound}"
+        );
+        if chunk.is_empty() {
+            return Some((all, reader.stats(), unpacked as usize));
+        }
+        assert!(last == limit, "a chunk of {last} < {limit} before the end");
+        last = chunk.len();
+        all.x.extend(chunk.x);
+        all.y.extend(chunk.y);
+        all.t.extend(chunk.t);
+        all.p.extend(chunk.p);
+    }
+}

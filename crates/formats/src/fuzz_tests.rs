@@ -8,7 +8,7 @@ use std::path::Path;
 
 use proptest::prelude::*;
 
-use crate::check::decode_checked;
+use crate::check::{decode_bag_checked, decode_checked};
 use crate::Encoding;
 
 /// The seed files of one encoding, in name order.
@@ -91,6 +91,24 @@ fn fuzz(encoding: Encoding, folder: &str, seed: usize, mutations: &[Mutation]) {
     decode_checked(encoding, &data);
 }
 
+fn fuzz_bag(seed: usize, mutations: &[Mutation]) {
+    let seeds = seeds("rosbag");
+    let mut data = seeds[seed % seeds.len()].clone();
+    for m in mutations {
+        mutate(&seeds, &mut data, m, 4);
+    }
+    decode_bag_checked(&data);
+}
+
+#[test]
+fn bag_seeds_decode_to_sorted_events_and_drop_nothing() {
+    for data in seeds("rosbag") {
+        let (events, stats) = decode_bag_checked(&data).expect("a seed bag opens");
+        assert!(events.len() >= 200 && events.t.windows(2).all(|w| w[0] <= w[1]));
+        assert_eq!(stats, Default::default());
+    }
+}
+
 #[test]
 fn seeds_decode_to_sorted_events_and_drop_nothing() {
     for (encoding, folder) in [
@@ -129,9 +147,26 @@ proptest! {
     }
 
     #[test]
+    fn rosbag_reader_keeps_its_properties_on_mutated_files(
+        seed in any::<usize>(), m in prop::collection::vec(mutation(), 1..8)
+    ) {
+        fuzz_bag(seed, &m);
+    }
+
+    #[test]
+    fn random_records_after_the_bag_line_keep_the_properties(
+        data in prop::collection::vec(any::<u8>(), 0..4096)
+    ) {
+        let mut bag = crate::rosbag::MAGIC.to_vec();
+        bag.extend(data);
+        decode_bag_checked(&bag);
+    }
+
+    #[test]
     fn random_bytes_keep_the_properties(data in prop::collection::vec(any::<u8>(), 0..4096)) {
         for encoding in [Encoding::Evt2, Encoding::Evt3, Encoding::Dat] {
             decode_checked(encoding, &data);
         }
+        decode_bag_checked(&data);
     }
 }

@@ -1,5 +1,6 @@
 //! Decoders of event-camera recordings: the binary words of Prophesee EVT 2.0, EVT 3.0 and DAT
-//! (CD events) turned into events, chunk by chunk. Each decoder keeps its state (time base,
+//! (CD events), and the event-array messages of ROS 1 bags (`rosbag`), turned into events,
+//! chunk by chunk. Each decoder keeps its state (time base,
 //! row, vector base) across calls, so a recording streams through a bounded buffer. Headers are
 //! parsed by the Python reader (python/evsplat/data/formats/prophesee.py); this crate sees the
 //! bytes after them.
@@ -10,6 +11,7 @@ pub mod dat;
 pub mod evt2;
 pub mod evt3;
 mod reader;
+pub mod rosbag;
 
 pub use reader::{ChunkReader, Encoding};
 

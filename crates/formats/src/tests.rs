@@ -151,3 +151,192 @@ fn chunks_and_buffer_sizes_do_not_change_the_events() {
         assert_eq!(got, want, "block {block}, chunk {max_events}");
     }
 }
+
+/// A ROS 1 bag record: header fields, then data.
+fn record(fields: &[(&str, &[u8])], data: &[u8]) -> Vec<u8> {
+    let mut header = Vec::new();
+    for (name, value) in fields {
+        header.extend(((name.len() + 1 + value.len()) as u32).to_le_bytes());
+        header.extend(name.as_bytes());
+        header.push(b'=');
+        header.extend(*value);
+    }
+    let mut out = (header.len() as u32).to_le_bytes().to_vec();
+    out.extend(header);
+    out.extend((data.len() as u32).to_le_bytes());
+    out.extend(data);
+    out
+}
+
+fn connection(id: u32, topic: &str, msgtype: &str) -> Vec<u8> {
+    let data = record(
+        &[("topic", topic.as_bytes()), ("type", msgtype.as_bytes())],
+        b"",
+    );
+    // A connection's data is a bare header: the record framing less its data length.
+    let data = &data[4..data.len() - 4];
+    record(
+        &[
+            ("op", &[0x07]),
+            ("conn", &id.to_le_bytes()),
+            ("topic", topic.as_bytes()),
+        ],
+        data,
+    )
+}
+
+/// An EventArray message on `conn` with events (x, y, sec, nsec, polarity).
+fn event_message(conn: u32, events: &[(u16, u16, u32, u32, u8)]) -> Vec<u8> {
+    let mut data = Vec::new();
+    data.extend(7u32.to_le_bytes()); // seq
+    data.extend([0u8; 8]); // stamp
+    data.extend(3u32.to_le_bytes());
+    data.extend(b"cam");
+    data.extend(240u32.to_le_bytes()); // height
+    data.extend(320u32.to_le_bytes()); // width
+    data.extend((events.len() as u32).to_le_bytes());
+    for &(x, y, s, ns, p) in events {
+        data.extend(x.to_le_bytes());
+        data.extend(y.to_le_bytes());
+        data.extend(s.to_le_bytes());
+        data.extend(ns.to_le_bytes());
+        data.push(p);
+    }
+    record(&[("op", &[0x02]), ("conn", &conn.to_le_bytes())], &data)
+}
+
+fn chunk(compression: &str, records: &[u8]) -> Vec<u8> {
+    let size = (records.len() as u32).to_le_bytes();
+    record(
+        &[
+            ("op", &[0x05]),
+            ("compression", compression.as_bytes()),
+            ("size", &size),
+        ],
+        records,
+    )
+}
+
+fn bag(records: &[Vec<u8>]) -> Vec<u8> {
+    let mut out = crate::rosbag::MAGIC.to_vec();
+    out.extend(record(
+        &[("op", &[0x03]), ("index_pos", &0u64.to_le_bytes())],
+        &[b' '; 100],
+    ));
+    out.extend(records.concat());
+    out
+}
+
+fn decode_bag(data: &[u8], topic: Option<&str>) -> (Events, Stats) {
+    let mut reader = crate::rosbag::BagReader::new(data, topic, 7).expect("a bag");
+    let mut all = Events::default();
+    loop {
+        let c = reader.next_chunk(2).expect("a slice reads");
+        if c.is_empty() {
+            return (all, reader.stats());
+        }
+        for i in 0..c.len() {
+            all.push(c.x[i], c.y[i], c.t[i], c.p[i]);
+        }
+    }
+}
+
+#[test]
+fn bag_reader_takes_event_arrays_of_the_chosen_topic_in_file_order() {
+    let first = [(1, 2, 10, 5_999, 1), (3, 4, 10, 1_000_000, 0)];
+    let second = [(5, 6, 11, 999_999_999, 2)];
+    let other = [(9, 9, 1, 1, 1)];
+    let mut records = connection(0, "/dvs/events", "dvs_msgs/EventArray");
+    records.extend(connection(1, "/other", "prophesee_event_msgs/EventArray"));
+    records.extend(connection(2, "/pose", "geometry_msgs/PoseStamped"));
+    records.extend(event_message(0, &first));
+    records.extend(event_message(1, &other));
+    records.extend(record(
+        &[("op", &[0x02]), ("conn", &2u32.to_le_bytes())],
+        b"pose",
+    ));
+    // One byte more than the count says: another layout, skipped and counted.
+    let mut bad = event_message(0, &first);
+    let at = 4 + u32::from_le_bytes([bad[0], bad[1], bad[2], bad[3]]) as usize;
+    let len = u32::from_le_bytes([bad[at], bad[at + 1], bad[at + 2], bad[at + 3]]) + 1;
+    bad[at..at + 4].copy_from_slice(&len.to_le_bytes());
+    bad.push(0);
+    let data = bag(&[chunk("none", &records), chunk("none", &bad), {
+        let mut c = event_message(0, &second);
+        c = chunk("none", &c);
+        c
+    }]);
+    let (ev, stats) = decode_bag(&data, Some("/dvs/events"));
+    assert_eq!(
+        rows(&ev),
+        [
+            (1, 2, 10_000_005, 1),
+            (3, 4, 10_001_000, 0),
+            (5, 6, 11_999_999, 1)
+        ]
+    );
+    assert_eq!((stats.unknown_words, stats.truncated_bytes), (1, 0));
+    let (all, _) = decode_bag(&data, None);
+    assert_eq!(all.len(), 4); // both event-array topics
+    let conns = crate::rosbag::bag_connections(std::io::Cursor::new(&data), 16).expect("a bag");
+    let names: Vec<_> = conns
+        .iter()
+        .map(|c| (c.id, c.topic.as_str(), c.msgtype.as_str()))
+        .collect();
+    assert_eq!(
+        names,
+        [
+            (0, "/dvs/events", "dvs_msgs/EventArray"),
+            (1, "/other", "prophesee_event_msgs/EventArray"),
+            (2, "/pose", "geometry_msgs/PoseStamped")
+        ]
+    );
+}
+
+#[test]
+fn bag_reader_unpacks_lz4_and_bz2_chunks() {
+    use std::io::Write;
+    let events: Vec<_> = (0..500)
+        .map(|i| (i as u16, 7, 3, i * 1000, (i % 2) as u8))
+        .collect();
+    let mut records = connection(4, "/e", "dvs_msgs/EventArray");
+    records.extend(event_message(4, &events));
+    let mut lz4 = lz4_flex::frame::FrameEncoder::new(Vec::new());
+    lz4.write_all(&records).expect("in memory");
+    let lz4 = lz4.finish().expect("in memory");
+    let mut bz2 = bzip2::write::BzEncoder::new(Vec::new(), bzip2::Compression::best());
+    bz2.write_all(&records).expect("in memory");
+    let bz2 = bz2.finish().expect("in memory");
+    let size = (records.len() as u32).to_le_bytes();
+    for (name, packed) in [("lz4", lz4), ("bz2", bz2)] {
+        let data = bag(&[record(
+            &[
+                ("op", &[0x05]),
+                ("compression", name.as_bytes()),
+                ("size", &size),
+            ],
+            &packed,
+        )]);
+        let (ev, stats) = decode_bag(&data, None);
+        assert_eq!(ev.len(), 500, "{name}");
+        assert_eq!(ev.t[499], 3_000_000 + 499, "{name}");
+        assert_eq!(stats, Stats::default(), "{name}");
+    }
+}
+
+#[test]
+fn cut_bag_keeps_the_messages_before_the_cut_and_counts_the_bytes_of_its_last_record() {
+    let a = event_message(0, &[(1, 1, 1, 0, 1)]);
+    let b = event_message(0, &[(2, 2, 2, 0, 0)]);
+    let mut records = connection(0, "/e", "dvs_msgs/EventArray");
+    records.extend(&a);
+    records.extend(&b);
+    let whole = bag(&[chunk("none", &records)]);
+    let cut = &whole[..whole.len() - 3];
+    let (ev, stats) = decode_bag(cut, None);
+    assert_eq!(rows(&ev), [(1, 1, 1_000_000, 1)]);
+    let chunk_bytes = chunk("none", &records).len() - 3;
+    assert_eq!(stats.truncated_bytes as usize, chunk_bytes);
+    assert_eq!(stats.unknown_words, 0);
+    assert!(crate::rosbag::BagReader::new(&b"#ROSBAG V1.2\n"[..], None, 8).is_err());
+}

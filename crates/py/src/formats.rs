@@ -9,6 +9,7 @@ use pyo3::prelude::*;
 
 use crate::errors::value_err;
 use crate::events::{event_arrays, EventArrays};
+use evsplat_formats::rosbag::{bag_connections, BagReader};
 use evsplat_formats::{ChunkReader, Encoding};
 
 /// The event words of a recording from byte `offset` on ("evt2", "evt3" or "dat"), read
@@ -60,7 +61,71 @@ impl EventFileDecoder {
     }
 }
 
+/// The event arrays of a ROS 1 bag's `topic` (None: every event-array connection), read
+/// through buffers that start at `block` bytes.
+#[pyclass(module = "evsplat._core")]
+struct BagEventDecoder {
+    inner: BagReader<File>,
+}
+
+#[pymethods]
+impl BagEventDecoder {
+    #[new]
+    #[pyo3(signature = (path, topic, block))]
+    fn new(path: std::path::PathBuf, topic: Option<&str>, block: usize) -> PyResult<Self> {
+        let file = File::open(&path).map_err(PyOSError::new_err)?;
+        let inner = BagReader::new(file, topic, block).map_err(PyOSError::new_err)?;
+        Ok(Self { inner })
+    }
+
+    /// (width, height) of the first event message (read up to it; its events are still to
+    /// come), or None when the topic has no readable event message.
+    fn sensor_size(&mut self, py: Python<'_>) -> PyResult<Option<(u32, u32)>> {
+        py.detach(|| self.inner.sensor_size())
+            .map_err(PyOSError::new_err)
+    }
+
+    /// The next chunk of at most `max_events` events; empty arrays at the end of the bag.
+    fn next_chunk<'py>(
+        &mut self,
+        py: Python<'py>,
+        max_events: usize,
+    ) -> PyResult<EventArrays<'py>> {
+        let ev = py
+            .detach(|| self.inner.next_chunk(max_events))
+            .map_err(PyOSError::new_err)?;
+        Ok(event_arrays(py, ev))
+    }
+
+    /// (0, records not readable as what their header says, bytes of a last record the file
+    /// ends in): final once `next_chunk` came back empty.
+    fn dropped(&self) -> (u64, u64, u64) {
+        let s = self.inner.stats();
+        (s.untimed_events, s.unknown_words, s.truncated_bytes)
+    }
+}
+
+/// The connections of a ROS 1 bag as (id, topic, type), from its index or, for an unindexed
+/// bag, from a pass through its records.
+#[pyfunction]
+#[pyo3(name = "bag_connections")]
+fn py_bag_connections(
+    py: Python<'_>,
+    path: std::path::PathBuf,
+) -> PyResult<Vec<(u32, String, String)>> {
+    let file = File::open(&path).map_err(PyOSError::new_err)?;
+    let conns = py
+        .detach(|| bag_connections(file, 1 << 16))
+        .map_err(PyOSError::new_err)?;
+    Ok(conns
+        .into_iter()
+        .map(|c| (c.id, c.topic, c.msgtype))
+        .collect())
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<EventFileDecoder>()?;
+    m.add_class::<BagEventDecoder>()?;
+    m.add_function(wrap_pyfunction!(py_bag_connections, m)?)?;
     Ok(())
 }

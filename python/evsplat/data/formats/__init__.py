@@ -7,7 +7,7 @@ suffix          format                      decoder (PyPI)
 ``.raw``        Prophesee RAW, EVT 2.0      evsplat's own (crates/formats, Rust)
 ``.raw``        Prophesee RAW, EVT 3.0      evsplat's own (crates/formats, Rust)
 ``.dat``        Prophesee DAT (CD events)   evsplat's own (crates/formats, Rust)
-``.bag``        ROS 1 bag                   ``rosbags`` (pure Python)
+``.bag``        ROS 1 bag                   evsplat's own (crates/formats, Rust)
 ``.mcap/.db3``  ROS 2 bag (or its folder)   ``rosbags``
 ==============  ==========================  ===========================================
 
@@ -50,6 +50,8 @@ class Dropped:
     words: int = 0
     #: Bytes after the last complete word or record: the file is truncated.
     bytes: int = 0
+    #: What ``words`` counts, in the warning.
+    words_are: str = "words of undefined types"
 
     def warning(self, path: Path) -> str | None:
         """One line saying what was dropped, or None when nothing was."""
@@ -60,7 +62,7 @@ class Dropped:
             f"{self.events} events come before the first time word (no timestamp)"
             if self.events
             else "",
-            f"{self.words} words of undefined types were skipped" if self.words else "",
+            f"{self.words} {self.words_are} were skipped" if self.words else "",
         ]
         said = "; ".join(p for p in parts if p)
         return f"{path}: {said}; all other events were kept" if said else None

@@ -1,21 +1,28 @@
-"""ROS 1 and ROS 2 bags through ``rosbags`` (pure Python): event arrays
-(``dvs_msgs/EventArray`` from rpg_dvs_ros, ``prophesee_event_msgs/EventArray`` from
-prophesee_ros_driver) and ``geometry_msgs/PoseStamped`` poses.
+"""ROS bags: event arrays (``dvs_msgs/EventArray`` from rpg_dvs_ros,
+``prophesee_event_msgs/EventArray`` from prophesee_ros_driver) and ``geometry_msgs/PoseStamped``
+poses.
 
-Message definitions stored in the bag are used; the two event types are also registered here,
-so ROS 2 bags recorded without definitions read too."""
+The events of a ROS 1 bag (.bag) are decoded by the project's Rust reader (crates/formats,
+``rosbag``): records in file order, chunks uncompressed, LZ4 or bzip2, in bounded chunks of
+events, with no need for the index, so a bag whose recording was cut off reads up to its last
+complete message. ROS 2 bags (.db3, .mcap) and every bag's poses go through ``rosbags`` (pure
+Python); its message definitions stored in the bag are used, and the two event types are also
+registered here, so ROS 2 bags recorded without definitions read too. The Rust reader was
+checked event by event against rosbags' deserialiser (tests/test_formats.py)."""
 
 from __future__ import annotations
 
 import struct
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from evsplat.data.formats import Chunk, EventSource
+from evsplat import _core
+from evsplat.data.formats import Chunk, Dropped, EventSource
 from evsplat.errors import EvsplatError
 
 #: Field layout shared by both drivers' Event messages (ROS 1 ``time`` = builtin Time).
@@ -25,6 +32,9 @@ EVENT_PACKAGES = ("dvs_msgs", "prophesee_event_msgs")
 EVENT_TYPES = tuple(f"{pkg}/msg/EventArray" for pkg in EVENT_PACKAGES)
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
+#: Events per chunk and bytes per read of the Rust reader of ROS 1 bags.
+CHUNK_EVENTS = 1 << 20
+BLOCK_BYTES = 4 << 20
 #: One event as ROS 1 serialises it (packed): x, y, ts.sec, ts.nsec, polarity.
 ROS1_EVENT = np.dtype([("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"), ("p", "u1")])
 #: The same in CDR (ROS 2): the first event is packed (13 bytes); each further one is
@@ -83,16 +93,24 @@ def _open(path: Path) -> AnyReader:
     return reader
 
 
-def _topics(reader: AnyReader) -> str:
-    return ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
+@dataclass(frozen=True)
+class Connection:
+    """A bag's topic and message type (``pkg/msg/Name``), as the Rust reader lists them."""
+
+    topic: str
+    msgtype: str
 
 
-def _pick(path: Path, reader: AnyReader, topic: str | None, types: tuple[str, ...], what: str):
+def _topics(connections) -> str:
+    return ", ".join(f"{c.topic} ({c.msgtype})" for c in connections) or "none"
+
+
+def _pick(path: Path, connections, topic: str | None, types: tuple[str, ...], what: str):
     """The connections of ``topic`` (checked to carry ``types``) or of the only such topic."""
     if topic is not None:
-        conns = [c for c in reader.connections if c.topic == topic]
+        conns = [c for c in connections if c.topic == topic]
         if not conns:
-            raise EvsplatError(f"{path}: no topic {topic!r}; topics: {_topics(reader)}")
+            raise EvsplatError(f"{path}: no topic {topic!r}; topics: {_topics(connections)}")
         bad = [c.msgtype for c in conns if c.msgtype not in types]
         if bad:
             raise EvsplatError(
@@ -100,20 +118,77 @@ def _pick(path: Path, reader: AnyReader, topic: str | None, types: tuple[str, ..
                 f"({' or '.join(types)}); pick another topic"
             )
         return conns
-    found = sorted({c.topic for c in reader.connections if c.msgtype in types})
+    found = sorted({c.topic for c in connections if c.msgtype in types})
     if not found:
         raise EvsplatError(
-            f"{path}: no {what} topic ({' or '.join(types)}); topics: {_topics(reader)}"
+            f"{path}: no {what} topic ({' or '.join(types)}); topics: {_topics(connections)}"
         )
     if len(found) > 1:
         raise EvsplatError(f"{path}: several {what} topics ({', '.join(found)}); pass --topic")
-    return [c for c in reader.connections if c.topic == found[0]]
+    return [c for c in connections if c.topic == found[0]]
+
+
+def is_ros1_bag(path: Path) -> bool:
+    """A ROS 1 bag file (decoded in Rust), not a ROS 2 storage file or folder."""
+    return path.suffix.lower() == ".bag" and path.is_file()
+
+
+def _msgtype(ros1_type: str) -> str:
+    """``pkg/Name`` (ROS 1) as ``pkg/msg/Name`` (rosbags' and the ROS 2 spelling)."""
+    pkg, _, name = ros1_type.rpartition("/")
+    return f"{pkg}/msg/{name}" if pkg and "/msg/" not in ros1_type else ros1_type
+
+
+def _ros1_fail(path: Path, e: OSError) -> EvsplatError:
+    what = " ".join(str(e).split())
+    return EvsplatError(
+        f"{path}: cannot open the bag ({what}); the file is not a ROS 1 bag or is damaged"
+    )
+
+
+def open_ros1_bag(path: Path, *, topic: str | None = None) -> EventSource:
+    """Opens the event topic of a ROS 1 bag with the Rust reader; the sensor size comes from
+    its first event message."""
+    try:
+        listed = _core.bag_connections(path)
+    except OSError as e:
+        raise _ros1_fail(path, e) from None
+    connections = [Connection(t, _msgtype(m)) for _, t, m in listed]
+    chosen = _pick(path, connections, topic, EVENT_TYPES, "event-array")[0].topic
+    block = max(1, min(BLOCK_BYTES, path.stat().st_size))
+    try:
+        decoder = _core.BagEventDecoder(path, chosen, block)
+        size = decoder.sensor_size()
+    except OSError as e:
+        raise _ros1_fail(path, e) from None
+    if size is None:
+        raise EvsplatError(f"{path}: topic {chosen} has no readable event messages")
+    width, height = size
+    if not (width > 0 and height > 0):
+        raise EvsplatError(
+            f"{path}: topic {chosen} gives sensor size {width}x{height}; "
+            "the driver did not fill width/height: re-record or fix the messages"
+        )
+    dropped = Dropped(words_are="event messages or records that could not be read")
+    chunks = _ros1_chunks(path, decoder, dropped)
+    return EventSource(path, int(width), int(height), chunks, "rosbag", "evsplat", dropped)
+
+
+def _ros1_chunks(path: Path, decoder, dropped: Dropped) -> Iterator[Chunk]:
+    try:
+        while len((chunk := decoder.next_chunk(CHUNK_EVENTS))[0]):
+            yield chunk
+    except OSError as e:
+        raise EvsplatError(f"{path}: cannot read events ({e}); check the file") from None
+    dropped.events, dropped.words, dropped.bytes = decoder.dropped()
 
 
 def open_bag(path: Path, *, topic: str | None = None) -> EventSource:
     """Opens the event topic of a bag; the sensor size comes from its first message."""
+    if is_ros1_bag(path):
+        return open_ros1_bag(path, topic=topic)
     reader = _open(path)
-    conns = _pick(path, reader, topic, EVENT_TYPES, "event-array")
+    conns = _pick(path, reader.connections, topic, EVENT_TYPES, "event-array")
     first = next(reader.messages(connections=conns), None)
     if first is None:
         reader.close()
@@ -207,7 +282,7 @@ def read_bag_poses(path: Path, *, topic: str | None = None) -> tuple[np.ndarray,
 
     reader = _open(path)
     try:
-        conns = _pick(path, reader, topic, (POSE_TYPE,), "pose")
+        conns = _pick(path, reader.connections, topic, (POSE_TYPE,), "pose")
         times, mats = [], []
         for conn, _, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
