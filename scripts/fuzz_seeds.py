@@ -1,7 +1,10 @@
 """Writes the fuzzers' seed corpus, crates/formats/fuzz/seeds/<encoding>/*.bin: valid event
 words (no header) from evsplat.data.formats.prophesee_writer, and ROS 1 bags (rosbag/*.bin)
 written by rosbags with each chunk compression, their bag header's 4 KB of padding cut (the
-reader skips it by its length; the fuzzers need not mutate it). Run from the repository root:
+reader skips it by its length; the fuzzers need not mutate it), and AEDAT 4 packets
+(aedat4/*.bin) written by dv-processing with each compression: one byte naming the compression
+(0 none, 1 LZ4, 2 Zstd; see check::decode_aedat_checked), then the packets after the header.
+Run from the repository root:
 `python scripts/fuzz_seeds.py`."""
 
 from __future__ import annotations
@@ -62,6 +65,28 @@ def write_bag(path: Path, x, y, t, p, compression: str) -> bytes:
     return data[:17] + bytes(header) + struct.pack("<I", 0) + data[pad_at + 4 + pad :]
 
 
+def aedat4_packets(path: Path, x, y, t, p, compression: str) -> bytes:
+    """dv-processing's AEDAT 4 file of these events (packets of 100), as the fuzz input: the
+    compression byte, then the packets (the data table, the header's, dropped)."""
+    import dv_processing as dv
+
+    cfg = dv.io.MonoCameraWriter.EventOnlyConfig("DVXplorer_seed", (1280, 720))
+    cfg.compression = getattr(dv.CompressionType, compression)
+    writer = dv.io.MonoCameraWriter(str(path), cfg)
+    for part in np.array_split(np.arange(len(x)), max(1, len(x) // 100)):
+        store = dv.EventStore()
+        for i in part:
+            store.push_back(int(t[i]), int(x[i]), int(y[i]), bool(p[i]))
+        writer.writeEvents(store)
+    del writer
+    from evsplat import _core
+
+    _, table, _, start = _core.aedat4_header(path)
+    data = path.read_bytes()
+    end = table if table >= 0 else len(data)
+    return bytes([{"NONE": 0, "LZ4": 1, "ZSTD": 2}[compression]]) + data[start:end]
+
+
 def main() -> None:
     cases = {
         "sparse": events(1, 200, 1_000_000, 2_000_000),  # new time words for most events
@@ -80,6 +105,11 @@ def main() -> None:
         for compression in ("none", "lz4", "bz2"):
             bag = write_bag(Path(tmp) / f"{compression}.bag", x, y, t, p, compression)
             (folder / f"{compression}.bin").write_bytes(bag)
+        folder = SEEDS / "aedat4"
+        folder.mkdir(parents=True, exist_ok=True)
+        for compression in ("NONE", "LZ4", "ZSTD"):
+            packets = aedat4_packets(Path(tmp) / f"{compression}.aedat4", x, y, t, p, compression)
+            (folder / f"{compression.lower()}.bin").write_bytes(packets)
 
 
 if __name__ == "__main__":

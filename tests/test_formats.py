@@ -18,7 +18,7 @@ import pytest
 from evsplat import _core
 from evsplat.cli import main
 from evsplat.data.event_files import read_events
-from evsplat.data.formats import prophesee_writer, rosbag
+from evsplat.data.formats import Dropped, open_source, prophesee_writer, rosbag
 from evsplat.errors import EvsplatError
 
 W, H = 320, 240
@@ -49,9 +49,10 @@ def _recording(encoding: str, x, y, t, p, head: bytes | None = None) -> bytes:
     return prophesee_writer.encode(encoding, x, y, t, p, W, H, head=head)
 
 
-def write_aedat4(path: Path, x, y, t, p) -> None:
+def write_aedat4(path: Path, x, y, t, p, compression: str = "LZ4") -> None:
     dv = pytest.importorskip("dv_processing")
     cfg = dv.io.MonoCameraWriter.EventOnlyConfig("DVXplorer_test", (W, H))
+    cfg.compression = getattr(dv.CompressionType, compression)
     writer = dv.io.MonoCameraWriter(str(path), cfg)
     # Several packets, so the reader's chunking is exercised.
     for part in np.array_split(np.arange(len(x)), 4):
@@ -309,6 +310,47 @@ def test_byte_views_agree_with_the_rosbags_deserializer(tmp_path, ros2):
         reader.close()
 
 
+def _aedat_events(path: Path):
+    """Every event of the first event stream as the ``aedat`` package decodes it."""
+    aedat = pytest.importorskip("aedat")
+    decoder = aedat.Decoder(str(path))
+    sid = min(i for i, s in decoder.id_to_stream().items() if s["type"] == "events")
+    parts = [p["events"] for p in decoder if p["stream_id"] == sid and "events" in p]
+    ev = np.concatenate(parts)
+    return ev["x"], ev["y"], ev["t"], ev["on"]
+
+
+@pytest.mark.parametrize("compression", ["NONE", "LZ4", "LZ4_HIGH", "ZSTD", "ZSTD_HIGH"])
+def test_aedat4_reader_matches_the_aedat_package_event_by_event(tmp_path, compression):
+    x, y, t, p = _events(14, n=20_000, t0=1_700_000_000_000_000)
+    path = tmp_path / "rec.aedat4"
+    write_aedat4(path, x, y, t, p, compression)
+    source = open_source(path)
+    chunks = list(source.chunks)
+    ours = tuple(np.concatenate([c[i] for c in chunks]) for i in range(4))
+    _assert_same_events(ours, _aedat_events(path))
+    _assert_same_events(ours, (x, y, t, p))
+    assert (source.width, source.height, source.decoder) == (W, H, "evsplat")
+    assert source.dropped == Dropped(words_are=source.dropped.words_are)
+
+
+def test_truncated_aedat4_keeps_the_complete_packets_and_says_what_was_dropped(tmp_path, capsys):
+    x, y, t, p = _events(15, n=2000, t0=1_700_000_000_000_000)
+    whole = tmp_path / "whole.aedat4"
+    write_aedat4(whole, x, y, t, p, "NONE")  # 4 packets of 500 events, then the data table
+    data = whole.read_bytes()
+    # The last packet's first event (its 16-byte struct starts with t): cut just after it.
+    cut = data.find(np.asarray(t[1500:1501], "<i8").tobytes()) + 16
+    path = tmp_path / "cut.aedat4"
+    path.write_bytes(data[:cut])
+    out = tmp_path / "cut.h5"
+    assert main(["convert", str(path), str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "(the file is truncated)" in err and str(path) in err, err
+    with h5py.File(out) as f:
+        np.testing.assert_array_equal(f["events/t"][:] + f["t_offset"][()], t[:1500])
+
+
 def _rosbags_events(path: Path, topic: str = "/dvs/events"):
     """Every event of ``topic`` as rosbags deserialises it (one Python object per event: the
     independent oracle for the Rust reader), message by message."""
@@ -388,7 +430,7 @@ def test_cut_ros1_bag_keeps_its_complete_messages_and_says_what_was_dropped(tmp_
 
 
 #: The PyPI decoder each converted file's provenance must name.
-DECODERS = {"a": "evsplat", "b": "evsplat", "c": "evsplat", "d": "aedat", "e": "evsplat"}
+DECODERS = {"a": "evsplat", "b": "evsplat", "c": "evsplat", "d": "evsplat", "e": "evsplat"}
 
 
 def test_convert_streams_every_format_into_the_same_h5(tmp_path, capsys):

@@ -168,3 +168,83 @@ pub fn decode_bag_all(
         all.p.extend(chunk.p);
     }
 }
+
+/// The same properties for AEDAT 4 packets (`aedat4::AedatReader`, stream 0, no data table):
+/// the first byte of `data` picks the compression (its value mod 3: none, LZ4, Zstd), the rest
+/// is the packets. Chunks full but the last and of bounded capacity; the packet buffers at most
+/// twice the input or the largest unpacked packet (no allocation from a corrupt size); at most
+/// one event per 16 unpacked bytes; `truncated_bytes` within the input; buffer and chunk sizes
+/// change nothing; a truncated copy decodes to a prefix; it all ends.
+pub fn decode_aedat_checked(data: &[u8]) -> (Events, Stats) {
+    let start = Instant::now();
+    let (events, stats, unpacked) = decode_aedat_all(data, 1 << 16, 1 << 16);
+    assert!(stats.truncated_bytes as usize <= data.len());
+    assert!(
+        events.len() * crate::aedat4::EVENT <= unpacked,
+        "more events than unpacked bytes"
+    );
+    for (block, max_events) in [(1, 1), (data.len() % 61 + 1, data.len() % 29 + 1)] {
+        let other = decode_aedat_all(data, block, max_events);
+        assert!(
+            other == (events.clone(), stats, unpacked),
+            "block {block}, chunk {max_events} differ"
+        );
+    }
+    let cut = data.len() * 2 / 3;
+    let (head, _, _) = decode_aedat_all(&data[..cut], 4096, 4096);
+    let n = head.len();
+    assert!(n <= events.len(), "a truncated copy has more events");
+    assert!(
+        head.x == events.x[..n]
+            && head.y == events.y[..n]
+            && head.t == events.t[..n]
+            && head.p == events.p[..n],
+        "a truncated copy's events are not a prefix"
+    );
+    assert!(start.elapsed() < HANG, "took {:?}", start.elapsed());
+    (events, stats)
+}
+
+/// Every event of the AEDAT 4 packets in `data` (first byte: the compression) through a
+/// `block`-byte read buffer in chunks of `max_events`, its stats and its unpacked bytes.
+pub fn decode_aedat_all(data: &[u8], block: usize, max_events: usize) -> (Events, Stats, usize) {
+    use crate::aedat4::{AedatReader, Compression};
+    let limit = max_events.max(1);
+    let (compression, packets) = match data.split_first() {
+        Some((&c, rest)) => (
+            [Compression::None, Compression::Lz4, Compression::Zstd][c as usize % 3],
+            rest,
+        ),
+        None => (Compression::None, data),
+    };
+    let mut reader = AedatReader::new(packets, compression, 0, 0, -1, block);
+    let mut all = Events::default();
+    let mut last = limit;
+    loop {
+        let chunk = match reader.next_chunk(max_events) {
+            Ok(chunk) => chunk,
+            Err(e) => panic!("reading a slice failed: {e}"),
+        };
+        assert!(chunk.len() <= limit, "chunk of {} > {limit}", chunk.len());
+        let capacity = [chunk.x.capacity(), chunk.y.capacity(), chunk.t.capacity()];
+        assert!(
+            capacity.iter().all(|&c| c <= (2 * limit).max(8)),
+            "chunk capacity {capacity:?}"
+        );
+        let (buffers, largest, unpacked) = reader.buffers();
+        let bound = 2 * data.len().max(largest).max(32);
+        assert!(
+            buffers.iter().all(|&c| c <= bound),
+            "buffers {buffers:?} > {bound}"
+        );
+        if chunk.is_empty() {
+            return (all, reader.stats(), unpacked as usize);
+        }
+        assert!(last == limit, "a chunk of {last} < {limit} before the end");
+        last = chunk.len();
+        all.x.extend(chunk.x);
+        all.y.extend(chunk.y);
+        all.t.extend(chunk.t);
+        all.p.extend(chunk.p);
+    }
+}

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use proptest::prelude::*;
 
-use crate::check::{decode_bag_checked, decode_checked};
+use crate::check::{decode_aedat_checked, decode_bag_checked, decode_checked};
 use crate::Encoding;
 
 /// The seed files of one encoding, in name order.
@@ -100,6 +100,24 @@ fn fuzz_bag(seed: usize, mutations: &[Mutation]) {
     decode_bag_checked(&data);
 }
 
+fn fuzz_aedat(seed: usize, mutations: &[Mutation]) {
+    let seeds = seeds("aedat4");
+    let mut data = seeds[seed % seeds.len()].clone();
+    for m in mutations {
+        mutate(&seeds, &mut data, m, 8);
+    }
+    decode_aedat_checked(&data);
+}
+
+#[test]
+fn aedat_seeds_decode_to_sorted_events_and_drop_nothing() {
+    for data in seeds("aedat4") {
+        let (events, stats) = decode_aedat_checked(&data);
+        assert!(events.len() >= 200 && events.t.windows(2).all(|w| w[0] <= w[1]));
+        assert_eq!(stats, Default::default());
+    }
+}
+
 #[test]
 fn bag_seeds_decode_to_sorted_events_and_drop_nothing() {
     for data in seeds("rosbag") {
@@ -154,6 +172,13 @@ proptest! {
     }
 
     #[test]
+    fn aedat4_reader_keeps_its_properties_on_mutated_files(
+        seed in any::<usize>(), m in prop::collection::vec(mutation(), 1..8)
+    ) {
+        fuzz_aedat(seed, &m);
+    }
+
+    #[test]
     fn random_records_after_the_bag_line_keep_the_properties(
         data in prop::collection::vec(any::<u8>(), 0..4096)
     ) {
@@ -168,5 +193,6 @@ proptest! {
             decode_checked(encoding, &data);
         }
         decode_bag_checked(&data);
+        decode_aedat_checked(&data);
     }
 }

@@ -1,10 +1,11 @@
 //! Decoders of event-camera recordings: the binary words of Prophesee EVT 2.0, EVT 3.0 and DAT
-//! (CD events), and the event-array messages of ROS 1 bags (`rosbag`), turned into events,
-//! chunk by chunk. Each decoder keeps its state (time base,
+//! (CD events), the event-array messages of ROS 1 bags (`rosbag`) and the event packets of
+//! AEDAT 4 files (`aedat4`), turned into events, chunk by chunk. Each decoder keeps its state (time base,
 //! row, vector base) across calls, so a recording streams through a bounded buffer. Headers are
 //! parsed by the Python reader (python/evsplat/data/formats/prophesee.py); this crate sees the
 //! bytes after them.
 
+pub mod aedat4;
 #[cfg(any(test, feature = "check"))]
 pub mod check;
 pub mod dat;

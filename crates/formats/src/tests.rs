@@ -340,3 +340,68 @@ fn cut_bag_keeps_the_messages_before_the_cut_and_counts_the_bytes_of_its_last_re
     assert_eq!(stats.unknown_words, 0);
     assert!(crate::rosbag::BagReader::new(&b"#ROSBAG V1.2\n"[..], None, 8).is_err());
 }
+
+/// An AEDAT 4 event packet (size-prefixed flatbuffer, "EVTS") in its framing: stream id, size.
+fn aedat_packet(stream: i32, events: &[(i64, i16, i16, bool)]) -> Vec<u8> {
+    let mut fb = Vec::new();
+    fb.extend(14u32.to_le_bytes()); // root: the table at 14
+    fb.extend(b"EVTS");
+    fb.extend([6u8, 0, 8, 0, 4, 0]); // vtable at 8: its size, the table's, field 0 at +4
+    fb.extend(6i32.to_le_bytes()); // table at 14: the vtable 6 bytes before
+    fb.extend(4u32.to_le_bytes()); // field 0: the vector 4 bytes on, at 22
+    fb.extend((events.len() as u32).to_le_bytes());
+    for &(t, x, y, on) in events {
+        fb.extend(t.to_le_bytes());
+        fb.extend(x.to_le_bytes());
+        fb.extend(y.to_le_bytes());
+        fb.extend([on as u8, 0, 0, 0]);
+    }
+    let mut packet = (fb.len() as u32).to_le_bytes().to_vec();
+    packet.extend(fb);
+    let mut out = stream.to_le_bytes().to_vec();
+    out.extend((packet.len() as u32).to_le_bytes());
+    out.extend(packet);
+    out
+}
+
+#[test]
+fn aedat_reader_takes_the_event_packets_of_its_stream_and_drops_a_cut_one() {
+    use crate::aedat4::{AedatReader, Compression};
+    let mut data = aedat_packet(
+        0,
+        &[
+            (1_700_000_000_000_001, 5, 6, true),
+            (1_700_000_000_000_002, 345, 259, false),
+        ],
+    );
+    data.extend(aedat_packet(3, &[(9, 9, 9, true)])); // another stream: skipped
+    let mut bad = aedat_packet(0, &[(3, 1, 1, true)]);
+    bad[16..20].copy_from_slice(b"FRME"); // not an event packet: counted
+    data.extend(bad);
+    data.extend(aedat_packet(0, &[(1_700_000_000_000_003, 0, 1, true)]));
+    let whole = data.len();
+    data.extend(&aedat_packet(0, &[(4, 4, 4, true)])[..20]);
+    let mut reader = AedatReader::new(&data[..], Compression::None, 0, 0, -1, 5);
+    let mut ev = Events::default();
+    loop {
+        let c = reader.next_chunk(1).expect("a slice reads");
+        if c.is_empty() {
+            break;
+        }
+        ev.push(c.x[0], c.y[0], c.t[0], c.p[0]);
+    }
+    assert_eq!(
+        rows(&ev),
+        [
+            (5, 6, 1_700_000_000_000_001, 1),
+            (345, 259, 1_700_000_000_000_002, 0),
+            (0, 1, 1_700_000_000_000_003, 1)
+        ]
+    );
+    let stats = reader.stats();
+    assert_eq!((stats.unknown_words, stats.truncated_bytes), (1, 20));
+    // The data table's position ends the packets.
+    let mut reader = AedatReader::new(&data[..], Compression::None, 0, 100, 100 + whole as i64, 5);
+    assert_eq!(reader.next_chunk(10).expect("a slice reads").len(), 3);
+    assert_eq!(reader.stats().truncated_bytes, 0);
+}

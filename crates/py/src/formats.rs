@@ -9,6 +9,7 @@ use pyo3::prelude::*;
 
 use crate::errors::value_err;
 use crate::events::{event_arrays, EventArrays};
+use evsplat_formats::aedat4::{self, AedatReader, Compression};
 use evsplat_formats::rosbag::{bag_connections, BagReader};
 use evsplat_formats::{ChunkReader, Encoding};
 
@@ -123,7 +124,68 @@ fn py_bag_connections(
         .collect())
 }
 
+/// An AEDAT 4 file's header: (compression value, data table position or -1, the streams'
+/// XML description, offset of the first packet).
+#[pyfunction]
+fn aedat4_header(path: std::path::PathBuf) -> PyResult<(i32, i64, String, u64)> {
+    let mut file = std::io::BufReader::new(File::open(&path).map_err(PyOSError::new_err)?);
+    let h = aedat4::read_header(&mut file).map_err(PyOSError::new_err)?;
+    Ok((h.compression, h.data_table, h.description, h.data_start))
+}
+
+/// The events of stream `stream` of an AEDAT 4 file whose header `aedat4_header` read, through
+/// a read buffer of `block` bytes.
+#[pyclass(module = "evsplat._core")]
+struct Aedat4EventDecoder {
+    inner: AedatReader<File>,
+}
+
+#[pymethods]
+impl Aedat4EventDecoder {
+    #[new]
+    fn new(
+        path: std::path::PathBuf,
+        compression: i32,
+        stream: i32,
+        data_start: u64,
+        data_table: i64,
+        block: usize,
+    ) -> PyResult<Self> {
+        let Some(compression) = Compression::from_header(compression) else {
+            return Err(value_err(format!(
+                "compression {compression} is unknown; AEDAT 4 defines 0 to 4"
+            )));
+        };
+        let mut file = File::open(&path).map_err(PyOSError::new_err)?;
+        file.seek(SeekFrom::Start(data_start))
+            .map_err(PyOSError::new_err)?;
+        let inner = AedatReader::new(file, compression, stream, data_start, data_table, block);
+        Ok(Self { inner })
+    }
+
+    /// The next chunk of at most `max_events` events; empty arrays after the last packet.
+    fn next_chunk<'py>(
+        &mut self,
+        py: Python<'py>,
+        max_events: usize,
+    ) -> PyResult<EventArrays<'py>> {
+        let ev = py
+            .detach(|| self.inner.next_chunk(max_events))
+            .map_err(PyOSError::new_err)?;
+        Ok(event_arrays(py, ev))
+    }
+
+    /// (0, packets of the stream that are not whole event packets, bytes of a packet the file
+    /// ends in): final once `next_chunk` came back empty.
+    fn dropped(&self) -> (u64, u64, u64) {
+        let s = self.inner.stats();
+        (s.untimed_events, s.unknown_words, s.truncated_bytes)
+    }
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Aedat4EventDecoder>()?;
+    m.add_function(wrap_pyfunction!(aedat4_header, m)?)?;
     m.add_class::<EventFileDecoder>()?;
     m.add_class::<BagEventDecoder>()?;
     m.add_function(wrap_pyfunction!(py_bag_connections, m)?)?;

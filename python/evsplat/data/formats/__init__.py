@@ -3,7 +3,7 @@
 ==============  ==========================  ===========================================
 suffix          format                      decoder (PyPI)
 ==============  ==========================  ===========================================
-``.aedat4``     iniVation AEDAT 4 (DV)      ``aedat`` (Rust)
+``.aedat4``     iniVation AEDAT 4 (DV)      evsplat's own (crates/formats, Rust)
 ``.raw``        Prophesee RAW, EVT 2.0      evsplat's own (crates/formats, Rust)
 ``.raw``        Prophesee RAW, EVT 3.0      evsplat's own (crates/formats, Rust)
 ``.dat``        Prophesee DAT (CD events)   evsplat's own (crates/formats, Rust)
