@@ -15,7 +15,9 @@ def test_bench_decode_prints_every_row_and_every_decoder_agrees(tmp_path, capsys
     args = ["bench", "decode", "--events=30000", "--repeat=1", f"--dir={tmp_path}", "--json"]
     assert main(args) == 0
     rows = json.loads(capsys.readouterr().out)
-    for fmt, reference in (("evt3", "evt3"), ("evt2", "expelliarmus"), ("dat", "expelliarmus")):
+    references = {"evt3": "evt3", "evt2": "expelliarmus", "dat": "expelliarmus"}
+    references |= {"bag": "rosbags", "bag-lz4": "rosbags", "aedat4": "aedat"}
+    for fmt, reference in references.items():
         what = {r["what"]: r for r in rows if r["format"] == fmt}
         for name in ("disk read, O_DIRECT", "disk read, cold", "disk read, warm"):
             assert what[name]["wall_s"] > 0

@@ -1,13 +1,17 @@
-"""`evsplat bench decode`: the Prophesee decoders (EVT 2.0, EVT 3.0, DAT) against the disk and
-the reference decoders, on a recording generated for the run (deleted after it).
+"""`evsplat bench decode`: the recording decoders (Prophesee EVT 2.0, EVT 3.0, DAT; ROS 1 bags,
+uncompressed and LZ4; AEDAT 4, LZ4) against the disk and the reference decoders, on a recording
+generated for the run (deleted after it).
 
 Per format, all in one run on the same file: the disk's sequential read speed (once with the
 file's pages dropped from the page cache by ``posix_fadvise(DONTNEED)`` after an ``fsync``:
 "cold", though a VM's host may still cache it; once warm), the project's Rust decoder
-(``_core.EventFileDecoder``, warm and cold) and the reference decoder (``evt3`` for EVT 3.0,
-``expelliarmus`` for EVT 2.0 and DAT), warm; with ``--convert``, ``evsplat convert`` end to end
-with and without compression and the SHA-256 of the file it computes alongside. Each
-decoder's events are summed (count, x, y, t, p) and compared with the generator's.
+(``_core.EventFileDecoder``, ``_core.BagEventDecoder``, ``_core.Aedat4EventDecoder``; warm
+and cold) and the reference decoder (``evt3`` for EVT 3.0, ``expelliarmus`` for EVT 2.0 and
+DAT, ``aedat`` for AEDAT 4, for bags ``rosbags``' reader with the byte view evsplat used
+before its Rust reader: rosbags' deserialiser, one Python object per event, is far too slow for
+these sizes), warm; with ``--convert``, ``evsplat convert`` end to end with and without
+compression and the SHA-256 of the file it computes alongside. Each decoder's events are summed
+(count, x, y, t, p) and compared with the generator's.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import json
 import mmap
 import os
 import re
+import struct
 import subprocess
 import sys
 import tempfile
@@ -28,9 +33,34 @@ import numpy as np
 
 from evsplat.data.formats import Chunk, prophesee_writer
 
-HELP = "Prophesee decoders (EVT 2.0/3.0, DAT): Rust vs evt3/expelliarmus vs the disk's read speed"
+HELP = (
+    "recording decoders (EVT 2.0/3.0, DAT, ROS 1 bags, AEDAT 4): Rust vs the field's decoders "
+    "vs the disk's read speed"
+)
 
-FORMATS = ("evt3", "evt2", "dat")
+FORMATS = ("evt3", "evt2", "dat", "bag", "bag-lz4", "aedat4")
+#: The field's decoder each format is compared with.
+REFERENCES = {
+    "evt3": "evt3",
+    "evt2": "expelliarmus",
+    "dat": "expelliarmus",
+    "bag": "rosbags",
+    "bag-lz4": "rosbags",
+    "aedat4": "aedat",
+}
+#: Events per AEDAT 4 packet of a generated file.
+AEDAT_PACKET_EVENTS = 10_000
+#: An AEDAT 4 event struct: t, x, y, on and 3 bytes of padding.
+AEDAT_EVENT = np.dtype(
+    {
+        "names": ["t", "x", "y", "on"],
+        "formats": ["<i8", "<i2", "<i2", "u1"],
+        "offsets": [0, 8, 10, 12],
+        "itemsize": 16,
+    }
+)
+#: Events per EventArray message of a generated bag (a 10 M ev/s sensor's ~1 ms).
+BAG_MESSAGE_EVENTS = 10_000
 #: Bytes per read when timing the disk.
 READ_BLOCK = 8 << 20
 
@@ -38,7 +68,7 @@ READ_BLOCK = 8 << 20
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--events", type=int, default=50_000_000, help="events per recording")
     parser.add_argument(
-        "--formats", default=",".join(FORMATS), help="comma-separated: evt3, evt2, dat"
+        "--formats", default=",".join(FORMATS), help=f"comma-separated: {', '.join(FORMATS)}"
     )
     parser.add_argument(
         "--dir", type=Path, default=None, help="where the recordings go (default: a temp dir)"
@@ -132,9 +162,92 @@ def rust_chunks(path: Path) -> Iterator[Chunk]:
     return open_source(path).chunks
 
 
+def write_bag(path: Path, chunks: Iterator[Chunk], width: int, height: int, lz4: bool) -> int:
+    """A ROS 1 bag written by rosbags: one dvs_msgs/EventArray topic, messages of
+    ``BAG_MESSAGE_EVENTS`` serialised here with numpy (rosbags' serialiser builds one object
+    per event), chunks of 1 MiB, uncompressed or LZ4. Returns the file's size."""
+    from rosbags.rosbag1 import Writer
+
+    from evsplat.data.formats import rosbag
+
+    store = rosbag.typestore(ros1=True)
+    writer = Writer(path)
+    if lz4:
+        writer.set_compression(Writer.CompressionFormat.LZ4)
+    with writer:
+        conn = writer.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=store)
+        for seq, (x, y, t, p) in enumerate(chunks):
+            for i in range(0, len(t), BAG_MESSAGE_EVENTS):
+                sl = slice(i, i + BAG_MESSAGE_EVENTS)
+                rec = np.empty(len(t[sl]), rosbag.ROS1_EVENT)
+                tt = np.asarray(t[sl], np.int64)
+                rec["x"], rec["y"], rec["p"] = x[sl], y[sl], p[sl]
+                rec["sec"], rec["nsec"] = tt // 1_000_000, tt % 1_000_000 * 1000
+                stamp = int(tt[-1])
+                head = struct.pack(
+                    "<IIII3sIII", seq, stamp // 10**6, stamp % 10**6 * 1000, 3, b"cam",
+                    height, width, len(rec),
+                )  # fmt: skip
+                writer.write(conn, stamp * 1000, head + rec.tobytes())
+    return path.stat().st_size
+
+
+def write_aedat4(path: Path, chunks: Iterator[Chunk], width: int, height: int) -> int:
+    """An AEDAT 4 file: dv-processing's header for one event stream of this size (LZ4, its
+    default; the data table's position cleared), then LZ4-compressed event packets of
+    ``AEDAT_PACKET_EVENTS`` built here with numpy (dv-processing takes events one by one from
+    Python). Returns the file's size."""
+    import dv_processing as dv
+    import lz4.frame
+
+    from evsplat import _core
+
+    with tempfile.TemporaryDirectory() as tmp:
+        empty = Path(tmp) / "header.aedat4"
+        cfg = dv.io.MonoCameraWriter.EventOnlyConfig("DVXplorer_bench", (width, height))
+        writer = dv.io.MonoCameraWriter(str(empty), cfg)
+        del writer  # closes the file
+        compression, table, _, start = _core.aedat4_header(empty)
+        head = bytearray(empty.read_bytes()[:start])
+    if compression not in (1, 2):
+        raise RuntimeError(f"dv-processing wrote compression {compression}, not LZ4")
+    if table >= 0:
+        at = head.find(struct.pack("<q", table), len(b"#!AER-DAT4.0\r\n") + 4)
+        head[at : at + 8] = struct.pack("<q", -1)
+    # The packet's flatbuffer before its events, aligned as flatbuffers' verifier wants (the
+    # events at a multiple of 8 from the size prefix): root offset, "EVTS", vtable (its size,
+    # the table's, field 0 at +4) and 2 bytes of padding, table (soffset 8, vector offset 4).
+    fixed = struct.pack("<I4s3H2xiI", 16, b"EVTS", 6, 8, 4, 8, 4)
+    with open(path, "wb") as f:
+        f.write(head)
+        for x, y, t, p in chunks:
+            for i in range(0, len(t), AEDAT_PACKET_EVENTS):
+                sl = slice(i, i + AEDAT_PACKET_EVENTS)
+                rec = np.zeros(len(t[sl]), AEDAT_EVENT)
+                rec["t"], rec["x"], rec["y"], rec["on"] = t[sl], x[sl], y[sl], p[sl]
+                body = fixed + struct.pack("<I", len(rec)) + rec.tobytes()
+                packet = lz4.frame.compress(struct.pack("<I", len(body)) + body)
+                f.write(struct.pack("<iI", 0, len(packet)) + packet)
+    return path.stat().st_size
+
+
 def reference_chunks(path: Path, encoding: str) -> Iterator[Chunk]:
     """The field's decoder (ImportError when it is not installed)."""
-    if encoding == "evt3":
+    if encoding == "aedat4":
+        import aedat
+
+        decoder = aedat.Decoder(str(path))
+        for packet in decoder:
+            if packet["stream_id"] == 0 and "events" in packet:
+                ev = packet["events"]
+                yield ev["x"], ev["y"], ev["t"], ev["on"]
+    elif encoding.startswith("bag"):
+        from evsplat.data.formats import rosbag
+
+        reader = rosbag._open(path)
+        conns = [c for c in reader.connections if c.msgtype in rosbag.EVENT_TYPES]
+        yield from rosbag._event_chunks(reader, conns)
+    elif encoding == "evt3":
         import evt3
 
         for ev in evt3.decode_file_batches(str(path), batch_bytes=8 << 20):
@@ -190,7 +303,8 @@ def convert_once(path: Path, out: Path, codec: str) -> tuple[float, float]:
 
 
 def measure_format(args: argparse.Namespace, encoding: str, folder: Path) -> list[dict]:
-    path = folder / f"bench.{'dat' if encoding == 'dat' else 'raw'}"
+    suffix = {"dat": "dat", "bag": "bag", "bag-lz4": "bag", "aedat4": "aedat4"}.get(encoding, "raw")
+    path = folder / f"bench.{suffix}"
     want = Sums()
 
     def chunks() -> Iterator[Chunk]:
@@ -199,7 +313,12 @@ def measure_format(args: argparse.Namespace, encoding: str, folder: Path) -> lis
             yield c
 
     w0 = time.perf_counter()
-    size = prophesee_writer.write_recording(path, encoding, 1280, 720, chunks())
+    if encoding == "aedat4":
+        size = write_aedat4(path, chunks(), 1280, 720)
+    elif encoding.startswith("bag"):
+        size = write_bag(path, chunks(), 1280, 720, lz4=encoding == "bag-lz4")
+    else:
+        size = prophesee_writer.write_recording(path, encoding, 1280, 720, chunks())
     gen_s = time.perf_counter() - w0
     n = int(want.values[0])
     rows = []
@@ -224,7 +343,7 @@ def measure_format(args: argparse.Namespace, encoding: str, folder: Path) -> lis
     row("disk read, warm", *timed(lambda: read_all(path), r))
     wall, cpu, got = timed_decode(lambda: rust_chunks(path), r)
     row("rust decoder, warm", wall, cpu, got == want)
-    reference = "evt3" if encoding == "evt3" else "expelliarmus"
+    reference = REFERENCES[encoding]
     try:
         wall, cpu, ref = timed_decode(lambda: reference_chunks(path, encoding), r)
         row(f"{reference}, warm", wall, cpu, ref == want)
