@@ -8,7 +8,7 @@ set -euo pipefail
 seconds=${1:-60}
 shift || true
 targets=("${@:-evt2}")
-[ $# -eq 0 ] && targets=(evt2 evt3 dat rosbag aedat4)
+[ $# -eq 0 ] && targets=(evt2 evt3 dat rosbag aedat4 mcap)
 cd "$(dirname "${BASH_SOURCE[0]}")/../crates/formats/fuzz"
 export CARGO_TARGET_DIR="${FUZZ_TARGET_DIR:-$PWD/target}"
 export RUSTFLAGS="-Cpasses=sancov-module -Cllvm-args=-sanitizer-coverage-level=4 \

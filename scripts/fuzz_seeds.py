@@ -3,7 +3,8 @@ words (no header) from evsplat.data.formats.prophesee_writer, and ROS 1 bags (ro
 written by rosbags with each chunk compression, their bag header's 4 KB of padding cut (the
 reader skips it by its length; the fuzzers need not mutate it), and AEDAT 4 packets
 (aedat4/*.bin) written by dv-processing with each compression: one byte naming the compression
-(0 none, 1 LZ4, 2 Zstd; see check::decode_aedat_checked), then the packets after the header.
+(0 none, 1 LZ4, 2 Zstd; see check::decode_aedat_checked), then the packets after the header;
+and ROS 2 MCAP files (mcap/*.bin) written by rosbags, uncompressed and with Zstd chunks.
 Run from the repository root:
 `python scripts/fuzz_seeds.py`."""
 
@@ -87,6 +88,38 @@ def aedat4_packets(path: Path, x, y, t, p, compression: str) -> bytes:
     return bytes([{"NONE": 0, "LZ4": 1, "ZSTD": 2}[compression]]) + data[start:end]
 
 
+def write_mcap(path: Path, x, y, t, p, zstd: bool) -> bytes:
+    """A small ROS 2 bag in MCAP: prophesee_event_msgs/EventArray messages of ~50 events and a
+    pose topic, in one chunk (rosbags' MCAP writer chunks by 1 MiB); returns the .mcap file."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    from test_formats import _event_array, _pose
+
+    from evsplat.data.formats import rosbag
+
+    store = rosbag.typestore()
+    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    if zstd:
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    kind = "prophesee_event_msgs/msg/EventArray"
+    with writer:
+        conn = writer.add_connection("/events", kind, typestore=store)
+        pose = writer.add_connection("/pose", "geometry_msgs/msg/PoseStamped", typestore=store)
+        for part in np.array_split(np.arange(len(x)), max(1, len(x) // 50)):
+            stamp = int(t[part[-1]]) + 1
+            msg = _event_array(
+                store, "prophesee_event_msgs", x[part], y[part], t[part], p[part], stamp
+            )
+            writer.write(conn, stamp * 1000, store.serialize_cdr(msg, kind))
+            msg = _pose(store, stamp, (0.0, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0))
+            writer.write(
+                pose, stamp * 1000, store.serialize_cdr(msg, "geometry_msgs/msg/PoseStamped")
+            )
+    return next(path.glob("*.mcap")).read_bytes()
+
+
 def main() -> None:
     cases = {
         "sparse": events(1, 200, 1_000_000, 2_000_000),  # new time words for most events
@@ -110,6 +143,11 @@ def main() -> None:
         for compression in ("NONE", "LZ4", "ZSTD"):
             packets = aedat4_packets(Path(tmp) / f"{compression}.aedat4", x, y, t, p, compression)
             (folder / f"{compression.lower()}.bin").write_bytes(packets)
+        folder = SEEDS / "mcap"
+        folder.mkdir(parents=True, exist_ok=True)
+        for name, zstd in (("none", False), ("zstd", True)):
+            data = write_mcap(Path(tmp) / f"mcap-{name}", x, y, t, p, zstd)
+            (folder / f"{name}.bin").write_bytes(data)
 
 
 if __name__ == "__main__":

@@ -111,15 +111,21 @@ def write_bag(
     poses: list | None = None,
     compression: str = "none",
     chunk_bytes: int | None = None,
+    mcap: bool = False,
 ) -> Path:
     """A bag with an event topic (messages of ~500 events) and optionally a pose topic; a
     ROS 1 bag's chunks ``compression`` ("none", "lz4", "bz2") of ``chunk_bytes`` (rosbags'
-    default: 1 MiB)."""
+    default: 1 MiB); a ROS 2 bag in SQLite, or with ``mcap`` in MCAP (``compression`` "zstd":
+    zstd chunks)."""
     store = rosbag.typestore(ros1=not ros2)
     if ros2:
-        from rosbags.rosbag2 import Writer
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
-        writer, ser = Writer(path, version=9), store.serialize_cdr
+        plugin = StoragePlugin.MCAP if mcap else StoragePlugin.SQLITE3
+        writer, ser = Writer(path, version=9, storage_plugin=plugin), store.serialize_cdr
+        if compression == "zstd":
+            writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
     else:
         from rosbags.rosbag1 import Writer
 
@@ -272,13 +278,24 @@ def test_aedat4_reader_recovers_dv_processing_recording(tmp_path):
     _assert_same(read_events(path), x, y, t, p)
 
 
-@pytest.mark.parametrize(("ros2", "pkg"), [(False, "dvs_msgs"), (True, "prophesee_event_msgs")])
-def test_bag_reader_recovers_event_arrays_and_poses(tmp_path, ros2, pkg):
+@pytest.mark.parametrize(
+    ("ros2", "pkg", "mcap"),
+    [(False, "dvs_msgs", False), (True, "prophesee_event_msgs", False), (True, "dvs_msgs", True)],
+)
+def test_bag_reader_recovers_event_arrays_and_poses(tmp_path, ros2, pkg, mcap):
     x, y, t, p = _events(3, t0=1_000_000)
     q = np.array([np.cos(0.2), 0.0, np.sin(0.2), 0.0])  # 0.4 rad about y
     poses = [(1_000_000 + 100_000 * k, (0.1 * k, -0.2, 1.5), q) for k in range(30)]
     path = write_bag(
-        tmp_path / ("rec2" if ros2 else "rec.bag"), x, y, t, p, ros2=ros2, pkg=pkg, poses=poses
+        tmp_path / ("rec2" if ros2 else "rec.bag"),
+        x,
+        y,
+        t,
+        p,
+        ros2=ros2,
+        pkg=pkg,
+        poses=poses,
+        mcap=mcap,
     )
     _assert_same(read_events(path), x, y, t, p)
     times, c2w = rosbag.read_bag_poses(path)
@@ -402,6 +419,34 @@ def test_ros1_bag_reader_matches_rosbags_event_by_event(tmp_path, compression, p
         ("/dvs/events", f"{pkg}/EventArray"),
         ("/mocap/pose", "geometry_msgs/PoseStamped"),
     ]
+
+
+@pytest.mark.parametrize("compression", ["none", "zstd"])
+@pytest.mark.parametrize("pkg", ["dvs_msgs", "prophesee_event_msgs"])
+def test_ros2_mcap_reader_matches_rosbags_event_by_event(tmp_path, compression, pkg):
+    x, y, t, p = _events(16, n=20_000, t0=1_600_000_000_000_000)
+    poses = [(int(t[0]) + 50_000 * k, (0.0, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)) for k in range(20)]
+    bag = write_bag(
+        tmp_path / "rec2", x, y, t, p, ros2=True, pkg=pkg, poses=poses, mcap=True,
+        compression=compression,
+    )  # fmt: skip
+    (mcap,) = bag.glob("*.mcap")
+    decoder = _core.McapEventDecoder(mcap, "/dvs/events", 1 << 12)
+    chunks = []
+    while len((chunk := decoder.next_chunk(777))[0]):
+        chunks.append(chunk)
+    ours = tuple(np.concatenate([c[i] for c in chunks]) for i in range(4))
+    _assert_same_events(ours, _rosbags_events(bag))
+    _assert_same_events(ours, (x, y, t, p))
+    assert decoder.dropped() == (0, 0, 0)
+    listed = [(topic, kind) for _, topic, kind in _core.mcap_channels(mcap)]
+    assert listed == [
+        ("/dvs/events", f"{pkg}/msg/EventArray"),
+        ("/mocap/pose", "geometry_msgs/msg/PoseStamped"),
+    ]
+    source = open_source(bag)  # the bag's folder: its one MCAP file, read in Rust
+    n = sum(len(c[2]) for c in source.chunks)
+    assert (source.decoder, n) == ("evsplat", len(t))
 
 
 def test_cut_ros1_bag_keeps_its_complete_messages_and_says_what_was_dropped(tmp_path, capsys):

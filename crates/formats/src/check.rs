@@ -248,3 +248,86 @@ pub fn decode_aedat_all(data: &[u8], block: usize, max_events: usize) -> (Events
         all.p.extend(chunk.p);
     }
 }
+
+/// The bag properties for an MCAP file (`mcap::McapReader`, every event-array channel): the
+/// reader refuses exactly the inputs without the magic; at most one event per 13 unpacked
+/// bytes (a message's first event is packed); the rest as `decode_bag_checked`.
+pub fn decode_mcap_checked(data: &[u8]) -> Option<(Events, Stats)> {
+    let start = Instant::now();
+    let Some((events, stats, unpacked)) = decode_mcap_all(data, 1 << 16, 1 << 16) else {
+        assert!(
+            !data.starts_with(crate::mcap::MAGIC),
+            "an MCAP file refused"
+        );
+        return None;
+    };
+    assert!(data.starts_with(crate::mcap::MAGIC), "not MCAP, yet read");
+    assert!(stats.truncated_bytes as usize <= data.len());
+    assert!(
+        events.len() * 13 <= unpacked,
+        "more events than unpacked bytes"
+    );
+    for (block, max_events) in [(1, 1), (data.len() % 61 + 1, data.len() % 29 + 1)] {
+        let other = decode_mcap_all(data, block, max_events);
+        assert!(
+            other == Some((events.clone(), stats, unpacked)),
+            "block {block}, chunk {max_events} differ"
+        );
+    }
+    let cut = data.len() * 2 / 3;
+    if cut >= crate::mcap::MAGIC.len() {
+        let (head, _, _) = decode_mcap_all(&data[..cut], 4096, 4096).expect("a cut file opens");
+        let n = head.len();
+        assert!(n <= events.len(), "a truncated copy has more events");
+        assert!(
+            head.x == events.x[..n]
+                && head.y == events.y[..n]
+                && head.t == events.t[..n]
+                && head.p == events.p[..n],
+            "a truncated copy's events are not a prefix"
+        );
+    }
+    assert!(start.elapsed() < HANG, "took {:?}", start.elapsed());
+    Some((events, stats))
+}
+
+/// Every event of the MCAP file `data` through a `block`-byte read buffer in chunks of
+/// `max_events`, its stats and the bytes it unpacked (whole records read count too); None
+/// when it is not MCAP.
+pub fn decode_mcap_all(
+    data: &[u8],
+    block: usize,
+    max_events: usize,
+) -> Option<(Events, Stats, usize)> {
+    let limit = max_events.max(1);
+    let mut reader = crate::mcap::McapReader::new(data, None, block).ok()?;
+    let mut all = Events::default();
+    let mut last = limit;
+    loop {
+        let chunk = match reader.next_chunk(max_events) {
+            Ok(chunk) => chunk,
+            Err(e) => panic!("reading a slice failed: {e}"),
+        };
+        assert!(chunk.len() <= limit, "chunk of {} > {limit}", chunk.len());
+        let capacity = [chunk.x.capacity(), chunk.y.capacity(), chunk.t.capacity()];
+        assert!(
+            capacity.iter().all(|&c| c <= (2 * limit).max(8)),
+            "chunk capacity {capacity:?}"
+        );
+        let (buffers, largest, unpacked) = reader.buffers();
+        let bound = 2 * data.len().max(largest).max(32);
+        assert!(
+            buffers.iter().all(|&c| c <= bound),
+            "buffers {buffers:?} > {bound}"
+        );
+        if chunk.is_empty() {
+            return Some((all, reader.stats(), data.len() + unpacked as usize));
+        }
+        assert!(last == limit, "a chunk of {last} < {limit} before the end");
+        last = chunk.len();
+        all.x.extend(chunk.x);
+        all.y.extend(chunk.y);
+        all.t.extend(chunk.t);
+        all.p.extend(chunk.p);
+    }
+}

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use proptest::prelude::*;
 
-use crate::check::{decode_aedat_checked, decode_bag_checked, decode_checked};
+use crate::check::{decode_aedat_checked, decode_bag_checked, decode_checked, decode_mcap_checked};
 use crate::Encoding;
 
 /// The seed files of one encoding, in name order.
@@ -118,6 +118,24 @@ fn aedat_seeds_decode_to_sorted_events_and_drop_nothing() {
     }
 }
 
+fn fuzz_mcap(seed: usize, mutations: &[Mutation]) {
+    let seeds = seeds("mcap");
+    let mut data = seeds[seed % seeds.len()].clone();
+    for m in mutations {
+        mutate(&seeds, &mut data, m, 8);
+    }
+    decode_mcap_checked(&data);
+}
+
+#[test]
+fn mcap_seeds_decode_to_sorted_events_and_drop_nothing() {
+    for data in seeds("mcap") {
+        let (events, stats) = decode_mcap_checked(&data).expect("a seed file opens");
+        assert!(events.len() >= 200 && events.t.windows(2).all(|w| w[0] <= w[1]));
+        assert_eq!(stats, Default::default());
+    }
+}
+
 #[test]
 fn bag_seeds_decode_to_sorted_events_and_drop_nothing() {
     for data in seeds("rosbag") {
@@ -179,6 +197,22 @@ proptest! {
     }
 
     #[test]
+    fn mcap_reader_keeps_its_properties_on_mutated_files(
+        seed in any::<usize>(), m in prop::collection::vec(mutation(), 1..8)
+    ) {
+        fuzz_mcap(seed, &m);
+    }
+
+    #[test]
+    fn random_records_after_the_mcap_magic_keep_the_properties(
+        data in prop::collection::vec(any::<u8>(), 0..4096)
+    ) {
+        let mut file = crate::mcap::MAGIC.to_vec();
+        file.extend(data);
+        decode_mcap_checked(&file);
+    }
+
+    #[test]
     fn random_records_after_the_bag_line_keep_the_properties(
         data in prop::collection::vec(any::<u8>(), 0..4096)
     ) {
@@ -194,5 +228,6 @@ proptest! {
         }
         decode_bag_checked(&data);
         decode_aedat_checked(&data);
+        decode_mcap_checked(&data);
     }
 }

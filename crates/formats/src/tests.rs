@@ -405,3 +405,111 @@ fn aedat_reader_takes_the_event_packets_of_its_stream_and_drops_a_cut_one() {
     assert_eq!(reader.next_chunk(10).expect("a slice reads").len(), 3);
     assert_eq!(reader.stats().truncated_bytes, 0);
 }
+
+/// An MCAP record: op, u64 length, content.
+fn mcap_record(op: u8, content: &[u8]) -> Vec<u8> {
+    let mut out = vec![op];
+    out.extend((content.len() as u64).to_le_bytes());
+    out.extend(content);
+    out
+}
+
+fn mcap_string(s: &[u8]) -> Vec<u8> {
+    let mut out = (s.len() as u32).to_le_bytes().to_vec();
+    out.extend(s);
+    out
+}
+
+/// A CDR EventArray message on `channel`: events (x, y, sec, nanosec, polarity).
+fn mcap_message(channel: u16, events: &[(u16, u16, i32, u32, u8)]) -> Vec<u8> {
+    let mut cdr = vec![0u8, 1, 0, 0]; // little-endian CDR
+    cdr.extend(5i32.to_le_bytes()); // stamp
+    cdr.extend(0u32.to_le_bytes());
+    cdr.extend(mcap_string(b"cam\0")); // frame_id: 4 bytes with its NUL, so aligned
+    cdr.extend(240u32.to_le_bytes());
+    cdr.extend(320u32.to_le_bytes());
+    cdr.extend((events.len() as u32).to_le_bytes());
+    for (i, &(x, y, s, ns, p)) in events.iter().enumerate() {
+        if i > 0 {
+            cdr.push(0); // x aligns to 2 after the previous polarity
+        }
+        cdr.extend(x.to_le_bytes());
+        cdr.extend(y.to_le_bytes());
+        if i > 0 {
+            cdr.extend([0, 0]); // sec aligns to 4
+        }
+        cdr.extend(s.to_le_bytes());
+        cdr.extend(ns.to_le_bytes());
+        cdr.push(p);
+    }
+    let mut content = channel.to_le_bytes().to_vec();
+    content.extend([0u8; 20]); // sequence, log and publish times
+    content.extend(cdr);
+    mcap_record(0x05, &content)
+}
+
+fn decode_mcap(data: &[u8]) -> (Events, Stats) {
+    let mut reader = crate::mcap::McapReader::new(data, None, 7).expect("an MCAP file");
+    let mut all = Events::default();
+    loop {
+        let c = reader.next_chunk(2).expect("a slice reads");
+        if c.is_empty() {
+            return (all, reader.stats());
+        }
+        for i in 0..c.len() {
+            all.push(c.x[i], c.y[i], c.t[i], c.p[i]);
+        }
+    }
+}
+
+#[test]
+fn mcap_reader_takes_cdr_event_arrays_from_chunks_and_drops_a_cut_chunk() {
+    let mut schema = 7u16.to_le_bytes().to_vec();
+    schema.extend(mcap_string(b"dvs_msgs/msg/EventArray"));
+    let mut channel = 3u16.to_le_bytes().to_vec();
+    channel.extend(7u16.to_le_bytes());
+    channel.extend(mcap_string(b"/events"));
+    let mut records = mcap_record(0x03, &schema);
+    records.extend(mcap_record(0x04, &channel));
+    records.extend(mcap_message(
+        3,
+        &[(1, 2, 10, 5_999, 1), (3, 4, 11, 1_000_000, 0)],
+    ));
+    records.extend(mcap_message(9, &[(9, 9, 9, 9, 1)])); // no such channel: skipped
+    records.extend(mcap_message(3, &[(5, 6, 12, 999_999_999, 2)]));
+    let chunk = |records: &[u8]| {
+        let mut c = [0u8; 16].to_vec(); // start and end times
+        c.extend((records.len() as u64).to_le_bytes());
+        c.extend(0u32.to_le_bytes()); // CRC (unchecked)
+        c.extend(mcap_string(b""));
+        c.extend((records.len() as u64).to_le_bytes());
+        c.extend(records);
+        mcap_record(0x06, &c)
+    };
+    let mut data = crate::mcap::MAGIC.to_vec();
+    data.extend(mcap_record(
+        0x01,
+        &[mcap_string(b"ros2"), mcap_string(b"test")].concat(),
+    ));
+    data.extend(chunk(&records));
+    let whole = data.clone();
+    let (ev, stats) = decode_mcap(&whole);
+    assert_eq!(
+        rows(&ev),
+        [
+            (1, 2, 10_000_005, 1),
+            (3, 4, 11_001_000, 0),
+            (5, 6, 12_999_999, 1)
+        ]
+    );
+    assert_eq!(stats, Stats::default());
+    // A second chunk cut by the end of the file: dropped whole, its bytes counted.
+    let second = chunk(&mcap_message(3, &[(7, 7, 13, 0, 1)]));
+    data.extend(&second[..second.len() - 5]);
+    let (ev, stats) = decode_mcap(&data);
+    assert_eq!(ev.len(), 3);
+    assert_eq!(stats.truncated_bytes as usize, second.len() - 5);
+    let channels = crate::mcap::mcap_channels(std::io::Cursor::new(&whole), 16).expect("MCAP");
+    assert_eq!(channels[0].topic, "/events");
+    assert_eq!(channels[0].msgtype, "dvs_msgs/msg/EventArray");
+}

@@ -10,6 +10,7 @@ use pyo3::prelude::*;
 use crate::errors::value_err;
 use crate::events::{event_arrays, EventArrays};
 use evsplat_formats::aedat4::{self, AedatReader, Compression};
+use evsplat_formats::mcap::{mcap_channels, McapReader};
 use evsplat_formats::rosbag::{bag_connections, BagReader};
 use evsplat_formats::{ChunkReader, Encoding};
 
@@ -183,7 +184,69 @@ impl Aedat4EventDecoder {
     }
 }
 
+/// The event arrays of an MCAP file's `topic` (None: every event-array channel), read through
+/// a buffer of `block` bytes.
+#[pyclass(module = "evsplat._core")]
+struct McapEventDecoder {
+    inner: McapReader<File>,
+}
+
+#[pymethods]
+impl McapEventDecoder {
+    #[new]
+    #[pyo3(signature = (path, topic, block))]
+    fn new(path: std::path::PathBuf, topic: Option<&str>, block: usize) -> PyResult<Self> {
+        let file = File::open(&path).map_err(PyOSError::new_err)?;
+        let inner = McapReader::new(file, topic, block).map_err(PyOSError::new_err)?;
+        Ok(Self { inner })
+    }
+
+    /// (width, height) of the first event message (read up to it), or None.
+    fn sensor_size(&mut self, py: Python<'_>) -> PyResult<Option<(u32, u32)>> {
+        py.detach(|| self.inner.sensor_size())
+            .map_err(PyOSError::new_err)
+    }
+
+    /// The next chunk of at most `max_events` events; empty arrays at the end of the data.
+    fn next_chunk<'py>(
+        &mut self,
+        py: Python<'py>,
+        max_events: usize,
+    ) -> PyResult<EventArrays<'py>> {
+        let ev = py
+            .detach(|| self.inner.next_chunk(max_events))
+            .map_err(PyOSError::new_err)?;
+        Ok(event_arrays(py, ev))
+    }
+
+    /// (0, records not readable as what their op says, bytes of a last record the file ends
+    /// in): final once `next_chunk` came back empty.
+    fn dropped(&self) -> (u64, u64, u64) {
+        let s = self.inner.stats();
+        (s.untimed_events, s.unknown_words, s.truncated_bytes)
+    }
+}
+
+/// The channels of an MCAP file as (id, topic, type), from its summary or a pass through it.
+#[pyfunction]
+#[pyo3(name = "mcap_channels")]
+fn py_mcap_channels(
+    py: Python<'_>,
+    path: std::path::PathBuf,
+) -> PyResult<Vec<(u16, String, String)>> {
+    let file = File::open(&path).map_err(PyOSError::new_err)?;
+    let channels = py
+        .detach(|| mcap_channels(file, 1 << 16))
+        .map_err(PyOSError::new_err)?;
+    Ok(channels
+        .into_iter()
+        .map(|c| (c.id, c.topic, c.msgtype))
+        .collect())
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<McapEventDecoder>()?;
+    m.add_function(wrap_pyfunction!(py_mcap_channels, m)?)?;
     m.add_class::<Aedat4EventDecoder>()?;
     m.add_function(wrap_pyfunction!(aedat4_header, m)?)?;
     m.add_class::<EventFileDecoder>()?;

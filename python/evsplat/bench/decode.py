@@ -1,17 +1,17 @@
 """`evsplat bench decode`: the recording decoders (Prophesee EVT 2.0, EVT 3.0, DAT; ROS 1 bags,
-uncompressed and LZ4; AEDAT 4, LZ4) against the disk and the reference decoders, on a recording
-generated for the run (deleted after it).
+uncompressed and LZ4; ROS 2 MCAP, uncompressed and Zstd; AEDAT 4, LZ4) against the disk and the
+reference decoders, on a recording generated for the run (deleted after it).
 
 Per format, all in one run on the same file: the disk's sequential read speed (once with the
 file's pages dropped from the page cache by ``posix_fadvise(DONTNEED)`` after an ``fsync``:
 "cold", though a VM's host may still cache it; once warm), the project's Rust decoder
-(``_core.EventFileDecoder``, ``_core.BagEventDecoder``, ``_core.Aedat4EventDecoder``; warm
-and cold) and the reference decoder (``evt3`` for EVT 3.0, ``expelliarmus`` for EVT 2.0 and
-DAT, ``aedat`` for AEDAT 4, for bags ``rosbags``' reader with the byte view evsplat used
-before its Rust reader: rosbags' deserialiser, one Python object per event, is far too slow for
-these sizes), warm; with ``--convert``, ``evsplat convert`` end to end with and without
-compression and the SHA-256 of the file it computes alongside. Each decoder's events are summed
-(count, x, y, t, p) and compared with the generator's.
+(``_core.EventFileDecoder``, ``_core.BagEventDecoder``, ``_core.McapEventDecoder``,
+``_core.Aedat4EventDecoder``; warm and cold) and the reference decoder (``evt3`` for EVT 3.0,
+``expelliarmus`` for EVT 2.0 and DAT, ``aedat`` for AEDAT 4, for bags ``rosbags``' reader with
+the byte views evsplat used before its Rust readers: rosbags' deserialiser, one Python object
+per event, is far too slow for these sizes), warm; with ``--convert``, ``evsplat convert`` end
+to end with and without compression and the SHA-256 of the file it computes alongside. Each
+decoder's events are summed (count, x, y, t, p) and compared with the generator's.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ HELP = (
     "vs the disk's read speed"
 )
 
-FORMATS = ("evt3", "evt2", "dat", "bag", "bag-lz4", "aedat4")
+FORMATS = ("evt3", "evt2", "dat", "bag", "bag-lz4", "mcap", "mcap-zstd", "aedat4")
 #: The field's decoder each format is compared with.
 REFERENCES = {
     "evt3": "evt3",
@@ -46,6 +46,8 @@ REFERENCES = {
     "dat": "expelliarmus",
     "bag": "rosbags",
     "bag-lz4": "rosbags",
+    "mcap": "rosbags",
+    "mcap-zstd": "rosbags",
     "aedat4": "aedat",
 }
 #: Events per AEDAT 4 packet of a generated file.
@@ -192,6 +194,44 @@ def write_bag(path: Path, chunks: Iterator[Chunk], width: int, height: int, lz4:
     return path.stat().st_size
 
 
+def write_mcap(path: Path, chunks: Iterator[Chunk], width: int, height: int, zstd: bool) -> int:
+    """A ROS 2 bag in MCAP written by rosbags into ``path``'s folder (``path`` is its .mcap
+    file): one dvs_msgs/EventArray topic, messages of ``BAG_MESSAGE_EVENTS`` serialised in CDR
+    here with numpy, chunks of 1 MiB, uncompressed or Zstd. Returns the file's size."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+
+    from evsplat.data.formats import rosbag
+
+    store = rosbag.typestore()
+    writer = Writer(path.parent, version=9, storage_plugin=StoragePlugin.MCAP)
+    if zstd:
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    kind = "dvs_msgs/msg/EventArray"
+    with writer:
+        conn = writer.add_connection("/dvs/events", kind, typestore=store)
+        for x, y, t, p in chunks:
+            for i in range(0, len(t), BAG_MESSAGE_EVENTS):
+                sl = slice(i, i + BAG_MESSAGE_EVENTS)
+                tt = np.asarray(t[sl], np.int64)
+                parts = []
+                for dtype, rows in (
+                    (rosbag.CDR_FIRST_EVENT, slice(0, 1)),
+                    (rosbag.CDR_EVENT, slice(1, None)),
+                ):
+                    rec = np.zeros(len(tt[rows]), dtype)
+                    rec["x"], rec["y"], rec["p"] = x[sl][rows], y[sl][rows], p[sl][rows]
+                    rec["sec"], rec["nsec"] = tt[rows] // 1_000_000, tt[rows] % 1_000_000 * 1000
+                    parts.append(rec.tobytes())
+                stamp = int(tt[-1])
+                head = struct.pack(
+                    "<4siII4sIII", b"\x00\x01\x00\x00", stamp // 10**6, stamp % 10**6 * 1000,
+                    4, b"cam\x00", height, width, len(tt),
+                )  # fmt: skip
+                writer.write(conn, stamp * 1000, head + b"".join(parts))
+    return path.stat().st_size
+
+
 def write_aedat4(path: Path, chunks: Iterator[Chunk], width: int, height: int) -> int:
     """An AEDAT 4 file: dv-processing's header for one event stream of this size (LZ4, its
     default; the data table's position cleared), then LZ4-compressed event packets of
@@ -241,7 +281,7 @@ def reference_chunks(path: Path, encoding: str) -> Iterator[Chunk]:
             if packet["stream_id"] == 0 and "events" in packet:
                 ev = packet["events"]
                 yield ev["x"], ev["y"], ev["t"], ev["on"]
-    elif encoding.startswith("bag"):
+    elif encoding.startswith(("bag", "mcap")):
         from evsplat.data.formats import rosbag
 
         reader = rosbag._open(path)
@@ -305,6 +345,8 @@ def convert_once(path: Path, out: Path, codec: str) -> tuple[float, float]:
 def measure_format(args: argparse.Namespace, encoding: str, folder: Path) -> list[dict]:
     suffix = {"dat": "dat", "bag": "bag", "bag-lz4": "bag", "aedat4": "aedat4"}.get(encoding, "raw")
     path = folder / f"bench.{suffix}"
+    if encoding.startswith("mcap"):  # a ROS 2 bag is a folder: its one .mcap file is timed
+        path = folder / encoding / f"{encoding}.mcap"
     want = Sums()
 
     def chunks() -> Iterator[Chunk]:
@@ -315,6 +357,8 @@ def measure_format(args: argparse.Namespace, encoding: str, folder: Path) -> lis
     w0 = time.perf_counter()
     if encoding == "aedat4":
         size = write_aedat4(path, chunks(), 1280, 720)
+    elif encoding.startswith("mcap"):
+        size = write_mcap(path, chunks(), 1280, 720, zstd=encoding == "mcap-zstd")
     elif encoding.startswith("bag"):
         size = write_bag(path, chunks(), 1280, 720, lz4=encoding == "bag-lz4")
     else:

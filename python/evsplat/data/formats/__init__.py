@@ -8,7 +8,8 @@ suffix          format                      decoder (PyPI)
 ``.raw``        Prophesee RAW, EVT 3.0      evsplat's own (crates/formats, Rust)
 ``.dat``        Prophesee DAT (CD events)   evsplat's own (crates/formats, Rust)
 ``.bag``        ROS 1 bag                   evsplat's own (crates/formats, Rust)
-``.mcap/.db3``  ROS 2 bag (or its folder)   ``rosbags``
+``.mcap``       ROS 2 bag, one MCAP file    evsplat's own (crates/formats, Rust)
+``.db3``        ROS 2 bag (or its folder)   ``rosbags``
 ==============  ==========================  ===========================================
 
 Every reader opens a file into an :class:`EventSource`: the sensor size plus an iterator of

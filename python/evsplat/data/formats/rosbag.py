@@ -2,13 +2,15 @@
 ``prophesee_event_msgs/EventArray`` from prophesee_ros_driver) and ``geometry_msgs/PoseStamped``
 poses.
 
-The events of a ROS 1 bag (.bag) are decoded by the project's Rust reader (crates/formats,
-``rosbag``): records in file order, chunks uncompressed, LZ4 or bzip2, in bounded chunks of
-events, with no need for the index, so a bag whose recording was cut off reads up to its last
-complete message. ROS 2 bags (.db3, .mcap) and every bag's poses go through ``rosbags`` (pure
-Python); its message definitions stored in the bag are used, and the two event types are also
-registered here, so ROS 2 bags recorded without definitions read too. The Rust reader was
-checked event by event against rosbags' deserialiser (tests/test_formats.py)."""
+The events of a ROS 1 bag (.bag) and of a ROS 2 bag stored as one MCAP file are decoded by the
+project's Rust readers (crates/formats, ``rosbag`` and ``mcap``): records in file order, chunks
+uncompressed or compressed (bags: LZ4, bzip2; MCAP: Zstd, LZ4), in bounded chunks of events,
+with no need for the index or summary, so a bag whose recording was cut off reads up to its
+last complete message or chunk. ROS 2 SQLite bags (.db3), bags split over several files and
+every bag's poses go through ``rosbags`` (pure Python); its message definitions stored in the
+bag are used, and the two event types are also registered here, so ROS 2 bags recorded without
+definitions read too. The Rust readers were checked event by event against rosbags'
+deserialiser (tests/test_formats.py)."""
 
 from __future__ import annotations
 
@@ -133,34 +135,47 @@ def is_ros1_bag(path: Path) -> bool:
     return path.suffix.lower() == ".bag" and path.is_file()
 
 
+def mcap_file(path: Path) -> Path | None:
+    """The one MCAP file of a ROS 2 bag (the file itself, or its folder's only .mcap), which
+    the Rust reader decodes; None for SQLite (.db3) bags and bags split over several files,
+    which rosbags reads."""
+    if path.is_file():
+        return path if path.suffix.lower() == ".mcap" else None
+    if not path.is_dir() or any(path.glob("*.db3")):
+        return None
+    files = sorted(path.glob("*.mcap"))
+    return files[0] if len(files) == 1 else None
+
+
 def _msgtype(ros1_type: str) -> str:
     """``pkg/Name`` (ROS 1) as ``pkg/msg/Name`` (rosbags' and the ROS 2 spelling)."""
     pkg, _, name = ros1_type.rpartition("/")
     return f"{pkg}/msg/{name}" if pkg and "/msg/" not in ros1_type else ros1_type
 
 
-def _ros1_fail(path: Path, e: OSError) -> EvsplatError:
+def _rust_fail(path: Path, e: OSError) -> EvsplatError:
     what = " ".join(str(e).split())
     return EvsplatError(
-        f"{path}: cannot open the bag ({what}); the file is not a ROS 1 bag or is damaged"
+        f"{path}: cannot open the bag ({what}); the file is not a ROS bag or is damaged"
     )
 
 
-def open_ros1_bag(path: Path, *, topic: str | None = None) -> EventSource:
-    """Opens the event topic of a ROS 1 bag with the Rust reader; the sensor size comes from
-    its first event message."""
+def open_rust_bag(path: Path, file: Path, *, topic: str | None = None) -> EventSource:
+    """Opens the event topic of a ROS 1 bag or a ROS 2 MCAP ``file`` (of the bag ``path``)
+    with the Rust readers; the sensor size comes from its first event message."""
+    ros1 = file.suffix.lower() == ".bag"
     try:
-        listed = _core.bag_connections(path)
+        listed = _core.bag_connections(file) if ros1 else _core.mcap_channels(file)
     except OSError as e:
-        raise _ros1_fail(path, e) from None
+        raise _rust_fail(path, e) from None
     connections = [Connection(t, _msgtype(m)) for _, t, m in listed]
     chosen = _pick(path, connections, topic, EVENT_TYPES, "event-array")[0].topic
-    block = max(1, min(BLOCK_BYTES, path.stat().st_size))
+    block = max(1, min(BLOCK_BYTES, file.stat().st_size))
     try:
-        decoder = _core.BagEventDecoder(path, chosen, block)
+        decoder = (_core.BagEventDecoder if ros1 else _core.McapEventDecoder)(file, chosen, block)
         size = decoder.sensor_size()
     except OSError as e:
-        raise _ros1_fail(path, e) from None
+        raise _rust_fail(path, e) from None
     if size is None:
         raise EvsplatError(f"{path}: topic {chosen} has no readable event messages")
     width, height = size
@@ -170,11 +185,11 @@ def open_ros1_bag(path: Path, *, topic: str | None = None) -> EventSource:
             "the driver did not fill width/height: re-record or fix the messages"
         )
     dropped = Dropped(words_are="event messages or records that could not be read")
-    chunks = _ros1_chunks(path, decoder, dropped)
+    chunks = _rust_chunks(path, decoder, dropped)
     return EventSource(path, int(width), int(height), chunks, "rosbag", "evsplat", dropped)
 
 
-def _ros1_chunks(path: Path, decoder, dropped: Dropped) -> Iterator[Chunk]:
+def _rust_chunks(path: Path, decoder, dropped: Dropped) -> Iterator[Chunk]:
     try:
         while len((chunk := decoder.next_chunk(CHUNK_EVENTS))[0]):
             yield chunk
@@ -186,7 +201,9 @@ def _ros1_chunks(path: Path, decoder, dropped: Dropped) -> Iterator[Chunk]:
 def open_bag(path: Path, *, topic: str | None = None) -> EventSource:
     """Opens the event topic of a bag; the sensor size comes from its first message."""
     if is_ros1_bag(path):
-        return open_ros1_bag(path, topic=topic)
+        return open_rust_bag(path, path, topic=topic)
+    if (mcap := mcap_file(path)) is not None:
+        return open_rust_bag(path, mcap, topic=topic)
     reader = _open(path)
     conns = _pick(path, reader.connections, topic, EVENT_TYPES, "event-array")
     first = next(reader.messages(connections=conns), None)
