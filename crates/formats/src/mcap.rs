@@ -95,6 +95,14 @@ pub fn event_array(data: &[u8]) -> Option<(u32, u32, usize, usize)> {
     (end <= data.len() && data.len() <= end + 3).then_some((width, height, start, n))
 }
 
+/// µs of a builtin_interfaces/Time (sec i32, nanosec u32; 8 bytes).
+#[inline]
+fn cdr_time(r: &[u8]) -> i64 {
+    let sec = i32::from_le_bytes([r[0], r[1], r[2], r[3]]) as i64;
+    let nsec = u32::from_le_bytes([r[4], r[5], r[6], r[7]]) as i64;
+    sec * 1_000_000 + nsec / 1000
+}
+
 /// One record of a byte slice: (op, content, bytes it spans), or None when it runs past the
 /// slice's end.
 fn record_in(b: &[u8]) -> Option<(u8, &[u8], usize)> {
@@ -223,30 +231,32 @@ impl<R: Read> McapReader<R> {
             let Some((start, n, next)) = self.pending else {
                 continue;
             };
-            let take = (n - next).min(max_events - out.len());
+            let mut take = (n - next).min(max_events - out.len());
             let b = &self.chunk;
-            // The first event is packed; every further one starts 16 bytes on, aligned.
-            let fields = |i: usize| -> (usize, usize, usize) {
-                match i {
-                    0 => (start, start + 4, start + 12),
-                    _ => {
-                        let x = start + 14 + EVENT * (i - 1);
-                        (x, x + 6, x + 14)
-                    }
-                }
-            };
-            for i in next..next + take {
-                let (x, sec, p) = fields(i);
-                let s = i32::from_le_bytes([b[sec], b[sec + 1], b[sec + 2], b[sec + 3]]) as i64;
-                let ns = u32::from_le_bytes([b[sec + 4], b[sec + 5], b[sec + 6], b[sec + 7]]);
+            let mut i = next;
+            if i == 0 {
+                // The first event is packed: x, y, sec, nanosec, polarity at 0, 2, 4, 8, 12.
+                let r = &b[start..start + 13];
                 out.push(
-                    u16::from_le_bytes([b[x], b[x + 1]]),
-                    u16::from_le_bytes([b[x + 2], b[x + 3]]),
-                    s * 1_000_000 + (ns / 1000) as i64,
-                    (b[p] != 0) as i8,
+                    u16::from_le_bytes([r[0], r[1]]),
+                    u16::from_le_bytes([r[2], r[3]]),
+                    cdr_time(&r[4..12]),
+                    (r[12] != 0) as i8,
                 );
+                (i, take) = (1, take - 1);
             }
-            self.pending = (next + take < n).then_some((start, n, next + take));
+            // Every further one fills a 16-byte record from the padding byte before its x:
+            // x, y, sec, nanosec, polarity at 1, 3, 7, 11, 15. Column by column, as the others.
+            let from = start + 13 + EVENT * (i - 1);
+            let records = b[from..from + EVENT * take].chunks_exact(EVENT);
+            out.x
+                .extend(records.clone().map(|r| u16::from_le_bytes([r[1], r[2]])));
+            out.y
+                .extend(records.clone().map(|r| u16::from_le_bytes([r[3], r[4]])));
+            out.t.extend(records.clone().map(|r| cdr_time(&r[7..15])));
+            out.p.extend(records.map(|r| (r[15] != 0) as i8));
+            let next = i + take;
+            self.pending = (next < n).then_some((start, n, next));
         }
         Ok(out)
     }
