@@ -474,6 +474,30 @@ def test_cut_ros1_bag_keeps_its_complete_messages_and_says_what_was_dropped(tmp_
     assert prov["events"] == kept and prov["bytes_dropped"] > 0
 
 
+def test_mcap_without_its_summary_converts_and_a_cut_chunk_is_dropped_whole(tmp_path, capsys):
+    x, y, t, p = _events(17, n=6000)
+    bag = write_bag(tmp_path / "whole", x, y, t, p, ros2=True, mcap=True)  # one chunk
+    (whole,) = bag.glob("*.mcap")
+    data = whole.read_bytes()
+    # Cut before DataEnd (0x0F): no summary, no footer; every event is still there.
+    path = tmp_path / "nosummary.mcap"
+    path.write_bytes(data[: data.rfind(b"\x0f" + (4).to_bytes(8, "little"))])
+    out = tmp_path / "nosummary.h5"
+    assert main(["convert", str(path), str(out)]) == 0
+    assert "warning" not in capsys.readouterr().err
+    with h5py.File(out) as f:
+        np.testing.assert_array_equal(f["events/t"][:] + f["t_offset"][()], t)
+    # Cut inside the chunk: the chunk (its channels and messages) is dropped whole, so the
+    # file has no topics left; one line says so.
+    path = tmp_path / "cut.mcap"
+    chunk_at = 8 + 9 + int.from_bytes(data[9:17], "little")  # after the magic and the header
+    assert data[chunk_at] == 0x06
+    path.write_bytes(data[: chunk_at + 1000])
+    assert main(["convert", str(path), str(tmp_path / "cut.h5")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and str(path) in err and "topics: none" in err, err
+
+
 #: The PyPI decoder each converted file's provenance must name.
 DECODERS = {"a": "evsplat", "b": "evsplat", "c": "evsplat", "d": "evsplat", "e": "evsplat"}
 

@@ -265,6 +265,9 @@ def cdr_event_records(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def _event_chunks(reader: AnyReader, conns) -> Iterator[Chunk]:
+    """The event chunks of a bag through rosbags: ROS 2 SQLite and split bags; ROS 1 bags and
+    MCAP files come here only as `evsplat bench decode`'s reference (the path evsplat took
+    before its Rust readers)."""
     try:
         for conn, _, raw in reader.messages(connections=conns):
             # rosbags builds one Python object per event; a view of the bytes is ~100x faster.
