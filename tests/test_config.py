@@ -3,10 +3,12 @@
 import json
 
 import pytest
+import torch
 
 from evsplat import config
 from evsplat.config import PRESETS, TrainConfig, load_config, preset
 from evsplat.errors import EvsplatError
+from evsplat.train.schedule import decay_learning_rates
 
 
 def test_the_default_preset_is_the_dataclass_default():
@@ -42,3 +44,24 @@ def test_a_config_saved_before_the_mover_existed_trains_without_it():
     d = TrainConfig().to_dict()
     del d["mover"]
     assert TrainConfig.from_dict(d).mover == config.MoverConfig(enabled=False)
+
+
+def test_a_config_saved_with_a_fixed_mlp_rate_horizon_keeps_its_decay():
+    """Runs saved before session 22 give the MLP rate's decay in iterations; read back, the
+    decay spans the same iterations as a fraction of their run."""
+    d = TrainConfig().to_dict()
+    d["schedule"]["iterations"] = 4000
+    del d["model"]["mlp_lr_span"]
+    d["model"]["mlp_lr_horizon"] = 40_000
+    assert TrainConfig.from_dict(d).model.mlp_lr_span == pytest.approx(10.0)
+
+
+def test_the_mlp_rate_decays_exponentially_over_its_span_of_the_run():
+    cfg = preset("tiny")
+    mlp = torch.optim.Adam([torch.zeros(1, requires_grad=True)], lr=1.0)
+    gauss = torch.optim.Adam([{"params": [torch.zeros(1, requires_grad=True)], "name": "means"}])
+    mc, n = cfg.model, cfg.schedule.iterations
+    for it in (0, n // 2, n):
+        decay_learning_rates(gauss, mlp, cfg, 1.0, it)
+        expected = mc.mlp_lr * (mc.mlp_lr_final / mc.mlp_lr) ** (it / (mc.mlp_lr_span * n))
+        assert mlp.param_groups[0]["lr"] == pytest.approx(expected)

@@ -40,7 +40,12 @@ class Views:
     ) -> tuple[list[int], int] | None:
         """One iteration's ``lc.views`` render times t_0 < ... < t_last, consecutive gaps of
         random length, and the short flow window of L_ef after t_last (0 without motion); None
-        when the gaps are longer than the sequence."""
+        when the gaps are longer than the sequence.
+
+        The windows are placed as if the sequence went on past its ends, then pushed back
+        inside it: a window placed wholly within would render the first and last instants only
+        from one side, half as often as the middle, and the model's ends came out blurred
+        (docs/results.md, session 22)."""
         start, end = self.data.t_start_us, self.data.t_end_us
         draw = [rng.uniform(lc.window_min, lc.window_max) for _ in range(lc.views - 1)]
         gaps = [int(g * (end - start)) for g in draw]
@@ -48,7 +53,8 @@ class Views:
         span = sum(gaps)
         if span > end - start - dtau:
             return None
-        t1 = int(rng.integers(start + span, end - dtau + 1))
+        t1 = int(rng.integers(start, end - dtau + span + 1))
+        t1 = min(max(t1, start + span), end - dtau)
         return [t1 - sum(gaps[k:]) for k in range(lc.views - 1)] + [t1], dtau
 
     def log_image(self, out: RenderOut, coarse: bool = False) -> torch.Tensor:
