@@ -89,6 +89,11 @@ def oracle_errors(data_dir: str, run_dir: str) -> tuple[float, list[float]]:
     cfg.schedule.grad_norms_every = 0
     cfg.model.temporal_opacity = False
     cfg.model.mlp_lr = 5e-3
+    # The rate held near its start (a decay over 200 runs, as the fixed 40k-iteration horizon
+    # gave before session 22): the test asks whether the losses carry motion, and 200
+    # iterations with the training's own decay (over 4/3 of the run) leave the MLP too small a
+    # rate to move 30 px.
+    cfg.model.mlp_lr_span = 200.0
     cfg.model.pe_x = 3
     # L_ef is off: with it the ball drifts off its path even here (docs/results.md, session 11).
     cfg.loss.w_flow = 0.0
@@ -134,7 +139,7 @@ def test_training_moves_oracle_gaussians_along_the_true_path(tiny_scene, tmp_pat
     )
     assert done.returncode == 0, done.stderr[-2000:]
     before, late = json.loads(done.stdout.strip().splitlines()[-1])
-    # The MLP's rate barely decays over 200 iterations, so the error jitters between
+    # The MLP's rate barely decays (above), so the error jitters between
     # checkpoints (1-9 px): the median over the second half's checkpoints is the statistic.
     # Measured: 15.0 px before, 3.0-5.1 px after over six multi-threaded runs (docs/results.md,
     # session 13).
