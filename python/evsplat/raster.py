@@ -84,14 +84,18 @@ def _core_call(fn, *args, **kwargs) -> dict:
 class _Rasterize(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, opacities, features, viewmat, K, background, cam,
-                means2d_grad):  # fmt: skip
+                means2d_grad, pending):  # fmt: skip
         n, d = features.shape
-        out = _core_call(
-            _core.rasterize_forward,
-            **_args(means, quats, scales, opacities, features, viewmat, K, background, cam),
-            profile=cam.profile is not None,
-            count_work=cam.work is not None,
-        )
+        if pending is None:
+            out = _core_call(
+                _core.rasterize_forward,
+                **_args(means, quats, scales, opacities, features, viewmat, K, background, cam),
+                profile=cam.profile is not None,
+                count_work=cam.work is not None,
+            )
+        else:  # submitted by rasterize_async: wait for it
+            inputs = _inputs(means, quats, scales, opacities, features, background)
+            out = _core_call(_core.rasterize_finish, pending, **inputs)
         if cam.profile is not None:
             cam.profile["forward"] = dict(out["times"])
         if cam.work is not None:
@@ -146,6 +150,7 @@ class _Rasterize(torch.autograd.Function):
             None,
             None,
             None,
+            None,
         )
 
 
@@ -184,6 +189,72 @@ def rasterize(
     "means2d" [N,2], "depths" [N] (camera z), "visible" bool [N] and "means2d_grad" [N,2], zeros
     that the backward pass overwrites with dLoss/dmeans2d (for densification).
     """
+    args = _checked(
+        means, quats, scales, opacities, features, viewmat, K, width, height, near, far,
+        background, atomics, profile, count_work,
+    )  # fmt: skip
+    return _render(args, None)
+
+
+def rasterize_async(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    features: torch.Tensor,
+    viewmat: torch.Tensor,
+    K: torch.Tensor,
+    width: int,
+    height: int,
+    near: float = 0.01,
+    far: float = 1e4,
+    background: torch.Tensor | None = None,
+    *,
+    atomics: str | None = None,
+    count_work: bool = False,
+) -> PendingRaster:
+    """``rasterize``, started on the device without waiting: ``.result()`` of what it returns
+    waits for the render and gives what ``rasterize`` would have (the same values, the same
+    gradients). The device renders while the caller does other work (on a CPU adapter its
+    threads take the cores the caller's thread leaves idle). The inputs must not change in
+    place before ``.result()``."""
+    args = _checked(
+        means, quats, scales, opacities, features, viewmat, K, width, height, near, far,
+        background, atomics, None, count_work,
+    )  # fmt: skip
+    means, quats, scales, opacities, features, viewmat, K, background, cam = args
+    pending = _core_call(
+        _core.rasterize_submit,
+        **_args(means, quats, scales, opacities, features, viewmat, K, background, cam),
+        count_work=count_work,
+    )
+    return PendingRaster(args, pending)
+
+
+class PendingRaster:
+    """A render started by ``rasterize_async``; ``result()`` (once) waits for it."""
+
+    def __init__(self, args: tuple, pending: object):
+        self._args = args
+        self._pending = pending
+        self._versions = [t._version for t in args[:8]]
+
+    def result(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict]:
+        if self._pending is None:
+            raise EvsplatError("rasterize_async: result() was taken already")
+        if [t._version for t in self._args[:8]] != self._versions:
+            raise EvsplatError(
+                "rasterize_async: an input changed in place after the render was started"
+            )
+        pending, self._pending = self._pending, None
+        return _render(self._args, pending)
+
+
+def _checked(
+    means, quats, scales, opacities, features, viewmat, K, width, height, near, far, background,
+    atomics, profile, count_work,
+) -> tuple:  # fmt: skip
+    """The arguments of ``rasterize`` checked at the boundary: the tensors and the _Camera."""
     means = _check("means", means, (None, 3))
     n = means.shape[0]
     quats = _check("quats", quats, (n, 4))
@@ -207,10 +278,17 @@ def rasterize(
         raise EvsplatError(f"rasterize: atomics={atomics!r} must be 'float', 'cas' or None")
     work = {} if count_work else None
     cam = _Camera(int(width), int(height), float(near), float(far), atomics, profile, work)
-    means2d_grad = torch.zeros(n, 2)
+    return means, quats, scales, opacities, features, viewmat, K, background, cam
+
+
+def _render(args: tuple, pending: object) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict]:
+    """The autograd node of a render (``pending``: submitted already, else rendered now)."""
+    means, quats, scales, opacities, features, viewmat, K, background, cam = args
+    means2d_grad = torch.zeros(means.shape[0], 2)
     image, depth, alpha, radii, means2d, depths = _Rasterize.apply(
-        means, quats, scales, opacities, features, viewmat, K, background, cam, means2d_grad
-    )
+        means, quats, scales, opacities, features, viewmat, K, background, cam, means2d_grad,
+        pending,
+    )  # fmt: skip
     meta = {
         "radii": radii,
         "means2d": means2d,
@@ -218,6 +296,6 @@ def rasterize(
         "visible": radii > 0,
         "means2d_grad": means2d_grad,
     }
-    if work is not None:
-        meta["work"] = work
+    if cam.work is not None:
+        meta["work"] = cam.work
     return image, depth, alpha, meta
