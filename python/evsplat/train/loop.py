@@ -132,10 +132,10 @@ class Trainer:
         if not any(self.views.has_events(times[i], times[j]) for i, j in pairs):
             return StepResult({}, stage, skipped="no events in window")
 
-        # The renders are started first and the events read while the device draws them (on a
-        # CPU adapter its threads use the core this thread leaves idle); the same values as
-        # rendering and reading one after the other.
-        earlier = [view.render_async(t, self.views.pose(t)) for t in times[:-1]]
+        # Each render is started on the device and the step goes on (the next render's MLP, the
+        # event windows) while it is drawn: on a CPU adapter lavapipe's threads use the core
+        # this thread leaves idle. Same values, and the same autograd graph, as rendering in
+        # place.
         pose1 = self.views.pose(t1)
         g1 = view.gaussians_at(t1)
         extra = None
@@ -146,6 +146,7 @@ class Trainer:
             if not lc.flow_moves_gaussians:
                 extra = extra.detach()
         pending1 = view.render_async(t1, pose1, extra=extra, gaussians=g1)
+        earlier = [view.render_async(t, self.views.pose(t)) for t in times[:-1]]
         windows = [self.views.esi(times[i], times[j], coarse) for i, j in pairs]
         if all(count == 0 for _, _, count in windows):  # a transform dropped every event
             return StepResult({}, stage, skipped="no events in window")
