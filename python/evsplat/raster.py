@@ -81,35 +81,52 @@ def _core_call(fn, *args, **kwargs) -> dict:
         raise EvsplatError(f"rasterize: {e}") from None
 
 
+class _Render:
+    """What a render's backward needs of it: its core state, set by the forward, or by
+    ``PendingRaster.result`` when the render was started by ``rasterize_async``."""
+
+    def __init__(self, state: object = None):
+        self.state = state
+
+
+_OUTPUTS = ("image", "depth", "alpha", "radii", "means2d", "depths")
+
+
 class _Rasterize(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, opacities, features, viewmat, K, background, cam,
-                means2d_grad):  # fmt: skip
+                means2d_grad, started):  # fmt: skip
         n, d = features.shape
-        out = _core_call(
-            _core.rasterize_forward,
-            **_args(means, quats, scales, opacities, features, viewmat, K, background, cam),
-            profile=cam.profile is not None,
-            count_work=cam.work is not None,
-        )
-        if cam.profile is not None:
-            cam.profile["forward"] = dict(out["times"])
-        if cam.work is not None:
-            cam.work.update(out["work"])
         h, w = cam.height, cam.width
-        image = torch.from_numpy(out["image"]).reshape(h, w, d)
-        depth = torch.from_numpy(out["depth"]).reshape(h, w)
-        alpha = torch.from_numpy(out["alpha"]).reshape(h, w)
-        radii = torch.from_numpy(out["radii"])
-        means2d = torch.from_numpy(out["means2d"]).reshape(n, 2)
-        depths = torch.from_numpy(out["depths"])
-        # The render's state and its inputs (to render it again when later renders took its
-        # buffers; saved so that torch rejects their in-place change before the backward).
-        ctx.render = out["state"]
+        shapes = ((h, w, d), (h, w), (h, w), (n,), (n, 2), (n,))
+        if started is None:
+            out = _core_call(
+                _core.rasterize_forward,
+                **_args(means, quats, scales, opacities, features, viewmat, K, background, cam),
+                profile=cam.profile is not None,
+                count_work=cam.work is not None,
+            )
+            if cam.profile is not None:
+                cam.profile["forward"] = dict(out["times"])
+            if cam.work is not None:
+                cam.work.update(out["work"])
+            outputs = [torch.from_numpy(out[k]).reshape(s) for k, s in zip(_OUTPUTS, shapes)]
+            ctx.render = _Render(out["state"])
+        else:
+            # Started by rasterize_async: the node is made now, where a render in place would
+            # be (torch sums gradients in the order of its nodes), and the outputs are filled
+            # when the render is read back (PendingRaster.result), before anything sees them.
+            dtypes = (torch.float32,) * 3 + (torch.int32,) + (torch.float32,) * 2
+            outputs = [torch.empty(s, dtype=t) for s, t in zip(shapes, dtypes)]
+            started.outputs = outputs
+            ctx.render = started.render
+        # The render's inputs (to render it again when later renders took its buffers; saved
+        # so that torch rejects their in-place change before the backward).
         ctx.save_for_backward(means, quats, scales, opacities, features, background)
         ctx.cam = cam
         ctx.shape = (n, d)
         ctx.means2d_grad = means2d_grad
+        image, depth, alpha, radii, means2d, depths = outputs
         ctx.mark_non_differentiable(radii, means2d, depths)
         return image, depth, alpha, radii, means2d, depths
 
@@ -124,7 +141,7 @@ class _Rasterize(torch.autograd.Function):
 
         out = _core_call(
             _core.rasterize_backward,
-            ctx.render,
+            ctx.render.state,
             **_inputs(*ctx.saved_tensors),
             grad_image=grad(g_image, (h, w, d)),
             grad_depth=grad(g_depth, (h, w)),
@@ -141,6 +158,7 @@ class _Rasterize(torch.autograd.Function):
             torch.from_numpy(out["scales"]).reshape(n, 3),
             torch.from_numpy(out["opacities"]),
             torch.from_numpy(out["features"]).reshape(n, d),
+            None,
             None,
             None,
             None,
@@ -184,6 +202,93 @@ def rasterize(
     "means2d" [N,2], "depths" [N] (camera z), "visible" bool [N] and "means2d_grad" [N,2], zeros
     that the backward pass overwrites with dLoss/dmeans2d (for densification).
     """
+    args = _checked(
+        means, quats, scales, opacities, features, viewmat, K, width, height, near, far,
+        background, atomics, profile, count_work,
+    )  # fmt: skip
+    return _results(*_apply(args, None), args[-1])
+
+
+def rasterize_async(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    features: torch.Tensor,
+    viewmat: torch.Tensor,
+    K: torch.Tensor,
+    width: int,
+    height: int,
+    near: float = 0.01,
+    far: float = 1e4,
+    background: torch.Tensor | None = None,
+    *,
+    atomics: str | None = None,
+    count_work: bool = False,
+) -> PendingRaster:
+    """``rasterize``, started on the device without waiting: ``.result()`` of what it returns
+    waits for the render and gives what ``rasterize`` would have (the same values, the same
+    gradients). The device renders while the caller does other work (on a CPU adapter its
+    threads take the cores the caller's thread leaves idle). The inputs must not change in
+    place before ``.result()``."""
+    args = _checked(
+        means, quats, scales, opacities, features, viewmat, K, width, height, near, far,
+        background, atomics, None, count_work,
+    )  # fmt: skip
+    means, quats, scales, opacities, features, viewmat, K, background, cam = args
+    started = _Started(
+        _core_call(
+            _core.rasterize_submit,
+            **_args(means, quats, scales, opacities, features, viewmat, K, background, cam),
+            count_work=count_work,
+        )
+    )
+    return PendingRaster(args, started, _apply(args, started))
+
+
+class _Started:
+    """A render on its way: the core's handle, its state once read back, and its outputs."""
+
+    def __init__(self, handle: object):
+        self.handle = handle
+        self.render = _Render()
+        self.outputs: list[torch.Tensor] = []
+
+
+class PendingRaster:
+    """A render started by ``rasterize_async``; ``result()`` (once) waits for it."""
+
+    def __init__(self, args: tuple, started: _Started, applied: tuple):
+        self._args = args
+        self._started: _Started | None = started
+        self._applied = applied
+        self._versions = [t._version for t in args[:8]]
+
+    def result(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict]:
+        started, self._started = self._started, None
+        if started is None:
+            raise EvsplatError("rasterize_async: result() was taken already")
+        if [t._version for t in self._args[:8]] != self._versions:
+            raise EvsplatError(
+                "rasterize_async: an input changed in place after the render was started"
+            )
+        means, quats, scales, opacities, features, _, _, background, cam = self._args
+        inputs = _inputs(means, quats, scales, opacities, features, background)
+        out = _core_call(_core.rasterize_finish, started.handle, **inputs)
+        started.render.state = out["state"]
+        if cam.work is not None:
+            cam.work.update(out["work"])
+        with torch.no_grad():
+            for t, key in zip(started.outputs, _OUTPUTS):
+                t.view(-1).copy_(torch.from_numpy(out[key]))
+        return _results(*self._applied, cam)
+
+
+def _checked(
+    means, quats, scales, opacities, features, viewmat, K, width, height, near, far, background,
+    atomics, profile, count_work,
+) -> tuple:  # fmt: skip
+    """The arguments of ``rasterize`` checked at the boundary: the tensors and the _Camera."""
     means = _check("means", means, (None, 3))
     n = means.shape[0]
     quats = _check("quats", quats, (n, 4))
@@ -207,10 +312,22 @@ def rasterize(
         raise EvsplatError(f"rasterize: atomics={atomics!r} must be 'float', 'cas' or None")
     work = {} if count_work else None
     cam = _Camera(int(width), int(height), float(near), float(far), atomics, profile, work)
-    means2d_grad = torch.zeros(n, 2)
-    image, depth, alpha, radii, means2d, depths = _Rasterize.apply(
-        means, quats, scales, opacities, features, viewmat, K, background, cam, means2d_grad
-    )
+    return means, quats, scales, opacities, features, viewmat, K, background, cam
+
+
+def _apply(args: tuple, started: _Started | None) -> tuple:
+    """The render's autograd node: (image, depth, alpha, radii, means2d, depths, means2d_grad)."""
+    means, quats, scales, opacities, features, viewmat, K, background, cam = args
+    means2d_grad = torch.zeros(means.shape[0], 2)
+    outputs = _Rasterize.apply(
+        means, quats, scales, opacities, features, viewmat, K, background, cam, means2d_grad,
+        started,
+    )  # fmt: skip
+    return (*outputs, means2d_grad)
+
+
+def _results(image, depth, alpha, radii, means2d, depths, means2d_grad, cam: _Camera) -> tuple:
+    """``rasterize``'s return value from the node's outputs."""
     meta = {
         "radii": radii,
         "means2d": means2d,
@@ -218,6 +335,6 @@ def rasterize(
         "visible": radii > 0,
         "means2d_grad": means2d_grad,
     }
-    if work is not None:
-        meta["work"] = work
+    if cam.work is not None:
+        meta["work"] = cam.work
     return image, depth, alpha, meta

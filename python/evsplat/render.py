@@ -15,7 +15,7 @@ import torch
 from evsplat.model.deform import DeformationMLP, deformed
 from evsplat.model.gaussians import GaussianModel
 from evsplat.projection import viewmat
-from evsplat.raster import rasterize
+from evsplat.raster import PendingRaster, rasterize_async
 from evsplat.run_state import RunState
 
 ALPHA_EPS = 1e-4  # below this coverage, alpha-normalised extra channels are set to 0
@@ -31,6 +31,27 @@ class RenderOut:
     meta: dict
     means: torch.Tensor  # [N,3] the deformed means that were rendered
     extra: torch.Tensor | None = None  # [H,W,E]
+
+
+@dataclass
+class PendingRender:
+    """A render started by ``Renderer.render_async``; ``result()`` (once) waits for it."""
+
+    raster: PendingRaster
+    means: torch.Tensor  # [N,3] the deformed means being rendered
+    channels: int  # colour channels; any after them are the extra features
+    has_extra: bool
+
+    def result(self) -> RenderOut:
+        image, depth, alpha, meta = self.raster.result()
+        c = self.channels
+        out_extra = None
+        if self.has_extra:
+            cover = alpha.unsqueeze(-1)
+            out_extra = torch.where(
+                cover > ALPHA_EPS, image[..., c:] / cover.clamp(min=ALPHA_EPS), 0.0
+            )
+        return RenderOut(image[..., :c], depth, alpha, meta, self.means, out_extra)
 
 
 @dataclass
@@ -69,6 +90,18 @@ class Renderer:
         ``extra`` ``[N,E]`` are additional per-Gaussian features rendered beside the colour;
         ``gaussians`` reuses an already deformed set (to share one MLP evaluation).
         """
+        return self.render_async(t_us, c2w, extra, gaussians).result()
+
+    def render_async(
+        self,
+        t_us: float,
+        c2w: np.ndarray,
+        extra: torch.Tensor | None = None,
+        gaussians: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
+    ) -> PendingRender:
+        """``render``, started on the device without waiting for it (``rasterize_async``):
+        ``.result()`` gives its RenderOut. The trainer prepares its next render and reads its
+        events while the device draws."""
         means, rotations, scales = gaussians if gaussians is not None else self.gaussians_at(t_us)
         w2c = viewmat(c2w)
         colors = self.model.colors(torch.from_numpy(np.asarray(c2w, np.float32)[:3, 3]))
@@ -76,7 +109,7 @@ class Renderer:
         features = colors if extra is None else torch.cat([colors, extra], dim=1)
         background = torch.zeros(features.shape[1])
         background[:channels] = self.background
-        image, depth, alpha, meta = rasterize(
+        raster = rasterize_async(
             means,
             rotations,
             scales,
@@ -88,13 +121,7 @@ class Renderer:
             self.height,
             background=background,
         )
-        out_extra = None
-        if extra is not None:
-            cover = alpha.unsqueeze(-1)
-            out_extra = torch.where(
-                cover > ALPHA_EPS, image[..., channels:] / cover.clamp(min=ALPHA_EPS), 0.0
-            )
-        return RenderOut(image[..., :channels], depth, alpha, meta, means, out_extra)
+        return PendingRender(raster, means, channels, extra is not None)
 
     @classmethod
     def from_state(cls, state: RunState) -> Renderer:

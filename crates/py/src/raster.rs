@@ -8,8 +8,9 @@ use pyo3::types::PyDict;
 
 use evsplat_raster::host;
 use evsplat_raster::{
-    rasterize_backward as gpu_backward, rasterize_forward as gpu_forward, AtomicMode, Camera,
-    Gaussians, GpuError, OutputGrads, PassTimes, Render,
+    rasterize_backward as gpu_backward, rasterize_finish as gpu_finish,
+    rasterize_forward as gpu_forward, rasterize_submit as gpu_submit, AtomicMode, Camera,
+    ForwardOutput, Gaussians, GpuError, OutputGrads, PassTimes, PendingForward, Render,
 };
 
 use crate::errors::value_err;
@@ -27,6 +28,10 @@ type F32<'py> = PyReadonlyArray1<'py, f32>;
 /// One forward render, as `rasterize_backward` needs it; returned by `rasterize_forward`.
 #[pyclass(frozen, module = "evsplat._core")]
 struct RenderState(Render);
+
+/// A forward render on its way (`rasterize_submit`), read back once by `rasterize_finish`.
+#[pyclass(frozen, module = "evsplat._core")]
+struct PendingRender(std::sync::Mutex<Option<PendingForward>>);
 
 fn camera(viewmat: &[f32], k: &[f32], size: (u32, u32), range: (f32, f32)) -> PyResult<Camera> {
     let viewmat: [f32; 16] = viewmat
@@ -124,6 +129,15 @@ fn rasterize_forward<'py>(
         let ctx = context()?;
         gpu_forward(ctx, &g, &cam, profile.then_some(&mut times), count_work).map_err(raster_err)
     })?;
+    forward_dict(py, out, &times)
+}
+
+/// A forward render's outputs as `rasterize_forward` returns them.
+fn forward_dict<'py>(
+    py: Python<'py>,
+    out: ForwardOutput,
+    times: &PassTimes,
+) -> PyResult<Bound<'py, PyDict>> {
     let r = host::time("numpy results", || -> PyResult<_> {
         let r = PyDict::new(py);
         r.set_item("image", PyArray1::from_vec(py, out.image))?;
@@ -136,7 +150,7 @@ fn rasterize_forward<'py>(
         r.set_item("state", Bound::new(py, RenderState(out.render))?)?;
         Ok(r)
     })?;
-    add_times(&r, &times)?;
+    add_times(&r, times)?;
     let work = match out.work {
         Some(w) => {
             let d = PyDict::new(py);
@@ -151,6 +165,71 @@ fn rasterize_forward<'py>(
     };
     r.set_item("work", work)?;
     Ok(r)
+}
+
+/// Start a forward render (arguments as `rasterize_forward`, without profiling) and return
+/// without waiting for it: a `PendingRender` that `rasterize_finish` reads back. The device
+/// renders while the caller does other work.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (means, quats, scales, opacities, features, d, background, viewmat, k, width, height, near, far, count_work=false))]
+fn rasterize_submit<'py>(
+    py: Python<'py>,
+    means: F32<'py>,
+    quats: F32<'py>,
+    scales: F32<'py>,
+    opacities: F32<'py>,
+    features: F32<'py>,
+    d: usize,
+    background: F32<'py>,
+    viewmat: F32<'py>,
+    k: F32<'py>,
+    width: u32,
+    height: u32,
+    near: f32,
+    far: f32,
+    count_work: bool,
+) -> PyResult<PendingRender> {
+    let inputs = [&means, &quats, &scales, &opacities, &features, &background];
+    let g = gaussians(inputs, d)?;
+    let cam = camera(
+        viewmat.as_slice()?,
+        k.as_slice()?,
+        (width, height),
+        (near, far),
+    )?;
+    let pending = timed_call(py, || {
+        let ctx = context()?;
+        gpu_submit(ctx, &g, &cam, count_work).map_err(raster_err)
+    })?;
+    Ok(PendingRender(std::sync::Mutex::new(Some(pending))))
+}
+
+/// Wait for a `PendingRender` and return what `rasterize_forward` would have. Its inputs, as
+/// given to `rasterize_submit`, are read only when the render must be redone.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn rasterize_finish<'py>(
+    py: Python<'py>,
+    pending: &Bound<'py, PendingRender>,
+    means: F32<'py>,
+    quats: F32<'py>,
+    scales: F32<'py>,
+    opacities: F32<'py>,
+    features: F32<'py>,
+    background: F32<'py>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let taken = (pending.get().0.lock())
+        .map_err(|_| PyValueError::new_err("rasterize_finish: a PendingRender poisoned"))?
+        .take();
+    let pending = taken.ok_or_else(|| PyValueError::new_err("rasterize_finish: read already"))?;
+    let inputs = [&means, &quats, &scales, &opacities, &features, &background];
+    let g = gaussians(inputs, pending.channels())?;
+    let out = timed_call(py, || {
+        let ctx = context()?;
+        gpu_finish(ctx, pending, &g).map_err(raster_err)
+    })?;
+    forward_dict(py, out, &PassTimes::new())
 }
 
 /// Backward of the render `state`: its inputs (as given to `rasterize_forward`: read only when
@@ -217,7 +296,10 @@ fn rasterize_backward<'py>(
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<RenderState>()?;
+    m.add_class::<PendingRender>()?;
     m.add_function(wrap_pyfunction!(rasterize_forward, m)?)?;
+    m.add_function(wrap_pyfunction!(rasterize_submit, m)?)?;
+    m.add_function(wrap_pyfunction!(rasterize_finish, m)?)?;
     m.add_function(wrap_pyfunction!(rasterize_backward, m)?)?;
     Ok(())
 }

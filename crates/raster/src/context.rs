@@ -263,8 +263,16 @@ impl GpuContext {
 
     /// Block until the queue is idle.
     pub fn wait(&self) -> Result<(), GpuError> {
+        self.wait_for(None)
+    }
+
+    /// Block until `submission` (None: every submission so far) has completed.
+    pub fn wait_for(&self, submission: Option<wgpu::SubmissionIndex>) -> Result<(), GpuError> {
         self.device
-            .poll(wgpu::PollType::wait_indefinitely())
+            .poll(wgpu::PollType::Wait {
+                submission_index: submission,
+                timeout: None,
+            })
             .map(|_| ())
             .map_err(|e| GpuError::Readback(e.to_string()))
     }
@@ -294,12 +302,24 @@ impl GpuContext {
         bytes: u64,
         read: impl FnOnce(&[u8]) -> T,
     ) -> Result<T, GpuError> {
+        self.map_read_after(staging, bytes, None, read)
+    }
+
+    /// `map_read` once `submission` (the one that fills `staging`; None: every submission so
+    /// far) has completed: later submissions may still be running.
+    pub fn map_read_after<T>(
+        &self,
+        staging: &wgpu::Buffer,
+        bytes: u64,
+        submission: Option<wgpu::SubmissionIndex>,
+        read: impl FnOnce(&[u8]) -> T,
+    ) -> Result<T, GpuError> {
         let slice = staging.slice(..bytes.next_multiple_of(4));
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        crate::host::time("wait", || self.wait())?;
+        crate::host::time("wait", || self.wait_for(submission))?;
         rx.recv()
             .map_err(|e| GpuError::Readback(e.to_string()))?
             .map_err(|e| GpuError::Readback(e.to_string()))?;

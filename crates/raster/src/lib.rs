@@ -16,6 +16,7 @@ pub use context::{dispatch_dims, AdapterChoice, AtomicMode, GpuContext, GpuError
 pub use kernels::Kernel;
 pub use scan::{exclusive_scan_u32, ScanScratch};
 pub use splat::{
-    rasterize_backward, rasterize_forward, Camera, ForwardOutput, Gaussians, Gradients,
-    OutputGrads, PassTimes, Render, WorkCounts,
+    rasterize_backward, rasterize_finish, rasterize_forward, rasterize_submit, Camera,
+    ForwardOutput, Gaussians, Gradients, OutputGrads, PassTimes, PendingForward, Render,
+    WorkCounts,
 };

@@ -33,7 +33,13 @@ from evsplat.train.depth_prior import DepthPrior
 from evsplat.train.gradients import first_nonfinite_grad, grad_norms_due, mlp_grad_norms
 from evsplat.train.init import initial_gaussians, scene_extent
 from evsplat.train.mover import MoverTrack
-from evsplat.train.objective import loss_weights, motion_losses, refine_losses, track_loss
+from evsplat.train.objective import (
+    loss_weights,
+    motion_events,
+    motion_losses,
+    refine_losses,
+    track_loss,
+)
 from evsplat.train.progress import Progress, StepResult, TrainStats
 from evsplat.train.schedule import decay_learning_rates
 from evsplat.train.seeding import seed_mover
@@ -123,10 +129,13 @@ class Trainer:
         times, dtau = drawn
         t1 = times[-1]
         pairs = [(i, j) for j in range(lc.views) for i in range(j)]
-        windows = [self.views.esi(times[i], times[j], coarse) for i, j in pairs]
-        if all(count == 0 for _, _, count in windows):
+        if not any(self.views.has_events(times[i], times[j]) for i, j in pairs):
             return StepResult({}, stage, skipped="no events in window")
 
+        # Each render is started on the device and the step goes on (the next render's MLP, the
+        # event windows) while it is drawn: on a CPU adapter lavapipe's threads use the core
+        # this thread leaves idle. Same values, and the same autograd graph, as rendering in
+        # place.
         pose1 = self.views.pose(t1)
         g1 = view.gaussians_at(t1)
         extra = None
@@ -136,8 +145,14 @@ class Trainer:
             extra = gaussian_flow_features(g1[0], means_later, viewmat(pose1), view.K)
             if not lc.flow_moves_gaussians:
                 extra = extra.detach()
-        out1 = view.render(t1, pose1, extra=extra, gaussians=g1)
-        logs = [self.views.log_image_at(t, view) for t in times[:-1]]
+        pending1 = view.render_async(t1, pose1, extra=extra, gaussians=g1)
+        earlier = [view.render_async(t, self.views.pose(t)) for t in times[:-1]]
+        windows = [self.views.esi(times[i], times[j], coarse) for i, j in pairs]
+        if all(count == 0 for _, _, count in windows):  # a transform dropped every event
+            return StepResult({}, stage, skipped="no events in window")
+        events1 = motion_events(self.views, lc, t1, dtau, coarse) if moving else None
+        out1 = pending1.result()
+        logs = [self.views.log_image(p.result(), coarse) for p in earlier]
         log1 = self.views.log_image(out1, coarse)
         logs.append(log1)
         terms = [
@@ -149,7 +164,17 @@ class Trainer:
         if moving:
             losses.update(
                 motion_losses(
-                    self.views, view, self.model, self.mlp, lc, t1, dtau, pose1, out1, rng
+                    self.views,
+                    view,
+                    self.model,
+                    self.mlp,
+                    lc,
+                    t1,
+                    dtau,
+                    pose1,
+                    out1,
+                    events1,
+                    rng,
                 )
             )
             track = track_loss(self.mover_track, self.renderer, self.model, g1[0], t1)

@@ -4,6 +4,8 @@ mover's track prior (not in the paper; ``mover.MoverTrack``)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 
@@ -36,6 +38,39 @@ def loss_weights(cfg: TrainConfig) -> dict[str, float]:
     }
 
 
+@dataclass
+class MotionEvents:
+    """The events the motion losses at ``t1`` compare against (``motion_events``): read while
+    the step's renders are drawn, as they need none of them."""
+
+    flow: tuple[torch.Tensor, torch.Tensor, int] | None  # L_ef's window after t1; None: no L_ef
+    patch_window: tuple[int, int] | None  # L_m's events by index; None: no L_m
+    frames: torch.Tensor | None  # [m,H,W] ESI of its m equal-count sub-windows (enough events)
+    frame_times: list[float]  # their middle times (µs)
+
+
+def motion_events(views: Views, lc: LossConfig, t1: int, dtau: int, coarse: bool) -> MotionEvents:
+    """The event windows of L_ef (eq. 13: [t1, t1 + dtau]) and L_m (§4.3: m equal-count
+    sub-windows of ``lc.motion_window`` from t1) at ``t1``."""
+    data = views.data
+    flow = views.esi(t1, t1 + dtau, coarse) if lc.w_flow > 0 else None
+    if lc.w_motion <= 0:
+        return MotionEvents(flow, None, None, [])
+    span = int(lc.motion_window * (data.t_end_us - data.t_start_us))
+    # By event index, each sub-window's ESI streamed: the window is 2% of the recording.
+    store = data.events
+    i0, i1 = store.window(t1, min(t1 + span, data.t_end_us))
+    if i1 - i0 < lc.patch_m:
+        return MotionEvents(flow, (i0, i1), None, [])
+    bounds = store.split_equal_count(i0, i1, lc.patch_m)
+    frames, times = [], []
+    for j in range(lc.patch_m):
+        a, b = int(bounds[j]), int(bounds[j + 1])
+        frames.append(torch.from_numpy(store.accumulate(a, b, data.c_pos, data.c_neg)[0]))
+        times.append(0.5 * (store.time_at(a) + store.time_at(max(b - 1, a))))
+    return MotionEvents(flow, (i0, i1), torch.stack(frames), times)
+
+
 def motion_losses(
     views: Views,
     view: Renderer,
@@ -46,26 +81,24 @@ def motion_losses(
     dtau: int,
     pose1: np.ndarray,
     out1: RenderOut,
+    events: MotionEvents,
     rng: np.random.Generator,
 ) -> dict[str, torch.Tensor]:
-    """L_ef and L_m for the render ``out1`` that ``view`` (full or coarse) made at ``t1``."""
-    data, renderer = views.data, views.renderer
+    """L_ef and L_m for the render ``out1`` that ``view`` (full or coarse) made at ``t1``,
+    against ``events`` (``motion_events`` at ``t1``)."""
+    renderer = views.renderer
     coarse = view is not renderer
     out: dict[str, torch.Tensor] = {}
     # L_ef (eq. 13): linearised event model over [t1, t1 + dtau].
-    window = views.esi(t1, t1 + dtau, coarse) if lc.w_flow > 0 else (None, None, 0)
-    short, _, count = window
+    short, _, count = events.flow or (None, None, 0)
     if count > 0:
         flow_cam = camera_flow(out1.depth, view.K, viewmat(pose1), viewmat(views.pose(t1 + dtau)))
         pred = views.linearized_change(out1, flow_cam + out1.extra, coarse)
         out["ef"] = event_flow_loss(short, pred)
     # L_m (eq. 15): patches of m equal-count sub-windows around the moving centres.
-    if lc.w_motion <= 0:
+    if events.patch_window is None:
         return out
-    span = int(lc.motion_window * (data.t_end_us - data.t_start_us))
-    # By event index, each sub-window's ESI streamed: the window is 2% of the recording.
-    store = data.events
-    i0, i1 = store.window(t1, min(t1 + span, data.t_end_us))
+    i0, i1 = events.patch_window
     if i1 - i0 >= lc.patch_m:
         gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
         idx = select_visible(
@@ -77,12 +110,8 @@ def motion_losses(
             gen,
         )
         if idx.numel() > 0:
-            bounds = store.split_equal_count(i0, i1, lc.patch_m)
-            frames, centres = [], []
-            for j in range(lc.patch_m):
-                a, b = int(bounds[j]), int(bounds[j + 1])
-                frames.append(torch.from_numpy(store.accumulate(a, b, data.c_pos, data.c_neg)[0]))
-                t_mid = 0.5 * (store.time_at(a) + store.time_at(max(b - 1, a)))
+            centres = []
+            for t_mid in events.frame_times:
                 means = deformed_means(
                     model,
                     mlp,
@@ -91,9 +120,7 @@ def motion_losses(
                     renderer.static_mask,
                 )
                 centres.append(project_points(means, viewmat(views.pose(t_mid)), renderer.K))
-            out["m"] = patch_motion_loss(
-                torch.stack(frames), torch.stack(centres, dim=1), lc.patch_side
-            )
+            out["m"] = patch_motion_loss(events.frames, torch.stack(centres, dim=1), lc.patch_side)
     return out
 
 

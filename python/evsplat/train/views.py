@@ -88,6 +88,11 @@ class Views:
             esi, mask = bin_events(esi, mask, self.channel_map)
         return esi, mask, count
 
+    def has_events(self, t0: int, t1: int) -> bool:
+        """Whether the recording holds events in [t0, t1) (found by index, none read)."""
+        i0, i1 = self.data.events.window(t0, t1)
+        return i1 > i0
+
     def pose(self, t_us: float) -> np.ndarray:
         return self.data.trajectory.pose(float(t_us))
 

@@ -214,9 +214,92 @@ fn isect_capacity(m: u32) -> u64 {
         .max(MIN_ISECT_CAP)
 }
 
+/// A band of a forward render submitted to the device and not yet read back.
+#[derive(Debug)]
+pub struct Submitted {
+    layout: readback::ForwardLayout,
+    index: wgpu::SubmissionIndex,
+}
+
+/// Encode the render of `band` of `cam`'s image of `g` into `st` as render `id` and submit it
+/// without waiting (`read` takes its outputs, with the projected Gaussians when `with_proj`).
+/// Errors with `GpuError::OverLimit` when a buffer would exceed the binding limit.
+#[allow(clippy::too_many_arguments)]
+pub fn submit(
+    ctx: &GpuContext,
+    st: &mut State,
+    g: &Gaussians,
+    cam: &Camera,
+    band: Band,
+    profile: Option<&mut PassTimes>,
+    count_work: bool,
+    with_proj: bool,
+) -> Result<Submitted, GpuError> {
+    let (n, d) = (g.len(), g.d);
+    // The state's per-pixel buffers are this render's from here on, even if it fails.
+    st.current = None;
+    st.isect_cap = st.isect_cap.min(ctx.binding_limit() / 4);
+    let p = host::time("prepare buffers", || st.prepare(ctx, n, d, cam, band))?;
+    let mut rec = Recorder::new(ctx, profile);
+    upload_inputs(ctx, st, g, &mut rec)?;
+    host::time("encode", || encode(ctx, st, &p, &mut rec, count_work))?;
+    let pixels = band.pixels(cam.width).0;
+    let layout = readback::copy_forward(&mut rec, &st.bufs, (n, d), pixels, with_proj);
+    Ok(Submitted {
+        layout,
+        index: rec.submit(&st.bufs),
+    })
+}
+
+/// Wait for the band `s` that `submit` sent as render `id` and read it back; None when its
+/// tile pairs overflowed the intersection capacity (grown now: submit it again). Errors with
+/// `GpuError::OverLimit` when they exceed the binding limit (then a smaller band may fit).
+pub fn read(
+    ctx: &GpuContext,
+    st: &mut State,
+    s: Submitted,
+    band: Band,
+    id: u64,
+) -> Result<Option<ForwardRead>, GpuError> {
+    let read = readback::read_forward(ctx, &st.bufs, s.layout, s.index)?;
+    let m = read.intersections();
+    if read.tiles_disagree() {
+        return Err(GpuError::Invalid(
+            "rasterize: the tile count and tile key passes disagree on which tiles a \
+             Gaussian reaches (a shader compiler broke their shared test); please report it \
+             with the adapter's name"
+                .into(),
+        ));
+    }
+    let max_cap = ctx.binding_limit() / 4;
+    if m as u64 > st.isect_cap {
+        if m as u64 > max_cap {
+            return Err(GpuError::OverLimit(format!(
+                "rasterize: {m} tile pairs in rows {}.. need {} bytes, over the {}-byte \
+                 storage binding limit",
+                band.ty0 * TILE,
+                4 * m as u64,
+                4 * max_cap
+            )));
+        }
+        // Render again with room for every intersection (rare: the capacity follows the
+        // counts of earlier renders).
+        st.isect_cap = isect_capacity(m).min(max_cap);
+        return Ok(None);
+    }
+    // The tile sort's histograms are laid out, cleared and scanned over the whole capacity:
+    // size the next render's capacity to this one's count (shrinking only when 4x too large,
+    // so renders of different sizes do not alternate between overflow and re-render).
+    let want = isect_capacity(m);
+    if 4 * want <= st.isect_cap {
+        st.isect_cap = want;
+    }
+    st.current = Some(id);
+    Ok(Some(read))
+}
+
 /// Render `band` of `cam`'s image of `g` into `st` as render `id` and read its outputs back (the
-/// projected Gaussians too when `with_proj`). Errors with `GpuError::OverLimit` when a buffer
-/// would exceed the binding limit, the tile pairs included (then a smaller band may fit).
+/// projected Gaussians too when `with_proj`), rendering again when the tile pairs overflowed.
 #[allow(clippy::too_many_arguments)]
 pub fn run(
     ctx: &GpuContext,
@@ -229,50 +312,19 @@ pub fn run(
     count_work: bool,
     with_proj: bool,
 ) -> Result<ForwardRead, GpuError> {
-    let (n, d) = (g.len(), g.d);
-    // The state's per-pixel buffers are this render's from here on, even if it fails.
-    st.current = None;
-    let max_cap = ctx.binding_limit() / 4;
-    st.isect_cap = st.isect_cap.min(max_cap);
     loop {
-        let p = host::time("prepare buffers", || st.prepare(ctx, n, d, cam, band))?;
-        let mut rec = Recorder::new(ctx, profile.as_deref_mut());
-        upload_inputs(ctx, st, g, &mut rec)?;
-        host::time("encode", || encode(ctx, st, &p, &mut rec, count_work))?;
-        let pixels = band.pixels(cam.width).0;
-        let read = readback::forward(rec, &st.bufs, (n, d), pixels, with_proj)?;
-        let m = read.intersections();
-        if read.tiles_disagree() {
-            return Err(GpuError::Invalid(
-                "rasterize: the tile count and tile key passes disagree on which tiles a \
-                 Gaussian reaches (a shader compiler broke their shared test); please report it \
-                 with the adapter's name"
-                    .into(),
-            ));
+        let sent = submit(
+            ctx,
+            st,
+            g,
+            cam,
+            band,
+            profile.as_deref_mut(),
+            count_work,
+            with_proj,
+        )?;
+        if let Some(read) = self::read(ctx, st, sent, band, id)? {
+            return Ok(read);
         }
-        if m as u64 > st.isect_cap {
-            if m as u64 > max_cap {
-                return Err(GpuError::OverLimit(format!(
-                    "rasterize: {m} tile pairs in rows {}.. need {} bytes, over the {}-byte \
-                     storage binding limit",
-                    band.ty0 * TILE,
-                    4 * m as u64,
-                    4 * max_cap
-                )));
-            }
-            // Render again with room for every intersection (rare: the capacity follows the
-            // counts of earlier renders).
-            st.isect_cap = isect_capacity(m).min(max_cap);
-            continue;
-        }
-        // The tile sort's histograms are laid out, cleared and scanned over the whole capacity:
-        // size the next render's capacity to this one's count (shrinking only when 4x too large,
-        // so renders of different sizes do not alternate between overflow and re-render).
-        let want = isect_capacity(m);
-        if 4 * want <= st.isect_cap {
-            st.isect_cap = want;
-        }
-        st.current = Some(id);
-        return Ok(read);
     }
 }

@@ -154,6 +154,127 @@ pub fn rasterize_forward(
     }))
 }
 
+/// A forward render submitted by [`rasterize_submit`] and not read back yet; [`rasterize_finish`]
+/// waits for it. The device renders it while the caller does other work. Dropped unread, its
+/// buffers are free for later renders again.
+#[derive(Debug)]
+pub struct PendingForward {
+    n: usize,
+    d: usize,
+    cam: Camera,
+    count_work: bool,
+    /// The render's band as submitted (render id, band, what was sent), until read back.
+    sent: Option<(u64, Band, forward::Submitted)>,
+    /// A render that could not be submitted alone (several bands), done already.
+    done: Option<ForwardOutput>,
+}
+
+/// Start the forward render of `g` from `cam` on the device and return without waiting for it
+/// (as [`rasterize_forward`], which it equals once [`rasterize_finish`]ed). An image that needs
+/// several bands (see there) is rendered whole here instead.
+pub fn rasterize_submit(
+    ctx: &GpuContext,
+    g: &Gaussians,
+    cam: &Camera,
+    count_work: bool,
+) -> Result<PendingForward, GpuError> {
+    g.check()?;
+    cam.check()?;
+    let mut pending = PendingForward {
+        n: g.len(),
+        d: g.d,
+        cam: *cam,
+        count_work,
+        sent: None,
+        done: None,
+    };
+    let row_bytes = 4 * cam.width as u64 * (g.d as u64 + 2).max(4);
+    let bands = cam.bands((ctx.binding_limit() / row_bytes).min(cam.height as u64) as u32);
+    if let [band] = bands[..] {
+        let mut pool = state::lock();
+        let (id, st) = pool.for_forward(ctx, g.d as u64);
+        match forward::submit(ctx, st, g, cam, band, None, count_work, true) {
+            Ok(sent) => {
+                st.pending = Some(id);
+                pending.sent = Some((id, band, sent));
+                return Ok(pending);
+            }
+            Err(GpuError::OverLimit(_)) => {} // rendered in bands below
+            Err(e) => return Err(e),
+        }
+    }
+    pending.done = Some(rasterize_forward(ctx, g, cam, None, count_work)?);
+    Ok(pending)
+}
+
+/// Wait for the render `pending` and read it back. `g` are the inputs it was submitted with,
+/// read only when it must be rendered again (its tile pairs overflowed the buffers' capacity).
+pub fn rasterize_finish(
+    ctx: &GpuContext,
+    mut pending: PendingForward,
+    g: &Gaussians,
+) -> Result<ForwardOutput, GpuError> {
+    if let Some(out) = pending.done.take() {
+        return Ok(out);
+    }
+    let (n, d, cam, count_work) = (pending.n, pending.d, pending.cam, pending.count_work);
+    g.check()?;
+    if g.len() != n || g.d != d {
+        return Err(GpuError::Invalid(format!(
+            "rasterize finish: inputs of {} Gaussians with {} channels for a render of {n} with {d}",
+            g.len(),
+            g.d,
+        )));
+    }
+    let Some((id, band, sent)) = pending.sent.take() else {
+        return Err(GpuError::Invalid(
+            "rasterize finish: the render was read already".into(),
+        ));
+    };
+    let mut pool = state::lock();
+    let st = (pool.for_pending(id)).ok_or_else(|| {
+        GpuError::Invalid("rasterize finish: the submitted render is gone".into())
+    })?;
+    st.pending = None;
+    let read = match forward::read(ctx, st, sent, band, id) {
+        Ok(Some(read)) => read,
+        // The tile pairs overflowed: render it again with the grown capacity.
+        Ok(None) => match forward::run(ctx, st, g, &cam, band, id, None, count_work, true) {
+            Err(GpuError::OverLimit(_)) => {
+                drop(pool);
+                return rasterize_forward(ctx, g, &cam, None, count_work);
+            }
+            run => run?,
+        },
+        // More tile pairs than one binding holds: render it in bands.
+        Err(GpuError::OverLimit(_)) => {
+            drop(pool);
+            return rasterize_forward(ctx, g, &cam, None, count_work);
+        }
+        Err(e) => return Err(e),
+    };
+    let render = Render {
+        n,
+        d,
+        cam,
+        bands: vec![(id, band)],
+    };
+    Ok(host::time("unpack", || {
+        readback::output(vec![read], count_work, render)
+    }))
+}
+
+impl Drop for PendingForward {
+    fn drop(&mut self) {
+        // Never read back: its state may serve other renders (the queue orders their work).
+        if let Some((id, _, _)) = self.sent.take() {
+            if let Some(st) = state::lock().for_pending(id) {
+                st.pending = None;
+            }
+        }
+    }
+}
+
 /// Gradients of a loss given its gradients with respect to the outputs of `render`, whose inputs
 /// `g` were (it is rendered again first when later renders have replaced it in the buffers).
 pub fn rasterize_backward(
@@ -222,6 +343,13 @@ pub fn rasterize_backward(
     total.ok_or_else(|| GpuError::Invalid("rasterize backward: a render without bands".into()))
 }
 
+impl PendingForward {
+    /// Feature channels of the render.
+    pub fn channels(&self) -> usize {
+        self.d
+    }
+}
+
 impl Render {
     /// Feature channels of the render.
     pub fn channels(&self) -> usize {
@@ -245,5 +373,130 @@ impl Gradients {
                 *a += b;
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `n` Gaussians in front of the camera (deterministic), `scale` their size in metres.
+    fn scene(n: usize, d: usize, scale: f32) -> [Vec<f32>; 6] {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rand = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let v = |count: usize, f: &mut dyn FnMut(usize) -> f32| (0..count).map(f).collect();
+        [
+            v(3 * n, &mut |i| match i % 3 {
+                2 => 3.0 + rand(),
+                _ => 2.0 * rand() - 1.0,
+            }),
+            v(4 * n, &mut |_| rand() - 0.5),
+            v(3 * n, &mut |_| scale * (0.2 + rand())),
+            v(n, &mut |_| 0.1 + 0.8 * rand()),
+            v(d * n, &mut |_| rand()),
+            vec![0.5; d],
+        ]
+    }
+
+    fn gaussians(s: &[Vec<f32>; 6], d: usize) -> Gaussians<'_> {
+        Gaussians {
+            means: &s[0],
+            quats: &s[1],
+            scales: &s[2],
+            opacities: &s[3],
+            features: &s[4],
+            d,
+            background: &s[5],
+        }
+    }
+
+    fn camera(width: u32, height: u32, shift: f32) -> Camera {
+        let mut viewmat = [0.0; 16];
+        for i in 0..4 {
+            viewmat[5 * i] = 1.0;
+        }
+        viewmat[3] = shift;
+        let f = 1.2 * width as f32;
+        let k = [
+            f,
+            0.0,
+            width as f32 / 2.0,
+            0.0,
+            f,
+            height as f32 / 2.0,
+            0.0,
+            0.0,
+            1.0,
+        ];
+        Camera {
+            viewmat,
+            k,
+            width,
+            height,
+            near: 0.01,
+            far: 1e4,
+        }
+    }
+
+    fn assert_same(a: &ForwardOutput, b: &ForwardOutput) {
+        assert_eq!(a.image, b.image);
+        assert_eq!(a.depth, b.depth);
+        assert_eq!(a.alpha, b.alpha);
+        assert_eq!(a.radii, b.radii);
+        assert_eq!(a.means2d, b.means2d);
+        assert_eq!(a.depths, b.depths);
+        assert_eq!(a.intersections, b.intersections);
+    }
+
+    #[test]
+    fn submitted_renders_read_back_in_any_order_equal_forward_renders() {
+        let ctx = GpuContext::global().expect("a Vulkan adapter (lavapipe in CI) is required");
+        let (small, wide) = (scene(400, 3, 0.02), scene(300, 5, 0.05));
+        let (g1, g2) = (gaussians(&small, 3), gaussians(&wide, 5));
+        let (c1, c2) = (camera(64, 48, 0.0), camera(40, 72, 0.1));
+        let want1 = rasterize_forward(ctx, &g1, &c1, None, false).unwrap();
+        let want2 = rasterize_forward(ctx, &g2, &c2, None, false).unwrap();
+        // Two on the device at once, read back last first; a third dropped unread.
+        let p1 = rasterize_submit(ctx, &g1, &c1, false).unwrap();
+        let p2 = rasterize_submit(ctx, &g2, &c2, false).unwrap();
+        drop(rasterize_submit(ctx, &g1, &c2, false).unwrap());
+        let got2 = rasterize_finish(ctx, p2, &g2).unwrap();
+        let got1 = rasterize_finish(ctx, p1, &g1).unwrap();
+        assert_same(&got1, &want1);
+        assert_same(&got2, &want2);
+        // Their backward passes find their per-pixel state (or render it again) as usual.
+        let px = 64 * 48;
+        let (gi, gd, ga) = (vec![1.0; 3 * px], vec![0.1; px], vec![0.5; px]);
+        let grads = OutputGrads {
+            image: &gi,
+            depth: &gd,
+            alpha: &ga,
+        };
+        let mode = ctx.default_atomic_mode();
+        let a = rasterize_backward(ctx, &got1.render, &g1, &grads, mode, None).unwrap();
+        let b = rasterize_backward(ctx, &want1.render, &g1, &grads, mode, None).unwrap();
+        let peak = b.means.iter().fold(0f32, |m, v| m.max(v.abs()));
+        for (x, y) in a.means.iter().zip(&b.means) {
+            assert!((x - y).abs() <= 1e-4 * peak.max(1.0), "{x} vs {y}");
+        }
+    }
+
+    #[test]
+    fn a_submitted_render_whose_tile_pairs_overflow_is_rendered_again_when_read() {
+        let ctx = GpuContext::global().expect("a Vulkan adapter (lavapipe in CI) is required");
+        // Large Gaussians over the whole image: far more tile pairs than a fresh capacity.
+        let big = scene(3000, 3, 0.3);
+        let g = gaussians(&big, 3);
+        let cam = camera(128, 128, 0.0);
+        let pending = rasterize_submit(ctx, &g, &cam, false).unwrap();
+        let got = rasterize_finish(ctx, pending, &g).unwrap();
+        let want = rasterize_forward(ctx, &g, &cam, None, false).unwrap();
+        assert!(got.intersections as u64 > forward::MIN_ISECT_CAP);
+        assert_same(&got, &want);
     }
 }

@@ -7,7 +7,7 @@ use std::borrow::Cow;
 use super::buffers::{Buffers, COUNTER_WORDS, GRAD_HEAD, PARAM_GRADS};
 use super::record::Recorder;
 use super::{ForwardOutput, Gradients, Render, WorkCounts};
-use crate::context::GpuError;
+use crate::context::{GpuContext, GpuError};
 
 /// What the projection leaves per Gaussian that the caller gets.
 #[derive(Default)]
@@ -35,15 +35,26 @@ fn floats(bytes: &[u8]) -> Cow<'_, [f32]> {
     }
 }
 
-/// Copy a forward render's outputs (and, with `with_proj`, its projected Gaussians) to the host,
-/// submitting what `rec` recorded.
-pub fn forward(
-    mut rec: Recorder,
+/// What a forward render copied into its staging buffer, in order: image, depth and alpha rows,
+/// (with `proj`) the projected Gaussians, the counters.
+#[derive(Clone, Copy, Debug)]
+pub struct ForwardLayout {
+    n: usize,
+    d: usize,
+    pixels: usize,
+    with_proj: bool,
+    bytes: u64,
+}
+
+/// Record the copies of a forward render's outputs (and, with `with_proj`, its projected
+/// Gaussians) into the staging buffer, last in `rec`.
+pub fn copy_forward(
+    rec: &mut Recorder,
     b: &Buffers,
     (n, d): (usize, usize),
     pixels: usize,
     with_proj: bool,
-) -> Result<ForwardRead, GpuError> {
+) -> ForwardLayout {
     let (d64, px) = (d as u64, pixels as u64);
     let proj_floats = if with_proj { 8 * n } else { 0 };
     let parts: [(&wgpu::Buffer, u64); 5] = [
@@ -60,7 +71,32 @@ pub fn forward(
         }
         at += bytes;
     }
-    rec.finish(b, at, |raw| {
+    ForwardLayout {
+        n,
+        d,
+        pixels,
+        with_proj,
+        bytes: at,
+    }
+}
+
+/// Take a forward render's outputs out of the staging buffer once `submission` (the one that
+/// copied them there, as `layout` says) has completed.
+pub fn read_forward(
+    ctx: &GpuContext,
+    b: &Buffers,
+    layout: ForwardLayout,
+    submission: wgpu::SubmissionIndex,
+) -> Result<ForwardRead, GpuError> {
+    let ForwardLayout {
+        n,
+        d,
+        pixels,
+        with_proj,
+        bytes,
+    } = layout;
+    let proj_floats = if with_proj { 8 * n } else { 0 };
+    ctx.map_read_after(&b.staging, bytes, Some(submission), |raw| {
         let all = floats(raw);
         let (image, rest) = all.split_at(pixels * d);
         let (depth, rest) = rest.split_at(pixels);

@@ -46,9 +46,16 @@ impl<'a> Recorder<'a> {
         Ok(())
     }
 
-    /// Submit the remaining work (and copies), ask for `b`'s upload buffer to be mapped again
-    /// for the next call once the copies out of it are done (in this call's wait), wait, and
-    /// hand the first `bytes` of `b`'s staging buffer to `read`.
+    /// Submit the remaining work (and copies) without waiting, and ask for `b`'s upload buffer
+    /// to be mapped again for the next call once the copies out of it are done.
+    pub fn submit(self, b: &Buffers) -> wgpu::SubmissionIndex {
+        let ctx = self.ctx;
+        let index = host::time("submit", || ctx.queue.submit([self.enc.finish()]));
+        b.upload.remap();
+        index
+    }
+
+    /// `submit`, wait, and hand the first `bytes` of `b`'s staging buffer to `read`.
     pub fn finish<T>(
         self,
         b: &Buffers,
@@ -56,9 +63,8 @@ impl<'a> Recorder<'a> {
         read: impl FnOnce(&[u8]) -> T,
     ) -> Result<T, GpuError> {
         let ctx = self.ctx;
-        host::time("submit", || ctx.queue.submit([self.enc.finish()]));
-        b.upload.remap();
-        ctx.map_read(&b.staging, bytes, read)
+        let index = self.submit(b);
+        ctx.map_read_after(&b.staging, bytes, Some(index), read)
     }
 }
 

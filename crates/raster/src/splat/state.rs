@@ -28,11 +28,15 @@ pub struct State {
     used: u64,
     /// The render here was differentiated already: its state is not needed again.
     pub spent: bool,
+    /// A render submitted here and not read back yet (`rasterize_submit`): no other render may
+    /// take these buffers until it is.
+    pub pending: Option<u64>,
 }
 
 /// Renders whose per-pixel state a backward pass may still need each keep their own buffers,
 /// up to this many: a training step renders two or three views and differentiates them in
-/// reverse order, which with one set of buffers would re-render every view but the last.
+/// reverse order, which with one set of buffers would re-render every view but the last. (More
+/// only while more renders are submitted and not read back at once.)
 const STATES: usize = 3;
 
 /// The per-process states and the render-id counter.
@@ -45,39 +49,51 @@ pub struct Pool {
 impl Pool {
     /// A fresh render id and the state for that render with `d` channels: a spent one of the same
     /// width first, then any spent one, a new one while the pool has room, else the least
-    /// recently used.
+    /// recently used; never one with a render waiting to be read back (a new one instead).
     pub fn for_forward(&mut self, ctx: &GpuContext, d: u64) -> (u64, &mut State) {
         let id = self.next_id;
         self.next_id += 1;
         let same_d = |s: &State| s.sizes.is_some_and(|z| z.d == d);
-        let pick = (self.states.iter().position(|s| s.spent && same_d(s)))
-            .or_else(|| self.states.iter().position(|s| s.spent));
+        let free = |s: &State| s.pending.is_none();
+        let pick = (self.states.iter())
+            .position(|s| free(s) && s.spent && same_d(s))
+            .or_else(|| self.states.iter().position(|s| free(s) && s.spent));
         let i = match pick {
             Some(i) => i,
-            None if self.states.len() < STATES => {
-                self.states.push(State::new(ctx));
-                self.states.len() - 1
-            }
-            None => (0..self.states.len())
-                .min_by_key(|&i| self.states[i].used)
-                .unwrap_or(0),
+            None if self.states.len() < STATES => self.add(ctx),
+            None => self.least_recent().unwrap_or_else(|| self.add(ctx)),
         };
         let st = self.touch(i);
         st.spent = false;
         (id, st)
     }
 
-    /// The state holding render `id`, else (it was evicted) the least recently used one.
+    /// The state holding render `id`, else (it was evicted) the least recently used one that no
+    /// submitted render is waiting in.
     pub fn for_backward(&mut self, ctx: &GpuContext, id: u64) -> &mut State {
-        if self.states.is_empty() {
-            self.states.push(State::new(ctx));
-        }
         let i = (self.states.iter().position(|s| s.current == Some(id)))
-            .or_else(|| (0..self.states.len()).min_by_key(|&i| self.states[i].used))
-            .unwrap_or(0);
+            .or_else(|| self.least_recent())
+            .unwrap_or_else(|| self.add(ctx));
         let st = self.touch(i);
         st.spent = true;
         st
+    }
+
+    /// The state render `id` was submitted to and not read back from yet.
+    pub fn for_pending(&mut self, id: u64) -> Option<&mut State> {
+        let i = self.states.iter().position(|s| s.pending == Some(id))?;
+        Some(self.touch(i))
+    }
+
+    fn least_recent(&self) -> Option<usize> {
+        (0..self.states.len())
+            .filter(|&i| self.states[i].pending.is_none())
+            .min_by_key(|&i| self.states[i].used)
+    }
+
+    fn add(&mut self, ctx: &GpuContext) -> usize {
+        self.states.push(State::new(ctx));
+        self.states.len() - 1
     }
 
     fn touch(&mut self, i: usize) -> &mut State {
@@ -133,6 +149,7 @@ impl State {
             current: None,
             used: 0,
             spent: false,
+            pending: None,
         }
     }
 
