@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -67,6 +67,25 @@ class Dropped:
         ]
         said = "; ".join(p for p in parts if p)
         return f"{path}: {said}; all other events were kept" if said else None
+
+
+#: Events per chunk of the Rust readers (every chunk but the last is full: convert's batches are
+#: whole chunks), and bytes per read: the memory a recording streams through.
+CHUNK_EVENTS = 1 << 20
+BLOCK_BYTES = 4 << 20
+
+
+def decoded_chunks(path: Path, open_decoder: Callable, dropped: Dropped) -> Iterator[Chunk]:
+    """The chunks of the Rust reader that ``open_decoder()`` makes, until it is exhausted;
+    ``dropped`` is filled in then. An I/O error, opening or reading, is one line naming the
+    file."""
+    try:
+        decoder = open_decoder()
+        while len((chunk := decoder.next_chunk(CHUNK_EVENTS))[0]):
+            yield chunk
+    except OSError as e:
+        raise EvsplatError(f"{path}: cannot read events ({e}); check the file") from None
+    dropped.events, dropped.words, dropped.bytes = decoder.dropped()
 
 
 @dataclass

@@ -11,17 +11,13 @@ a packet of the event stream that does not decode is skipped and counted."""
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 from evsplat import _core
-from evsplat.data.formats import Chunk, Dropped, EventSource
+from evsplat.data.formats import BLOCK_BYTES, Dropped, EventSource, decoded_chunks
 from evsplat.errors import EvsplatError
 
-#: Events per chunk and bytes per read.
-CHUNK_EVENTS = 1 << 20
-BLOCK_BYTES = 4 << 20
 #: DV's stream type identifiers, named as the `aedat` package names them.
 STREAM_TYPES = {"EVTS": "events", "FRME": "frame", "IMUS": "imus", "TRIG": "triggers"}
 
@@ -95,14 +91,5 @@ def open_aedat4(path: Path) -> EventSource:
     block = max(1, min(BLOCK_BYTES, path.stat().st_size - data_start))
     decoder = _core.Aedat4EventDecoder(path, compression, stream.id, data_start, data_table, block)
     dropped = Dropped(words_are="event packets that could not be decoded")
-    chunks = _chunks(path, decoder, dropped)
+    chunks = decoded_chunks(path, lambda: decoder, dropped)
     return EventSource(path, stream.width, stream.height, chunks, "aedat4", "evsplat", dropped)
-
-
-def _chunks(path: Path, decoder, dropped: Dropped) -> Iterator[Chunk]:
-    try:
-        while len((chunk := decoder.next_chunk(CHUNK_EVENTS))[0]):
-            yield chunk
-    except OSError as e:
-        raise EvsplatError(f"{path}: cannot read events ({e}); check the file") from None
-    dropped.events, dropped.words, dropped.bytes = decoder.dropped()

@@ -16,13 +16,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from evsplat import _core
-from evsplat.data.formats import Chunk, Dropped, EventSource
+from evsplat.data.formats import BLOCK_BYTES, Chunk, Dropped, EventSource, decoded_chunks
 from evsplat.errors import EvsplatError
 
-#: Events per chunk (every chunk but the last is full: convert's batches are whole chunks),
-#: and bytes per read: the memory a recording streams through.
-CHUNK_EVENTS = 1 << 20
-BLOCK_BYTES = 4 << 20
 #: DAT event-type byte for CD events and their size in bytes (Prophesee file format docs).
 DAT_CD_TYPE, DAT_CD_SIZE = 0x0C, 8
 #: A header longer than this is not a header (a binary file that happens to start with '%').
@@ -117,10 +113,6 @@ def _source(path: Path, width: int, height: int, encoding: str, start: int) -> E
 def _chunks(path: Path, encoding: str, start: int, dropped: Dropped) -> Iterator[Chunk]:
     """The events after byte ``start``; ``dropped`` is filled in once they are exhausted."""
     block = max(1, min(BLOCK_BYTES, path.stat().st_size - start))
-    try:
-        decoder = _core.EventFileDecoder(path, encoding, start, block)
-        while len((chunk := decoder.next_chunk(CHUNK_EVENTS))[0]):
-            yield chunk
-    except OSError as e:
-        raise EvsplatError(f"{path}: cannot read events ({e}); check the file") from None
-    dropped.events, dropped.words, dropped.bytes = decoder.dropped()
+    return decoded_chunks(
+        path, lambda: _core.EventFileDecoder(path, encoding, start, block), dropped
+    )

@@ -24,7 +24,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from evsplat import _core
-from evsplat.data.formats import Chunk, Dropped, EventSource
+from evsplat.data.formats import BLOCK_BYTES, Chunk, Dropped, EventSource, decoded_chunks
 from evsplat.errors import EvsplatError
 
 #: Field layout shared by both drivers' Event messages (ROS 1 ``time`` = builtin Time).
@@ -34,9 +34,6 @@ EVENT_PACKAGES = ("dvs_msgs", "prophesee_event_msgs")
 EVENT_TYPES = tuple(f"{pkg}/msg/EventArray" for pkg in EVENT_PACKAGES)
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
-#: Events per chunk and bytes per read of the Rust reader of ROS 1 bags.
-CHUNK_EVENTS = 1 << 20
-BLOCK_BYTES = 4 << 20
 #: One event as ROS 1 serialises it (packed): x, y, ts.sec, ts.nsec, polarity.
 ROS1_EVENT = np.dtype([("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"), ("p", "u1")])
 #: The same in CDR (ROS 2): the first event is packed (13 bytes); each further one is
@@ -185,17 +182,8 @@ def open_rust_bag(path: Path, file: Path, *, topic: str | None = None) -> EventS
             "the driver did not fill width/height: re-record or fix the messages"
         )
     dropped = Dropped(words_are="event messages or records that could not be read")
-    chunks = _rust_chunks(path, decoder, dropped)
+    chunks = decoded_chunks(path, lambda: decoder, dropped)
     return EventSource(path, int(width), int(height), chunks, "rosbag", "evsplat", dropped)
-
-
-def _rust_chunks(path: Path, decoder, dropped: Dropped) -> Iterator[Chunk]:
-    try:
-        while len((chunk := decoder.next_chunk(CHUNK_EVENTS))[0]):
-            yield chunk
-    except OSError as e:
-        raise EvsplatError(f"{path}: cannot read events ({e}); check the file") from None
-    dropped.events, dropped.words, dropped.bytes = decoder.dropped()
 
 
 def open_bag(path: Path, *, topic: str | None = None) -> EventSource:
