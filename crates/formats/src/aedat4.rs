@@ -11,6 +11,7 @@
 
 use std::io::{self, BufReader, Read};
 
+use crate::bytes::{i64_at, u16_at, u32_at};
 use crate::{Events, Stats};
 
 /// The first line of every AEDAT 4 file.
@@ -53,24 +54,6 @@ pub struct Header {
     pub description: String,
     /// The byte offset of the first packet.
     pub data_start: u64,
-}
-
-fn u16_at(b: &[u8], at: usize) -> Option<u16> {
-    Some(u16::from_le_bytes(
-        b.get(at..at.checked_add(2)?)?.try_into().ok()?,
-    ))
-}
-
-fn u32_at(b: &[u8], at: usize) -> Option<u32> {
-    Some(u32::from_le_bytes(
-        b.get(at..at.checked_add(4)?)?.try_into().ok()?,
-    ))
-}
-
-fn i64_at(b: &[u8], at: usize) -> Option<i64> {
-    Some(i64::from_le_bytes(
-        b.get(at..at.checked_add(8)?)?.try_into().ok()?,
-    ))
 }
 
 /// Where field `index` of the flatbuffer table at `table` keeps its value, or None (absent,

@@ -7,6 +7,7 @@
 //! bytes after them.
 
 pub mod aedat4;
+mod bytes;
 #[cfg(any(test, feature = "check"))]
 pub mod check;
 pub mod dat;

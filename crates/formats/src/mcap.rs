@@ -22,6 +22,7 @@
 use std::collections::HashMap;
 use std::io::{self, BufReader, Read, Seek, SeekFrom};
 
+use crate::bytes::{u16_at, u32_at, u64_at};
 use crate::{Events, Stats};
 
 /// The first (and last) 8 bytes of every MCAP file.
@@ -50,24 +51,6 @@ pub struct Channel {
     pub id: u16,
     pub topic: String,
     pub msgtype: String,
-}
-
-fn u16_at(b: &[u8], at: usize) -> Option<u16> {
-    Some(u16::from_le_bytes(
-        b.get(at..at.checked_add(2)?)?.try_into().ok()?,
-    ))
-}
-
-fn u32_at(b: &[u8], at: usize) -> Option<u32> {
-    Some(u32::from_le_bytes(
-        b.get(at..at.checked_add(4)?)?.try_into().ok()?,
-    ))
-}
-
-fn u64_at(b: &[u8], at: usize) -> Option<u64> {
-    Some(u64::from_le_bytes(
-        b.get(at..at.checked_add(8)?)?.try_into().ok()?,
-    ))
 }
 
 /// The string at `at` and the position after it.

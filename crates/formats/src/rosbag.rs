@@ -19,6 +19,7 @@
 use std::collections::HashMap;
 use std::io::{self, BufReader, Read, Seek, SeekFrom};
 
+use crate::bytes::u32_at;
 use crate::{Events, Stats};
 
 /// The first line of every ROS 1 bag this reader reads.
@@ -69,11 +70,6 @@ fn field_u64(header: &[u8], name: &[u8]) -> Option<u64> {
 
 fn field_str(header: &[u8], name: &[u8]) -> Option<String> {
     field(header, name).map(|v| String::from_utf8_lossy(v).into_owned())
-}
-
-fn u32_at(bytes: &[u8], at: usize) -> Option<u32> {
-    let b = bytes.get(at..at.checked_add(4)?)?;
-    Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
 }
 
 /// An EventArray's (width, height, offset of its first event, event count), or None when the
