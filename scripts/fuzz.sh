@@ -23,9 +23,11 @@ for target in "${targets[@]}"; do
     cp "seeds/$target"/* "$corpus"/
     echo "== $target: ${seconds} s from $(ls "$corpus" | wc -l) seeds"
     # -timeout=1: an input over a second is a hang; -malloc_limit_mb: one allocation over
-    # 64 MB is a failure (a chunk of 2^20 events is 13 MB).
+    # 64 MB is a failure (a chunk of 2^20 events is 13 MB); both limits can be set lower
+    # (MALLOC_LIMIT_MB, RSS_LIMIT_MB), e.g. to check a reader's memory bound.
     "$CARGO_TARGET_DIR/$host/release/$target" -max_total_time="$seconds" -timeout=1 \
-        -rss_limit_mb=1024 -malloc_limit_mb=64 -max_len=65536 -print_final_stats=1 \
-        -artifact_prefix="artifacts/$target-" "$corpus" 2>&1 | grep -E "^(#[0-9]+.*(DONE|pulse)|stat::|==|INFO: (Seed|Loaded))" || true
+        -rss_limit_mb="${RSS_LIMIT_MB:-1024}" -malloc_limit_mb="${MALLOC_LIMIT_MB:-64}" \
+        -max_len=65536 -print_final_stats=1 -report_slow_units="${SLOW_UNIT_S:-10}" \
+        -artifact_prefix="artifacts/$target-" "$corpus" 2>&1 | grep -E "^(#[0-9]+.*(DONE|pulse)|stat::|==|INFO: (Seed|Loaded)|Slowest unit|SUMMARY)" || true
     rm -rf "$corpus"
 done

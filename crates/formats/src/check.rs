@@ -86,8 +86,9 @@ pub fn decode_all(
 /// The same properties for a ROS 1 bag (`rosbag::BagReader`, every event-array connection):
 /// the reader refuses exactly the inputs without the bag line; chunks are full but the last
 /// and hold at most twice `max_events` capacity; each record buffer holds at most twice the
-/// input or the largest unpacked chunk (no allocation from a corrupt length: a compressed
-/// chunk may rightly unpack to more than the input); at most one event per 13 unpacked
+/// input or the window of unpacked bytes (the largest unpacked chunk up to
+/// `rosbag::MAX_WINDOW`: no allocation from a corrupt length or a chunk's declared size, and
+/// a decompression bomb is read through the window); at most one event per 13 unpacked
 /// bytes; `truncated_bytes` within the input;
 /// buffer and chunk sizes change nothing; a truncated copy decodes to a prefix; it all ends.
 pub fn decode_bag_checked(data: &[u8]) -> Option<(Events, Stats)> {
@@ -151,8 +152,11 @@ pub fn decode_bag_all(
             capacity.iter().all(|&c| c <= (2 * limit).max(8)),
             "chunk capacity {capacity:?}"
         );
+        // Held memory: never the declared or unpacked size of a chunk, only the input and the
+        // window (`rosbag::MAX_WINDOW`), each buffer at most twice the bytes it holds.
         let (buffers, largest, unpacked) = reader.buffers();
-        let bound = 2 * data.len().max(largest).max(32);
+        let window = largest.min(crate::rosbag::MAX_WINDOW);
+        let bound = 2 * data.len().max(window).max(32);
         assert!(
             buffers.iter().all(|&c| c <= bound),
             "buffers {buffers:?} > {bound}"

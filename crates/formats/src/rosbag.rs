@@ -13,8 +13,15 @@
 //!
 //! An EventArray in ROS 1 serialisation is packed little-endian: Header (seq, stamp sec, nsec,
 //! frame_id as u32 length + bytes), height, width, u32 event count, then 13 bytes per event:
-//! x u16, y u16, ts sec u32, ts nsec u32, polarity u8. Memory is the read buffer plus one
-//! chunk (compressed and uncompressed), whatever the bag's length.
+//! x u16, y u16, ts sec u32, ts nsec u32, polarity u8.
+//!
+//! Memory is the read buffer, one chunk's compressed bytes and a window of its unpacked records
+//! of at most `MAX_WINDOW` bytes, whatever the bag's length or a chunk's declared `size`. A
+//! compressed chunk that unpacks to at most `IN_MEMORY` bytes is unpacked whole; a larger one
+//! (a bomb, or a bag written with very large chunks) is unpacked twice: once to a sink, to know
+//! that it decodes (a compressed chunk is all or nothing), then through the window, its records
+//! parsed as they come out. The decompressors' own block buffers are sized by their stream
+//! headers: at most 12.1 MiB for LZ4 (4 MiB blocks, linked) and 3.6 MB for bzip2 (level 9).
 
 use std::collections::HashMap;
 use std::io::{self, BufReader, Read, Seek, SeekFrom};
@@ -33,6 +40,16 @@ const OP_MESSAGE: u8 = 0x02;
 const OP_CHUNK: u8 = 0x05;
 const OP_CONNECTION: u8 = 0x07;
 const OP_BAG_HEADER: u8 = 0x03;
+
+/// A compressed chunk unpacking to at most this many bytes is unpacked whole (one decode);
+/// writers' chunks are 768 KiB (rosbag) to 1 MiB (rosbags).
+pub const IN_MEMORY: usize = 8 << 20;
+/// Bytes read into the window of a streamed chunk at a time.
+const WINDOW: usize = 1 << 20;
+/// The most bytes the window of a chunk holds: a record header, or a whole connection record,
+/// of a streamed chunk may be at most `IN_MEMORY` bytes (longer ones could not be part of an
+/// unpacked-whole chunk either; they make the chunk corrupt), plus one read.
+pub const MAX_WINDOW: usize = IN_MEMORY + WINDOW;
 
 /// A topic's connection: its id in the bag, topic and message type (ROS 1 name).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -83,22 +100,80 @@ pub fn event_array(data: &[u8]) -> Option<(u32, u32, usize, usize)> {
     (n.checked_mul(EVENT)?.checked_add(start)? == data.len()).then_some((width, height, start, n))
 }
 
-/// One record of a byte slice (a decompressed chunk): (header, data, bytes it spans), or None
-/// when it runs past the slice's end.
-fn record_in(bytes: &[u8]) -> Option<(&[u8], &[u8], usize)> {
-    let header_len = u32_at(bytes, 0)? as usize;
-    let data_at = 4usize.checked_add(header_len)?.checked_add(4)?;
-    let data_len = u32_at(bytes, data_at - 4)? as usize;
-    let end = data_at.checked_add(data_len)?;
-    let data = bytes.get(data_at..end)?;
-    Some((&bytes[4..data_at - 4], data, end))
-}
-
 /// Appends up to `n` bytes of `src` to `buf` (fewer only at the end of the input). Nothing is
 /// reserved from `n`: the buffer grows with the bytes that come, so a corrupt length costs no
 /// more memory than the input holds (the buffers keep their capacity from record to record).
 fn read_up_to<R: Read>(src: &mut R, buf: &mut Vec<u8>, n: u64) -> io::Result<u64> {
     Ok(src.take(n).read_to_end(buf)? as u64)
+}
+
+/// A compressed chunk's decoder, owning its compressed bytes, reading at most its declared size.
+enum Unpack {
+    Lz4(io::Take<lz4_flex::frame::FrameDecoder<io::Cursor<Vec<u8>>>>),
+    Bz2(io::Take<bzip2::read::BzDecoder<io::Cursor<Vec<u8>>>>),
+}
+
+impl Unpack {
+    fn new(lz4: bool, packed: Vec<u8>, size: u64) -> Self {
+        let packed = io::Cursor::new(packed);
+        if lz4 {
+            Self::Lz4(lz4_flex::frame::FrameDecoder::new(packed).take(size))
+        } else {
+            Self::Bz2(bzip2::read::BzDecoder::new(packed).take(size))
+        }
+    }
+
+    fn into_packed(self) -> Vec<u8> {
+        match self {
+            Self::Lz4(d) => d.into_inner().into_inner().into_inner(),
+            Self::Bz2(d) => d.into_inner().into_inner().into_inner(),
+        }
+    }
+
+    fn packed_capacity(&self) -> usize {
+        match self {
+            Self::Lz4(d) => d.get_ref().get_ref().get_ref().capacity(),
+            Self::Bz2(d) => d.get_ref().get_ref().get_ref().capacity(),
+        }
+    }
+}
+
+impl Read for Unpack {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        match self {
+            Self::Lz4(d) => d.read(buf),
+            Self::Bz2(d) => d.read(buf),
+        }
+    }
+}
+
+/// Appends bytes of `src` to `buf` until it holds `len` bytes (fewer only at the end of the
+/// input). Unlike `read_up_to`, the buffer's capacity grows (by doubling, from what the bytes
+/// need) to at most `len`, never past it: the window of a streamed chunk stays its size.
+fn read_into<R: Read>(src: &mut R, buf: &mut Vec<u8>, len: usize) -> io::Result<u64> {
+    let start = buf.len();
+    while buf.len() < len {
+        if buf.len() == buf.capacity() {
+            let grow = buf.capacity().max(32).min(len - buf.len());
+            buf.reserve_exact(grow);
+        }
+        // Zeroed a step at a time, so that a decoder's small reads do not re-zero the rest.
+        let filled = buf.len();
+        buf.resize(buf.capacity().min(len).min(filled + (1 << 18)), 0);
+        let got = match src.read(&mut buf[filled..]) {
+            Ok(got) => got,
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => 0,
+            Err(e) => {
+                buf.truncate(filled);
+                return Err(e);
+            }
+        };
+        buf.truncate(filled + got);
+        if got == 0 {
+            break;
+        }
+    }
+    Ok((buf.len() - start) as u64)
 }
 
 /// How one top-level record read ended.
@@ -115,7 +190,6 @@ enum Read1 {
 /// `max_events`; what it could not read is counted in `stats()`: `unknown_words` are records
 /// that are not what their header says (event messages of another layout, corrupt or
 /// unknown-compression chunks), `truncated_bytes` the bytes of a last record the file ends in.
-#[derive(Debug)]
 pub struct BagReader<R> {
     src: BufReader<R>,
     /// The topic to read; None: every connection of an event-array type.
@@ -124,11 +198,15 @@ pub struct BagReader<R> {
     skimming: bool,
     header: Vec<u8>,
     raw: Vec<u8>,
-    /// The current chunk's records (uncompressed) and the position of the next one.
+    /// The window of the current chunk's unpacked records and the position in it; the
+    /// whole chunk unless `stream` holds the rest.
     chunk: Vec<u8>,
     pos: usize,
-    /// The message being emitted: (offset of its next event in `chunk`, events left).
-    pending: Option<(usize, usize)>,
+    /// A streamed chunk's decoder and the bytes of the chunk it has yet to give.
+    stream: Option<Unpack>,
+    chunk_left: u64,
+    /// Events left in the message being emitted (the next one at `pos`).
+    pending: usize,
     connections: HashMap<u32, Connection>,
     wanted: HashMap<u32, bool>,
     size: Option<(u32, u32)>,
@@ -136,6 +214,17 @@ pub struct BagReader<R> {
     unpacked: u64,
     eof: bool,
     stats: Stats,
+}
+
+impl<R> std::fmt::Debug for BagReader<R> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("BagReader")
+            .field("topic", &self.topic)
+            .field("pos", &self.pos)
+            .field("chunk_left", &self.chunk_left)
+            .field("stats", &self.stats)
+            .finish_non_exhaustive()
+    }
 }
 
 impl<R: Read> BagReader<R> {
@@ -166,7 +255,9 @@ impl<R: Read> BagReader<R> {
             raw: Vec::new(),
             chunk: Vec::new(),
             pos: 0,
-            pending: None,
+            stream: None,
+            chunk_left: 0,
+            pending: 0,
             connections: HashMap::new(),
             wanted: HashMap::new(),
             size: None,
@@ -189,13 +280,14 @@ impl<R: Read> BagReader<R> {
         all
     }
 
-    /// The capacities of the reader's record buffers (header, data, unpacked chunk), the most
-    /// bytes one chunk unpacked to and the bytes all chunks unpacked to so far: the fuzzers
-    /// bound the buffers by the input and the largest chunk, the events by the total.
+    /// The capacities of the reader's buffers (record header, compressed data, chunk window),
+    /// the most bytes one chunk unpacked to and the bytes all chunks unpacked to so far: the
+    /// fuzzers bound the buffers by the input and the window, the events by the total.
     pub fn buffers(&self) -> ([usize; 3], usize, u64) {
+        let packed = self.stream.as_ref().map_or(0, Unpack::packed_capacity);
         let caps = [
             self.header.capacity(),
-            self.raw.capacity(),
+            self.raw.capacity() + packed,
             self.chunk.capacity(),
         ];
         (caps, self.largest_chunk, self.unpacked)
@@ -215,11 +307,17 @@ impl<R: Read> BagReader<R> {
         // Grown by doubling from a small start: a small bag allocates little.
         let mut out = Events::with_capacity(max_events.min(1 << 16));
         while out.len() < max_events && self.advance()? {
-            let Some((at, left)) = self.pending else {
+            let in_window = (self.chunk.len() - self.pos) / EVENT;
+            if in_window == 0 {
+                // A streamed message continues past the window (its length was checked
+                // against the chunk's, so only a decoder failing now ends it early).
+                if !self.fill(EVENT) {
+                    self.pending = 0;
+                }
                 continue;
-            };
-            let take = left.min(max_events - out.len());
-            let bytes = &self.chunk[at..at + take * EVENT];
+            }
+            let take = self.pending.min(max_events - out.len()).min(in_window);
+            let bytes = &self.chunk[self.pos..self.pos + take * EVENT];
             // Column by column: exact-size iterators extend without a capacity check per event.
             let records = bytes.chunks_exact(EVENT);
             out.x
@@ -232,7 +330,8 @@ impl<R: Read> BagReader<R> {
                 sec * 1_000_000 + nsec / 1000
             }));
             out.p.extend(records.map(|r| (r[12] != 0) as i8));
-            self.pending = (take < left).then_some((at + take * EVENT, left - take));
+            self.pos += take * EVENT;
+            self.pending -= take;
         }
         Ok(out)
     }
@@ -248,11 +347,10 @@ impl<R: Read> BagReader<R> {
     /// Steps until a message with events left is pending (true) or the input ends (false).
     fn advance(&mut self) -> io::Result<bool> {
         loop {
-            if matches!(self.pending, Some((_, left)) if left > 0) {
+            if self.pending > 0 {
                 return Ok(true);
             }
-            self.pending = None;
-            if self.pos < self.chunk.len() {
+            if self.remaining() > 0 {
                 self.next_in_chunk();
                 continue;
             }
@@ -263,41 +361,178 @@ impl<R: Read> BagReader<R> {
         }
     }
 
+    /// Bytes of the current chunk from `pos` on (in the window or still in the decoder).
+    fn remaining(&self) -> u64 {
+        (self.chunk.len() - self.pos) as u64 + self.chunk_left
+    }
+
+    /// Makes the window hold `n` bytes from `pos` (n at most `IN_MEMORY`), unpacking more of a
+    /// streamed chunk; false when the chunk ends first.
+    fn fill(&mut self, n: usize) -> bool {
+        let have = self.chunk.len() - self.pos;
+        if have >= n {
+            return true;
+        }
+        let need = (n - have) as u64;
+        let Some(stream) = self.stream.as_mut().filter(|_| need <= self.chunk_left) else {
+            return false;
+        };
+        self.chunk.drain(..self.pos);
+        self.pos = 0;
+        let want = need.max(WINDOW as u64).min(self.chunk_left);
+        let len = self.chunk.len() + want as usize;
+        match read_into(stream, &mut self.chunk, len) {
+            Ok(got) if got == want => {
+                self.chunk_left -= got;
+                true
+            }
+            // The first pass decoded these bytes; a decoder that fails now ends the chunk.
+            _ => {
+                self.end_chunk();
+                false
+            }
+        }
+    }
+
+    /// Moves `pos` on by `n` bytes, unpacking (and dropping) a streamed chunk's bytes past the
+    /// window; false when the chunk ends first.
+    fn skip(&mut self, n: u64) -> bool {
+        let have = (self.chunk.len() - self.pos) as u64;
+        if n <= have {
+            self.pos += n as usize;
+            return true;
+        }
+        let rest = n - have;
+        let Some(stream) = self.stream.as_mut().filter(|_| rest <= self.chunk_left) else {
+            return false;
+        };
+        self.chunk.clear();
+        self.pos = 0;
+        match io::copy(&mut stream.by_ref().take(rest), &mut io::sink()) {
+            Ok(got) if got == rest => {
+                self.chunk_left -= rest;
+                true
+            }
+            _ => {
+                self.end_chunk();
+                false
+            }
+        }
+    }
+
+    /// The u32 at `at` bytes from `pos`, unpacking up to it.
+    fn peek_u32(&mut self, at: usize) -> Option<u32> {
+        self.fill(at + 4)
+            .then(|| u32_at(&self.chunk, self.pos + at))?
+    }
+
+    /// Drops the rest of the current chunk (its decoder's bytes go back to `raw`).
+    fn end_chunk(&mut self) {
+        self.chunk.clear();
+        self.pos = 0;
+        self.chunk_left = 0;
+        self.pending = 0;
+        if let Some(stream) = self.stream.take() {
+            self.raw = stream.into_packed();
+            self.raw.clear();
+        }
+    }
+
     /// The record at `pos` in the current chunk.
     fn next_in_chunk(&mut self) {
-        let Some((header, data, len)) = record_in(&self.chunk[self.pos..]) else {
-            // A record cut by the chunk's end: a corrupt chunk, or one the file ends in (whose
-            // bytes `truncated_bytes` already counts).
-            if !self.eof {
-                self.stats.unknown_words += 1;
-            }
-            self.pos = self.chunk.len();
-            return;
+        let streamed = self.stream.is_some();
+        let Some(header_len) = self.peek_u32(0).map(|n| n as usize) else {
+            return self.corrupt_chunk();
         };
-        let at = self.pos;
-        self.pos += len;
-        let data_at = at + len - data.len();
+        // Only a streamed chunk limits a header: an unpacked-whole one is already in memory.
+        let head = 8 + header_len;
+        if streamed && head > IN_MEMORY {
+            return self.corrupt_chunk();
+        }
+        let Some(data_len) = self.peek_u32(4 + header_len).map(u64::from) else {
+            return self.corrupt_chunk();
+        };
+        if head as u64 + data_len > self.remaining() {
+            return self.corrupt_chunk();
+        }
+        let header = &self.chunk[self.pos + 4..self.pos + 4 + header_len];
         match field(header, b"op").and_then(|op| op.first().copied()) {
             Some(OP_CONNECTION) => {
-                let conn = connection(header, data);
+                let whole = head as u64 + data_len;
+                if whole > IN_MEMORY as u64 && streamed {
+                    self.register(None);
+                    self.skip(whole);
+                    return;
+                }
+                if !self.fill(whole as usize) {
+                    return;
+                }
+                let at = self.pos;
+                let conn = connection(
+                    &self.chunk[at + 4..at + 4 + header_len],
+                    &self.chunk[at + head..at + whole as usize],
+                );
+                self.pos += whole as usize;
                 self.register(conn);
             }
             Some(OP_MESSAGE) => {
                 let id = field_u32(header, b"conn");
-                let array = event_array(data);
+                self.skip(head as u64);
                 if !id.is_some_and(|id| self.is_wanted(id)) {
+                    self.skip(data_len);
                     return;
                 }
-                match array {
-                    Some((width, height, start, n)) => {
+                match self.event_array_prefix(data_len) {
+                    Ok((width, height, n)) => {
                         self.size.get_or_insert((width, height));
-                        self.pending = Some((data_at + start, n));
+                        self.pending = n;
                     }
-                    None => self.stats.unknown_words += 1,
+                    Err(read) => {
+                        self.stats.unknown_words += 1;
+                        self.skip(data_len - read);
+                    }
                 }
             }
-            _ => {}
+            _ => {
+                self.skip(head as u64 + data_len);
+            }
         }
+    }
+
+    /// A record cut by its chunk's end: a corrupt chunk, or one the file ends in (whose bytes
+    /// `truncated_bytes` already counts); the rest of the chunk is dropped.
+    fn corrupt_chunk(&mut self) {
+        if !self.eof {
+            self.stats.unknown_words += 1;
+        }
+        self.end_chunk();
+    }
+
+    /// With `pos` at a message's `data_len` bytes of data, all in the chunk: the EventArray's
+    /// (width, height, event count) with `pos` moved to its first event, or, when the bytes
+    /// are not exactly that layout (see `event_array`), how many of them were passed.
+    fn event_array_prefix(&mut self, data_len: u64) -> Result<(u32, u32, usize), u64> {
+        if data_len < 16 {
+            return Err(0);
+        }
+        let id_len = u64::from(self.peek_u32(12).ok_or(0u64)?);
+        let start = 28 + id_len;
+        if start > data_len {
+            return Err(0);
+        }
+        // The frame id is skipped, not held: it may be longer than the window.
+        let passed = start - 12;
+        if !self.skip(passed) {
+            return Err(data_len);
+        }
+        let height = self.peek_u32(0).ok_or(passed)?;
+        let width = self.peek_u32(4).ok_or(passed)?;
+        let n = self.peek_u32(8).ok_or(passed)?;
+        if u64::from(n) * EVENT as u64 + start != data_len {
+            return Err(passed);
+        }
+        self.pos += 12;
+        Ok((width, height, n as usize))
     }
 
     fn register(&mut self, conn: Option<Connection>) {
@@ -326,8 +561,7 @@ impl<R: Read> BagReader<R> {
     /// Reads the next top-level record: a chunk becomes the current chunk; a connection is
     /// registered; anything else is skipped.
     fn next_record(&mut self) -> io::Result<()> {
-        self.chunk.clear();
-        self.pos = 0;
+        self.end_chunk();
         let read = self.read_record()?;
         if let Read1::Cut(n) = read {
             self.stats.truncated_bytes += n;
@@ -348,36 +582,61 @@ impl<R: Read> BagReader<R> {
         Ok(())
     }
 
-    /// The chunk in `raw` (header in `header`) decompressed into `chunk`: an uncompressed chunk
+    /// The chunk in `raw` (header in `header`) made the current chunk: an uncompressed chunk
     /// the file ends in keeps its complete records; a cut or corrupt compressed one, none.
+    /// A compressed chunk is unpacked whole when it fits `IN_MEMORY`, else streamed (see the
+    /// module's notes).
     fn unpack_chunk(&mut self, cut: bool) {
-        let size = field_u32(&self.header, b"size").unwrap_or(0) as u64;
-        let decoded = match field(&self.header, b"compression") {
+        let size = u64::from(field_u32(&self.header, b"size").unwrap_or(0));
+        let lz4 = match field(&self.header, b"compression") {
             Some(b"none") => {
                 std::mem::swap(&mut self.chunk, &mut self.raw);
-                Ok(())
+                self.largest_chunk = self.largest_chunk.max(self.chunk.len());
+                self.unpacked += self.chunk.len() as u64;
+                return;
             }
-            Some(b"lz4") => {
-                let mut dec = lz4_flex::frame::FrameDecoder::new(&self.raw[..]);
-                read_up_to(&mut dec, &mut self.chunk, size).map(|_| ())
+            Some(b"lz4") => true,
+            Some(b"bz2") => false,
+            _ => {
+                if !cut {
+                    self.stats.unknown_words += 1;
+                }
+                return;
             }
-            Some(b"bz2") => {
-                let mut dec = bzip2::read::BzDecoder::new(&self.raw[..]);
-                read_up_to(&mut dec, &mut self.chunk, size).map(|_| ())
-            }
-            _ => Err(io::Error::other("unknown compression")),
         };
-        self.largest_chunk = self.largest_chunk.max(self.chunk.len());
-        let compressed = field(&self.header, b"compression") != Some(b"none");
-        if compressed && (decoded.is_err() || cut) {
-            // A compressed chunk is all or nothing: a decoder's output from damaged input
-            // depends on where its reads stop, so none of it is kept.
-            self.chunk.clear();
+        // A compressed chunk is all or nothing: a decoder's output from damaged input
+        // depends on where its reads stop, so none of a cut one is kept.
+        if cut {
+            return;
         }
-        if decoded.is_err() && !cut {
-            self.stats.unknown_words += 1;
+        let mut stream = Unpack::new(lz4, std::mem::take(&mut self.raw), size);
+        let total = match read_into(&mut stream, &mut self.chunk, IN_MEMORY) {
+            Ok(got) if got < IN_MEMORY as u64 => Ok(got),
+            // More than fits: decode the rest to a sink, only to know it decodes.
+            Ok(got) => io::copy(&mut stream, &mut io::sink()).map(|rest| got + rest),
+            Err(e) => Err(e),
+        };
+        match total {
+            Ok(total) if total > self.chunk.len() as u64 => {
+                self.chunk.clear();
+                self.stream = Some(Unpack::new(lz4, stream.into_packed(), size));
+                self.chunk_left = total;
+                self.largest_chunk = self.largest_chunk.max(total as usize);
+                self.unpacked += total;
+            }
+            Ok(total) => {
+                self.raw = stream.into_packed();
+                self.largest_chunk = self.largest_chunk.max(total as usize);
+                self.unpacked += total;
+            }
+            Err(_) => {
+                self.raw = stream.into_packed();
+                // What it unpacked before failing still sized the window.
+                self.largest_chunk = self.largest_chunk.max(self.chunk.len());
+                self.chunk.clear();
+                self.stats.unknown_words += 1;
+            }
         }
-        self.unpacked += self.chunk.len() as u64;
     }
 
     /// One top-level record: its header into `header`, its data into `raw` for chunks and
