@@ -152,28 +152,32 @@ impl Read for Unpack {
 /// need) to at most `len`, never past it: the window of a streamed chunk stays its size.
 fn read_into<R: Read>(src: &mut R, buf: &mut Vec<u8>, len: usize) -> io::Result<u64> {
     let start = buf.len();
-    while buf.len() < len {
-        if buf.len() == buf.capacity() {
-            let grow = buf.capacity().max(32).min(len - buf.len());
-            buf.reserve_exact(grow);
+    let mut filled = start;
+    while filled < len {
+        if filled == buf.len() {
+            if buf.len() == buf.capacity() {
+                let grow = buf.capacity().max(32).min(len - buf.len());
+                buf.reserve_exact(grow);
+            }
+            // Zeroed a step at a time and once: a decoder's small reads fill what is zeroed.
+            let zeroed = buf.capacity().min(len).min(filled + (1 << 18));
+            buf.resize(zeroed, 0);
         }
-        // Zeroed a step at a time, so that a decoder's small reads do not re-zero the rest.
-        let filled = buf.len();
-        buf.resize(buf.capacity().min(len).min(filled + (1 << 18)), 0);
         let got = match src.read(&mut buf[filled..]) {
             Ok(got) => got,
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => 0,
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
             Err(e) => {
                 buf.truncate(filled);
                 return Err(e);
             }
         };
-        buf.truncate(filled + got);
+        filled += got;
         if got == 0 {
             break;
         }
     }
-    Ok((buf.len() - start) as u64)
+    buf.truncate(filled);
+    Ok((filled - start) as u64)
 }
 
 /// How one top-level record read ended.
