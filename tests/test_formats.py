@@ -596,3 +596,80 @@ def test_bad_recordings_fail_with_one_line_naming_the_file(tmp_path, capsys):
         if not extra:  # the same error from the library entry point
             with pytest.raises(EvsplatError, match=re.escape(expected)):
                 read_events(path)
+
+
+# --- ROS 2 bags in SQLite (.db3), read in Rust --------------------------------------------
+
+
+def _db3_events(files: list[Path], topic: str = "/dvs/events"):
+    decoder = _core.Db3EventDecoder([str(f) for f in files], topic, 1000)
+    chunks = []
+    while len((chunk := decoder.next_chunk(777))[0]):
+        chunks.append(chunk)
+    return tuple(np.concatenate([c[i] for c in chunks]) for i in range(4)), decoder.dropped()
+
+
+@pytest.mark.parametrize("pkg", ["dvs_msgs", "prophesee_event_msgs"])
+def test_ros2_db3_reader_matches_rosbags_event_by_event(tmp_path, pkg):
+    x, y, t, p = _events(21, n=20_000, t0=1_600_000_000_000_000)
+    poses = [(int(t[0]) + 50_000 * k, (0.0, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)) for k in range(20)]
+    bag = write_bag(tmp_path / "rec2", x, y, t, p, ros2=True, pkg=pkg, poses=poses)
+    (db3,) = bag.glob("*.db3")
+    ours, dropped = _db3_events([db3])
+    _assert_same_events(ours, _rosbags_events(bag))
+    _assert_same_events(ours, (x, y, t, p))
+    assert dropped == (0, 0, 0)
+    listed = [(topic, kind) for _, topic, kind in _core.db3_topics(db3)]
+    assert listed == [
+        ("/dvs/events", f"{pkg}/msg/EventArray"),
+        ("/mocap/pose", "geometry_msgs/msg/PoseStamped"),
+    ]
+    for opened in (bag, db3):  # the bag's folder, or its .db3 file: read in Rust
+        source = open_source(opened)
+        n = sum(len(c[2]) for c in source.chunks)
+        assert (source.decoder, source.width, source.height, n) == ("evsplat", W, H, len(t))
+    # The topic's messages in timestamp order, not insertion order: rosbags' order.
+    import sqlite3
+
+    with sqlite3.connect(db3) as db:
+        ids = [r[0] for r in db.execute("SELECT id FROM messages ORDER BY id")]
+        db.execute("UPDATE messages SET id = -id")  # rows now stored in reverse
+        assert len(ids) > 2
+    ours, _ = _db3_events([db3])
+    _assert_same_events(ours, (x, y, t, p))
+
+
+def test_split_db3_bag_reads_its_files_in_the_metadata_order(tmp_path):
+    # rosbags writes no split bags: two bags' files put in one folder, metadata listing both.
+    x, y, t, p = _events(22, n=6000, t0=2_000_000)
+    first = write_bag(tmp_path / "a", x[:3000], y[:3000], t[:3000], p[:3000], ros2=True)
+    second = write_bag(tmp_path / "b", x[3000:], y[3000:], t[3000:], p[3000:], ros2=True)
+    (db_a,), (db_b,) = first.glob("*.db3"), second.glob("*.db3")
+    db_b.rename(first / "a_1.db3")
+    meta = (first / "metadata.yaml").read_text()
+    name = db_a.name
+    assert f"- {name}" in meta
+    (first / "metadata.yaml").write_text(meta.replace(f"- {name}", f"- {name}\n  - a_1.db3"))
+    assert rosbag.db3_files(first) == [db_a, first / "a_1.db3"]
+    assert rosbag.db3_files(db_a) == [db_a, first / "a_1.db3"]
+    _assert_same_events(_db3_events(rosbag.db3_files(first))[0], (x, y, t, p))
+    _assert_same_events(_rosbags_events(first), (x, y, t, p))  # the oracle agrees
+    stream = read_events(first)
+    _assert_same(stream, x, y, t, p)
+
+
+def test_damaged_db3_is_one_line_naming_the_file_and_the_fix(tmp_path):
+    x, y, t, p = _events(23, n=20_000, t0=2_000_000)
+    bag = write_bag(tmp_path / "rec2", x, y, t, p, ros2=True)
+    (db3,) = bag.glob("*.db3")
+    data = db3.read_bytes()
+    lone = tmp_path / "lone"
+    lone.mkdir()
+    for name, content in [("cut.db3", data[: len(data) // 2]), ("junk.db3", b"\x01" * 5000)]:
+        path = lone / name
+        path.write_bytes(content)
+        with pytest.raises(EvsplatError) as err:
+            read_events(path)
+        msg = str(err.value)
+        assert "\n" not in msg and str(path) in msg, msg
+        assert "sqlite3 BAG.db3 .recover" in msg and "re-record" in msg, msg

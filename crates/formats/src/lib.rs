@@ -1,6 +1,7 @@
 //! Decoders of event-camera recordings: the binary words of Prophesee EVT 2.0, EVT 3.0 and DAT
 //! (CD events), the event-array messages of ROS 1 bags (`rosbag`) and of ROS 2 MCAP files
-//! (`mcap`), and the event packets of AEDAT 4 files (`aedat4`), turned into events, chunk by
+//! (`mcap`) and of ROS 2 SQLite bags (`db3`), and the event packets of AEDAT 4 files
+//! (`aedat4`), turned into events, chunk by
 //! chunk. Each decoder keeps its state (time base,
 //! row, vector base) across calls, so a recording streams through a bounded buffer. Headers are
 //! parsed by the Python reader (python/evsplat/data/formats/prophesee.py); this crate sees the
@@ -8,9 +9,11 @@
 
 pub mod aedat4;
 mod bytes;
+mod cdr;
 #[cfg(any(test, feature = "check"))]
 pub mod check;
 pub mod dat;
+pub mod db3;
 pub mod evt2;
 pub mod evt3;
 pub mod mcap;

@@ -13,11 +13,7 @@
 //! The reader goes through the records in file order and needs no summary, so a file whose
 //! recording was cut off reads up to its last complete chunk.
 //!
-//! An EventArray in little-endian CDR: a 4-byte encapsulation header (`00 01 00 00`), then,
-//! aligned from its end, Header (stamp sec i32, nanosec u32, frame_id as u32 length including
-//! its NUL + bytes), padding to 4, height u32, width u32, the event count u32, then the events:
-//! the first packed in 13 bytes (x u16, y u16, sec i32, nanosec u32, polarity u8) and every
-//! further one aligned, 16 bytes apart (x at +1 after the previous polarity, sec at +6 of x).
+//! The messages' CDR EventArray layout is `cdr`'s (shared with the .db3 reader).
 
 use std::collections::HashMap;
 use std::io::{self, BufReader, Read, Seek, SeekFrom};
@@ -32,8 +28,7 @@ pub const EVENT_TYPES: [&str; 2] = [
     "dvs_msgs/msg/EventArray",
     "prophesee_event_msgs/msg/EventArray",
 ];
-/// Bytes of each event after the first in CDR.
-pub const EVENT: usize = 16;
+pub use crate::cdr::{event_array, EVENT};
 
 const OP_FOOTER: u8 = 0x02;
 const OP_SCHEMA: u8 = 0x03;
@@ -58,32 +53,6 @@ fn string_at(b: &[u8], at: usize) -> Option<(&[u8], usize)> {
     let len = u32_at(b, at)? as usize;
     let end = (at + 4).checked_add(len)?;
     Some((b.get(at + 4..end)?, end))
-}
-
-/// An EventArray's (width, height, offset of its first event, event count), or None when the
-/// bytes are not exactly that layout (up to 3 bytes of padding after the last event).
-pub fn event_array(data: &[u8]) -> Option<(u32, u32, usize, usize)> {
-    if data.get(..2)? != b"\x00\x01" {
-        return None;
-    }
-    let id_len = u32_at(data, 4 + 8)? as usize;
-    let start = 4 + (12usize.checked_add(id_len)?.checked_add(3)? / 4 * 4) + 12;
-    let height = u32_at(data, start - 12)?;
-    let width = u32_at(data, start - 8)?;
-    let n = u32_at(data, start - 4)? as usize;
-    let end = match n {
-        0 => start,
-        _ => start.checked_add(n.checked_mul(EVENT)? - 3)?,
-    };
-    (end <= data.len() && data.len() <= end + 3).then_some((width, height, start, n))
-}
-
-/// µs of a builtin_interfaces/Time (sec i32, nanosec u32; 8 bytes).
-#[inline]
-fn cdr_time(r: &[u8]) -> i64 {
-    let sec = i32::from_le_bytes([r[0], r[1], r[2], r[3]]) as i64;
-    let nsec = u32::from_le_bytes([r[4], r[5], r[6], r[7]]) as i64;
-    sec * 1_000_000 + nsec / 1000
 }
 
 /// One record of a byte slice: (op, content, bytes it spans), or None when it runs past the
@@ -214,31 +183,9 @@ impl<R: Read> McapReader<R> {
             let Some((start, n, next)) = self.pending else {
                 continue;
             };
-            let mut take = (n - next).min(max_events - out.len());
-            let b = &self.chunk;
-            let mut i = next;
-            if i == 0 {
-                // The first event is packed: x, y, sec, nanosec, polarity at 0, 2, 4, 8, 12.
-                let r = &b[start..start + 13];
-                out.push(
-                    u16::from_le_bytes([r[0], r[1]]),
-                    u16::from_le_bytes([r[2], r[3]]),
-                    cdr_time(&r[4..12]),
-                    (r[12] != 0) as i8,
-                );
-                (i, take) = (1, take - 1);
-            }
-            // Every further one fills a 16-byte record from the padding byte before its x:
-            // x, y, sec, nanosec, polarity at 1, 3, 7, 11, 15. Column by column, as the others.
-            let from = start + 13 + EVENT * (i - 1);
-            let records = b[from..from + EVENT * take].chunks_exact(EVENT);
-            out.x
-                .extend(records.clone().map(|r| u16::from_le_bytes([r[1], r[2]])));
-            out.y
-                .extend(records.clone().map(|r| u16::from_le_bytes([r[3], r[4]])));
-            out.t.extend(records.clone().map(|r| cdr_time(&r[7..15])));
-            out.p.extend(records.map(|r| (r[15] != 0) as i8));
-            let next = i + take;
+            let take = (n - next).min(max_events - out.len());
+            crate::cdr::push_events(&self.chunk, start, next, take, &mut out);
+            let next = next + take;
             self.pending = (next < n).then_some((start, n, next));
         }
         Ok(out)

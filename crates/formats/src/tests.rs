@@ -576,3 +576,120 @@ fn mcap_reader_takes_cdr_event_arrays_from_chunks_and_drops_a_cut_chunk() {
     assert_eq!(channels[0].topic, "/events");
     assert_eq!(channels[0].msgtype, "dvs_msgs/msg/EventArray");
 }
+
+/// A CDR EventArray (ROS 2) with events (x, y, sec, nsec, polarity), laid out by hand.
+fn cdr_event_array(events: &[(u16, u16, i32, u32, u8)]) -> Vec<u8> {
+    let mut b = vec![0, 1, 0, 0];
+    b.extend(5i32.to_le_bytes()); // stamp
+    b.extend(6u32.to_le_bytes());
+    b.extend(4u32.to_le_bytes()); // frame id "cam" and its NUL: 16 bytes after the header
+    b.extend(b"cam\0");
+    b.extend(240u32.to_le_bytes());
+    b.extend(320u32.to_le_bytes());
+    b.extend((events.len() as u32).to_le_bytes());
+    for (i, &(x, y, s, ns, p)) in events.iter().enumerate() {
+        if i > 0 {
+            b.push(0); // pads x to 2 bytes
+        }
+        b.extend(x.to_le_bytes());
+        b.extend(y.to_le_bytes());
+        if i > 0 {
+            b.extend([0, 0]); // pads sec to 4 bytes
+        }
+        b.extend(s.to_le_bytes());
+        b.extend(ns.to_le_bytes());
+        b.push(p);
+    }
+    b
+}
+
+fn db3_all(
+    paths: &[std::path::PathBuf],
+    topic: &str,
+    chunk: usize,
+    max_events: usize,
+) -> std::io::Result<(Events, Stats)> {
+    let mut reader = crate::db3::Db3Reader::new(paths, topic, chunk)?;
+    let mut all = Events::default();
+    loop {
+        let c = reader.next_chunk(max_events)?;
+        assert!(c.len() <= max_events);
+        if c.is_empty() {
+            return Ok((all, reader.stats()));
+        }
+        for i in 0..c.len() {
+            all.push(c.x[i], c.y[i], c.t[i], c.p[i]);
+        }
+    }
+}
+
+#[test]
+fn db3_reader_takes_a_topics_event_arrays_in_timestamp_order_across_files() {
+    let dir = std::env::temp_dir().join(format!("evsplat-db3-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temp folder");
+    let make = |name: &str, messages: &[(i64, i64, Vec<u8>)]| {
+        let path = dir.join(name);
+        let _ = std::fs::remove_file(&path);
+        let db = rusqlite::Connection::open(&path).expect("a new database");
+        db.execute_batch(
+            "CREATE TABLE topics (id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
+               serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
+             CREATE TABLE messages (id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,
+               timestamp INTEGER NOT NULL, data BLOB NOT NULL);
+             CREATE INDEX timestamp_idx ON messages (timestamp ASC);
+             INSERT INTO topics VALUES (1, '/other', 'dvs_msgs/msg/EventArray', 'cdr', '');
+             INSERT INTO topics VALUES (2, '/dvs/events', 'dvs_msgs/msg/EventArray', 'cdr', '');",
+        )
+        .expect("the bag tables");
+        for (topic, stamp, data) in messages {
+            db.execute(
+                "INSERT INTO messages (topic_id, timestamp, data) VALUES (?1, ?2, ?3)",
+                rusqlite::params![topic, stamp, data],
+            )
+            .expect("a message");
+        }
+        path
+    };
+    let a = cdr_event_array(&[(1, 2, 10, 5_999, 1), (3, 4, 10, 1_000_000, 0)]);
+    let b = cdr_event_array(&[(5, 6, 11, 999_999_999, 1)]);
+    let c = cdr_event_array(&[(7, 8, 12, 0, 0)]);
+    let mut bad = cdr_event_array(&[(9, 9, 1, 1, 1)]);
+    bad.extend([0; 4]); // four bytes more than the count allows: another layout
+                        // Inserted out of order: the reader orders by timestamp.
+    let first = make(
+        "first.db3",
+        &[(2, 200, b), (1, 50, c.clone()), (2, 100, a), (2, 150, bad)],
+    );
+    let second = make("second.db3", &[(2, 300, c)]);
+    // The thread's chunks handed over whole, split, and gathered from several.
+    let files = [first.clone(), second.clone()];
+    let (ev, stats) = db3_all(&files, "/dvs/events", 3, 3).expect("reads");
+    for (chunk, max_events) in [(1, 1), (2, 3), (1 << 20, 2), (3, 1 << 20)] {
+        let other = db3_all(&files, "/dvs/events", chunk, max_events).expect("reads");
+        assert!(
+            other == (ev.clone(), stats),
+            "chunk {chunk}, max {max_events} differ"
+        );
+    }
+    assert_eq!(
+        rows(&ev),
+        [
+            (1, 2, 10_000_005, 1),
+            (3, 4, 10_001_000, 0),
+            (5, 6, 11_999_999, 1),
+            (7, 8, 12_000_000, 0)
+        ]
+    );
+    assert_eq!(stats.unknown_words, 1);
+    let topics = crate::db3::db3_topics(&first).expect("topics");
+    assert_eq!(topics[1].name, "/dvs/events");
+    // Not a database: an error naming the file, when opened.
+    let junk = dir.join("junk.db3");
+    std::fs::write(&junk, [7u8; 4096]).expect("a file");
+    let err = db3_all(&[first, junk.clone()], "/dvs/events", 2, 2).expect_err("junk fails");
+    assert!(
+        err.to_string().contains(&junk.display().to_string()),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -10,6 +10,7 @@ use pyo3::prelude::*;
 use crate::errors::value_err;
 use crate::events::{event_arrays, EventArrays};
 use evsplat_formats::aedat4::{self, AedatReader, Compression};
+use evsplat_formats::db3::{db3_topics, Db3Reader};
 use evsplat_formats::mcap::{mcap_channels, McapReader};
 use evsplat_formats::rosbag::{bag_connections, BagReader};
 use evsplat_formats::{ChunkReader, Encoding};
@@ -244,7 +245,63 @@ fn py_mcap_channels(
         .collect())
 }
 
+/// The event arrays of a ROS 2 SQLite bag's `topic`, in timestamp order, from its .db3
+/// files (`paths`, read in that order: a split bag), decoded by a thread in chunks of `chunk`
+/// events.
+#[pyclass(module = "evsplat._core")]
+struct Db3EventDecoder {
+    inner: Db3Reader,
+}
+
+#[pymethods]
+impl Db3EventDecoder {
+    #[new]
+    fn new(paths: Vec<std::path::PathBuf>, topic: &str, chunk: usize) -> PyResult<Self> {
+        let inner = Db3Reader::new(&paths, topic, chunk).map_err(PyOSError::new_err)?;
+        Ok(Self { inner })
+    }
+
+    /// (width, height) of the first event message (read up to it), or None.
+    fn sensor_size(&mut self, py: Python<'_>) -> PyResult<Option<(u32, u32)>> {
+        py.detach(|| self.inner.sensor_size())
+            .map_err(PyOSError::new_err)
+    }
+
+    /// The next chunk of at most `max_events` events; empty arrays at the end of the topic.
+    fn next_chunk<'py>(
+        &mut self,
+        py: Python<'py>,
+        max_events: usize,
+    ) -> PyResult<EventArrays<'py>> {
+        let ev = py
+            .detach(|| self.inner.next_chunk(max_events))
+            .map_err(PyOSError::new_err)?;
+        Ok(event_arrays(py, ev))
+    }
+
+    /// (0, messages not of the EventArray layout, 0): final once `next_chunk` came back empty.
+    fn dropped(&self) -> (u64, u64, u64) {
+        let s = self.inner.stats();
+        (s.untimed_events, s.unknown_words, s.truncated_bytes)
+    }
+}
+
+/// The topics of a .db3 file as (id, topic, type).
+#[pyfunction]
+#[pyo3(name = "db3_topics")]
+fn py_db3_topics(py: Python<'_>, path: std::path::PathBuf) -> PyResult<Vec<(i64, String, String)>> {
+    let topics = py
+        .detach(|| db3_topics(&path))
+        .map_err(PyOSError::new_err)?;
+    Ok(topics
+        .into_iter()
+        .map(|t| (t.id, t.name, t.msgtype))
+        .collect())
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Db3EventDecoder>()?;
+    m.add_function(wrap_pyfunction!(py_db3_topics, m)?)?;
     m.add_class::<McapEventDecoder>()?;
     m.add_function(wrap_pyfunction!(py_mcap_channels, m)?)?;
     m.add_class::<Aedat4EventDecoder>()?;

@@ -34,11 +34,11 @@ import numpy as np
 from evsplat.data.formats import Chunk, prophesee_writer
 
 HELP = (
-    "recording decoders (EVT 2.0/3.0, DAT, ROS 1 bags, AEDAT 4): Rust vs the field's decoders "
-    "vs the disk's read speed"
+    "recording decoders (EVT 2.0/3.0, DAT, ROS 1 bags, ROS 2 MCAP and .db3, AEDAT 4): Rust vs "
+    "the field's decoders vs the disk's read speed"
 )
 
-FORMATS = ("evt3", "evt2", "dat", "bag", "bag-lz4", "mcap", "mcap-zstd", "aedat4")
+FORMATS = ("evt3", "evt2", "dat", "bag", "bag-lz4", "mcap", "mcap-zstd", "db3", "aedat4")
 #: The field's decoder each format is compared with.
 REFERENCES = {
     "evt3": "evt3",
@@ -48,6 +48,7 @@ REFERENCES = {
     "bag-lz4": "rosbags",
     "mcap": "rosbags",
     "mcap-zstd": "rosbags",
+    "db3": "rosbags",
     "aedat4": "aedat",
 }
 #: Events per AEDAT 4 packet of a generated file.
@@ -194,17 +195,21 @@ def write_bag(path: Path, chunks: Iterator[Chunk], width: int, height: int, lz4:
     return path.stat().st_size
 
 
-def write_mcap(path: Path, chunks: Iterator[Chunk], width: int, height: int, zstd: bool) -> int:
-    """A ROS 2 bag in MCAP written by rosbags into ``path``'s folder (``path`` is its .mcap
-    file): one dvs_msgs/EventArray topic, messages of ``BAG_MESSAGE_EVENTS`` serialised in CDR
-    here with numpy, chunks of 1 MiB, uncompressed or Zstd. Returns the file's size."""
+def write_mcap(
+    path: Path, chunks: Iterator[Chunk], width: int, height: int, zstd: bool, sqlite: bool = False
+) -> int:
+    """A ROS 2 bag in MCAP (or, with ``sqlite``, SQLite) written by rosbags into ``path``'s
+    folder (``path`` is its .mcap or .db3 file): one dvs_msgs/EventArray topic, messages of
+    ``BAG_MESSAGE_EVENTS`` serialised in CDR here with numpy, MCAP chunks of 1 MiB,
+    uncompressed or Zstd. Returns the file's size."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
     from evsplat.data.formats import rosbag
 
     store = rosbag.typestore()
-    writer = Writer(path.parent, version=9, storage_plugin=StoragePlugin.MCAP)
+    plugin = StoragePlugin.SQLITE3 if sqlite else StoragePlugin.MCAP
+    writer = Writer(path.parent, version=9, storage_plugin=plugin)
     if zstd:
         writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
     kind = "dvs_msgs/msg/EventArray"
@@ -281,7 +286,7 @@ def reference_chunks(path: Path, encoding: str) -> Iterator[Chunk]:
             if packet["stream_id"] == 0 and "events" in packet:
                 ev = packet["events"]
                 yield ev["x"], ev["y"], ev["t"], ev["on"]
-    elif encoding.startswith(("bag", "mcap")):
+    elif encoding.startswith(("bag", "mcap", "db3")):
         from evsplat.data.formats import rosbag
 
         reader = rosbag._open(path)
@@ -345,8 +350,8 @@ def convert_once(path: Path, out: Path, codec: str) -> tuple[float, float]:
 def measure_format(args: argparse.Namespace, encoding: str, folder: Path) -> list[dict]:
     suffix = {"dat": "dat", "bag": "bag", "bag-lz4": "bag", "aedat4": "aedat4"}.get(encoding, "raw")
     path = folder / f"bench.{suffix}"
-    if encoding.startswith("mcap"):  # a ROS 2 bag is a folder: its one .mcap file is timed
-        path = folder / encoding / f"{encoding}.mcap"
+    if encoding.startswith(("mcap", "db3")):  # a ROS 2 bag is a folder: its one file is timed
+        path = folder / encoding / f"{encoding}.{encoding.split('-')[0]}"
     want = Sums()
 
     def chunks() -> Iterator[Chunk]:
@@ -357,8 +362,8 @@ def measure_format(args: argparse.Namespace, encoding: str, folder: Path) -> lis
     w0 = time.perf_counter()
     if encoding == "aedat4":
         size = write_aedat4(path, chunks(), 1280, 720)
-    elif encoding.startswith("mcap"):
-        size = write_mcap(path, chunks(), 1280, 720, zstd=encoding == "mcap-zstd")
+    elif encoding.startswith(("mcap", "db3")):
+        size = write_mcap(path, chunks(), 1280, 720, encoding == "mcap-zstd", encoding == "db3")
     elif encoding.startswith("bag"):
         size = write_bag(path, chunks(), 1280, 720, lz4=encoding == "bag-lz4")
     else:

@@ -1,16 +1,16 @@
 """Readers for recordings from real sensors, each on the field's maintained decoder:
 
-==============  ==========================  ===========================================
+==============  ==========================  ==================================================
 suffix          format                      decoder (PyPI)
-==============  ==========================  ===========================================
+==============  ==========================  ==================================================
 ``.aedat4``     iniVation AEDAT 4 (DV)      evsplat's own (crates/formats, Rust)
 ``.raw``        Prophesee RAW, EVT 2.0      evsplat's own (crates/formats, Rust)
 ``.raw``        Prophesee RAW, EVT 3.0      evsplat's own (crates/formats, Rust)
 ``.dat``        Prophesee DAT (CD events)   evsplat's own (crates/formats, Rust)
 ``.bag``        ROS 1 bag                   evsplat's own (crates/formats, Rust)
 ``.mcap``       ROS 2 bag, one MCAP file    evsplat's own (crates/formats, Rust)
-``.db3``        ROS 2 bag (or its folder)   ``rosbags``
-==============  ==========================  ===========================================
+``.db3``        ROS 2 bag (or its folder)   evsplat's own (crates/formats, Rust, SQLite)
+==============  ==========================  ==================================================
 
 Every reader opens a file into an :class:`EventSource`: the sensor size plus an iterator of
 chunks ``(x, y, t, p)`` (t in integer µs, p in {0, 1} or {-1, +1}), so conversion streams
@@ -75,16 +75,19 @@ CHUNK_EVENTS = 1 << 20
 BLOCK_BYTES = 4 << 20
 
 
-def decoded_chunks(path: Path, open_decoder: Callable, dropped: Dropped) -> Iterator[Chunk]:
+def decoded_chunks(
+    path: Path, open_decoder: Callable, dropped: Dropped, fix: str = "check the file"
+) -> Iterator[Chunk]:
     """The chunks of the Rust reader that ``open_decoder()`` makes, until it is exhausted;
     ``dropped`` is filled in then. An I/O error, opening or reading, is one line naming the
-    file."""
+    file and ``fix``."""
     try:
         decoder = open_decoder()
         while len((chunk := decoder.next_chunk(CHUNK_EVENTS))[0]):
             yield chunk
     except OSError as e:
-        raise EvsplatError(f"{path}: cannot read events ({e}); check the file") from None
+        what = " ".join(str(e).split())
+        raise EvsplatError(f"{path}: cannot read events ({what}); {fix}") from None
     dropped.events, dropped.words, dropped.bytes = decoder.dropped()
 
 

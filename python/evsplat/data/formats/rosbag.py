@@ -2,15 +2,17 @@
 ``prophesee_event_msgs/EventArray`` from prophesee_ros_driver) and ``geometry_msgs/PoseStamped``
 poses.
 
-The events of a ROS 1 bag (.bag) and of a ROS 2 bag stored as one MCAP file are decoded by the
-project's Rust readers (crates/formats, ``rosbag`` and ``mcap``): records in file order, chunks
-uncompressed or compressed (bags: LZ4, bzip2; MCAP: Zstd, LZ4), in bounded chunks of events,
-with no need for the index or summary, so a bag whose recording was cut off reads up to its
-last complete message or chunk. ROS 2 SQLite bags (.db3), bags split over several files and
-every bag's poses go through ``rosbags`` (pure Python); its message definitions stored in the
-bag are used, and the two event types are also registered here, so ROS 2 bags recorded without
+The events of a ROS 1 bag (.bag), of a ROS 2 bag stored as one MCAP file and of a ROS 2
+SQLite bag (one or several .db3 files, uncompressed) are decoded by the project's Rust readers
+(crates/formats, ``rosbag``, ``mcap`` and ``db3``), in bounded chunks of events. The first two
+read records in file order, chunks uncompressed or compressed (bags: LZ4, bzip2; MCAP: Zstd,
+LZ4), with no need for the index or summary, so a bag whose recording was cut off reads up to
+its last complete message or chunk; the .db3 reader queries SQLite for the topic's messages in
+timestamp order. MCAP bags split over several files, compressed .db3 bags and every bag's
+poses go through ``rosbags`` (pure Python); its message definitions stored in the bag are
+used, and the two event types are also registered here, so ROS 2 bags recorded without
 definitions read too. The Rust readers were checked event by event against rosbags'
-deserialiser (tests/test_formats.py)."""
+deserialiser (tests/test_formats.py, tests/test_formats_samples.py)."""
 
 from __future__ import annotations
 
@@ -24,7 +26,14 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from evsplat import _core
-from evsplat.data.formats import BLOCK_BYTES, Chunk, Dropped, EventSource, decoded_chunks
+from evsplat.data.formats import (
+    BLOCK_BYTES,
+    CHUNK_EVENTS,
+    Chunk,
+    Dropped,
+    EventSource,
+    decoded_chunks,
+)
 from evsplat.errors import EvsplatError
 
 #: Field layout shared by both drivers' Event messages (ROS 1 ``time`` = builtin Time).
@@ -144,6 +153,61 @@ def mcap_file(path: Path) -> Path | None:
     return files[0] if len(files) == 1 else None
 
 
+def db3_files(path: Path) -> list[Path] | None:
+    """The .db3 files of a ROS 2 SQLite bag in reading order, which the Rust reader decodes:
+    those its metadata.yaml lists (for the bag folder or one of its files), or a lone .db3
+    file without one; None for other bags and for compressed ones (rosbags reads those and
+    reports a bag's broken metadata)."""
+    root = _bag_root(path)
+    meta = root / "metadata.yaml"
+    if not meta.is_file():
+        return [path] if path.is_file() and path.suffix.lower() == ".db3" else None
+    try:
+        from ruamel.yaml import YAML  # rosbags' own YAML parser
+
+        info = YAML(typ="safe").load(meta.read_text())["rosbag2_bagfile_information"]
+        if info.get("storage_identifier") != "sqlite3":
+            return None
+        if str(info.get("compression_mode") or "none").lower() != "none":
+            return None
+        files = [root / Path(str(name)).name for name in info["relative_file_paths"]]
+    except Exception:  # noqa: BLE001 - any unreadable metadata: rosbags says what is wrong
+        return None
+    return files if files and all(f.is_file() for f in files) else None
+
+
+#: What to do about a .db3 file SQLite cannot read.
+DB3_FIX = (
+    "the .db3 file is not a ROS 2 SQLite bag, or it is truncated or damaged: recover what it "
+    "holds with `sqlite3 BAG.db3 .recover | sqlite3 FIXED.db3`, or re-record"
+)
+
+
+def open_db3_bag(path: Path, files: list[Path], *, topic: str | None = None) -> EventSource:
+    """Opens the event topic of a ROS 2 SQLite bag (its ``files``, in order) with the Rust
+    reader; the sensor size comes from its first event message."""
+    try:
+        listed = [row for f in files for row in _core.db3_topics(f)]
+        connections = list(dict.fromkeys(Connection(t, m) for _, t, m in listed))
+        chosen = _pick(path, connections, topic, EVENT_TYPES, "event-array")[0].topic
+        decoder = _core.Db3EventDecoder([str(f) for f in files], chosen, CHUNK_EVENTS)
+        size = decoder.sensor_size()
+    except OSError as e:
+        what = " ".join(str(e).split())
+        raise EvsplatError(f"{path}: cannot open the bag ({what}); {DB3_FIX}") from None
+    if size is None:
+        raise EvsplatError(f"{path}: topic {chosen} has no readable event messages")
+    width, height = size
+    if not (width > 0 and height > 0):
+        raise EvsplatError(
+            f"{path}: topic {chosen} gives sensor size {width}x{height}; "
+            "the driver did not fill width/height: re-record or fix the messages"
+        )
+    dropped = Dropped(words_are="messages not of the EventArray layout")
+    chunks = decoded_chunks(path, lambda: decoder, dropped, DB3_FIX)
+    return EventSource(path, int(width), int(height), chunks, "rosbag", "evsplat", dropped)
+
+
 def _msgtype(ros1_type: str) -> str:
     """``pkg/Name`` (ROS 1) as ``pkg/msg/Name`` (rosbags' and the ROS 2 spelling)."""
     pkg, _, name = ros1_type.rpartition("/")
@@ -192,6 +256,8 @@ def open_bag(path: Path, *, topic: str | None = None) -> EventSource:
         return open_rust_bag(path, path, topic=topic)
     if (mcap := mcap_file(path)) is not None:
         return open_rust_bag(path, mcap, topic=topic)
+    if (db3 := db3_files(path)) is not None:
+        return open_db3_bag(path, db3, topic=topic)
     reader = _open(path)
     conns = _pick(path, reader.connections, topic, EVENT_TYPES, "event-array")
     first = next(reader.messages(connections=conns), None)
@@ -253,9 +319,9 @@ def cdr_event_records(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def _event_chunks(reader: AnyReader, conns) -> Iterator[Chunk]:
-    """The event chunks of a bag through rosbags: ROS 2 SQLite and split bags; ROS 1 bags and
-    MCAP files come here only as `evsplat bench decode`'s reference (the path evsplat took
-    before its Rust readers)."""
+    """The event chunks of a bag through rosbags: compressed ROS 2 SQLite bags and split MCAP
+    bags; ROS 1 bags, MCAP and .db3 files come here only as `evsplat bench decode`'s reference
+    (the path evsplat took before its Rust readers)."""
     try:
         for conn, _, raw in reader.messages(connections=conns):
             # rosbags builds one Python object per event; a view of the bytes is ~100x faster.
