@@ -673,3 +673,33 @@ def test_damaged_db3_is_one_line_naming_the_file_and_the_fix(tmp_path):
         msg = str(err.value)
         assert "\n" not in msg and str(path) in msg, msg
         assert "sqlite3 BAG.db3 .recover" in msg and "re-record" in msg, msg
+
+
+def test_convert_reads_ahead_in_order_passes_errors_on_and_stops_with_its_reader():
+    import time
+
+    from evsplat.commands.convert import _ahead
+
+    def failing():
+        yield from ((i,) for i in range(5))
+        raise EvsplatError("x.raw: cannot read events (boom); check the file")
+
+    got = []
+    with pytest.raises(EvsplatError, match="boom"):
+        for (i,) in _ahead(failing()):
+            got.append(i)
+    assert got == [0, 1, 2, 3, 4]
+
+    made = []
+
+    def endless():
+        while True:
+            made.append(len(made))
+            yield (made[-1],)
+
+    ahead = _ahead(endless(), depth=2)
+    assert next(ahead) == (0,)
+    ahead.close()  # joins the thread
+    n = len(made)
+    time.sleep(0.3)
+    assert len(made) == n <= 4  # one taken, two queued, one waiting to be queued

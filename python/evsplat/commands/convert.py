@@ -61,6 +61,52 @@ def _batched(chunks, size: int):
         yield _joined(parts)
 
 
+def _ahead(chunks: Iterator[tuple], depth: int = 2) -> Iterator[tuple]:
+    """``chunks`` produced by a second thread up to ``depth`` ahead: the Rust readers decode
+    and validate with the GIL released, so the next batch is made while this thread writes
+    the one before (HDF5 and its compression run here, with the GIL). Errors reach the caller
+    in order; a caller that stops early stops the thread at its next chunk."""
+    import queue
+    import threading
+
+    done = object()
+    slots: queue.Queue = queue.Queue(depth)
+    stop = threading.Event()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                slots.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def produce() -> None:
+        try:
+            for c in chunks:
+                if not put((c, None)):
+                    return
+        except BaseException as e:  # noqa: BLE001 - handed to the consumer, raised there
+            put((None, e))
+            return
+        put((done, None))
+
+    thread = threading.Thread(target=produce, name="evsplat-convert-ahead", daemon=True)
+    thread.start()
+    try:
+        while True:
+            c, error = slots.get()
+            if error is not None:
+                raise error
+            if c is done:
+                return
+            yield c
+    finally:
+        stop.set()
+        thread.join()
+
+
 def _joined(parts: list) -> tuple:
     if len(parts) == 1:
         return parts[0]
@@ -74,10 +120,11 @@ def convert(
     topic: str | None = None,
     compression: str | None = None,
     progress: bool = True,
+    ahead: bool = True,
 ) -> tuple[int, float]:
     """Converts ``src`` to ``out`` (written atomically, with its millisecond index and the
     provenance of ``src``; ``compression`` defaults to the writer's); returns (events,
-    seconds)."""
+    seconds). ``ahead``: decode the next batch on a second thread while one is written."""
     from concurrent.futures import Future, ThreadPoolExecutor
 
     from tqdm import tqdm
@@ -109,11 +156,15 @@ def convert(
         kind, decoder = src.suffix.lstrip(".").lower(), "evsplat"
     record: dict[str, object] = {}
 
-    def streams(bar: tqdm, digest: Future[tuple[int, str]]) -> Iterator[EventStream]:
-        n = 0
+    def validated() -> Iterator[EventStream]:
         for x, y, t, p in _batched(chunks, BATCH):
             # Validation and canonical dtypes per batch; the writer checks order across them.
-            ev = EventStream.from_arrays(x, y, t, p, width, height, str(src))
+            yield EventStream.from_arrays(x, y, t, p, width, height, str(src))
+
+    def streams(bar: tqdm, digest: Future[tuple[int, str]]) -> Iterator[EventStream]:
+        n = 0
+        # Decoded and validated (both without the GIL, in Rust) ahead of the HDF5 writes.
+        for ev in _ahead(validated()) if ahead else validated():
             yield ev
             n += len(ev)
             bar.update(len(ev))
