@@ -43,9 +43,17 @@ const OP_BAG_HEADER: u8 = 0x03;
 
 /// A compressed chunk unpacking to at most this many bytes is unpacked whole (one decode);
 /// writers' chunks are 768 KiB (rosbag) to 1 MiB (rosbags).
+#[cfg(not(any(test, fuzzing)))]
 pub const IN_MEMORY: usize = 8 << 20;
 /// Bytes read into the window of a streamed chunk at a time.
+#[cfg(not(any(test, fuzzing)))]
 const WINDOW: usize = 1 << 20;
+/// The same, small in the unit tests and the fuzz targets: their inputs of a few KB then go
+/// through both paths (the seeds' chunks are streamed, the hand-made ones mostly not).
+#[cfg(any(test, fuzzing))]
+pub const IN_MEMORY: usize = 1 << 10;
+#[cfg(any(test, fuzzing))]
+const WINDOW: usize = 1 << 8;
 /// The most bytes the window of a chunk holds: a record header, or a whole connection record,
 /// of a streamed chunk may be at most `IN_MEMORY` bytes (longer ones could not be part of an
 /// unpacked-whole chunk either; they make the chunk corrupt), plus one read.
