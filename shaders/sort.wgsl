@@ -1,5 +1,5 @@
-// One pass of a stable LSD radix sort of (key, value) u32 pairs, on a digit of 1 to 6 bits (the
-// depth sort's are 4 bits; the tile sort's as wide as needed to take the fewest passes).
+// One pass of a stable LSD radix sort of (key, value) u32 pairs, on a digit of 1 to 8 bits (the
+// depth sort's are 8 bits; the tile sort's as wide as needed to take the fewest passes).
 // histogram: per-workgroup digit counts, stored digit-major (hist[digit * blocks + block]) so
 // that one exclusive scan (scan.wgsl) turns them into global destinations.
 // scatter: each element goes to its digit's destination plus its stable rank in the block.
@@ -20,7 +20,7 @@ struct SortPass {
 @group(0) @binding(6) var<storage, read_write> keys_out: array<u32>;
 @group(0) @binding(7) var<storage, read_write> vals_out: array<u32>;
 
-const MAX_DIGITS: u32 = 64u; // of 6 bits
+const MAX_DIGITS: u32 = 256u; // of 8 bits
 var<workgroup> local_hist: array<atomic<u32>, MAX_DIGITS>;
 var<workgroup> block_digits: array<u32, SORT_BLOCK>;
 var<workgroup> block_ranks: array<u32, SORT_BLOCK>;

@@ -116,13 +116,25 @@ impl<'a> EventSlice<'a> {
 /// Elements per parallel task in the validation scans.
 const SCAN_CHUNK: usize = 1 << 16;
 
+/// Scans of fewer elements run on the calling thread: waking rayon's workers costs more than
+/// they save there, and on a CPU Vulkan adapter those workers compete with the renderer's for
+/// the same cores (a training step validates windows of ~10^5 events while it renders).
+const PAR_MIN_SCAN: usize = 1 << 20;
+
 /// First index where `bad` holds. Each chunk is first tested with a branch-free OR (which
 /// vectorises); only a failing chunk is searched element by element.
 pub(crate) fn first_index<T: Sync>(v: &[T], bad: impl Fn(&T) -> bool + Sync) -> Option<usize> {
+    let in_chunk = |(ci, c): (usize, &[T])| {
+        let any = c.iter().fold(false, |acc, a| acc | bad(a));
+        any.then(|| c.iter().position(&bad).map(|i| ci * SCAN_CHUNK + i))
+            .flatten()
+    };
+    if v.len() < PAR_MIN_SCAN {
+        return v.chunks(SCAN_CHUNK).enumerate().find_map(in_chunk);
+    }
     v.par_chunks(SCAN_CHUNK)
         .enumerate()
-        .filter(|(_, c)| c.iter().fold(false, |acc, a| acc | bad(a)))
-        .filter_map(|(ci, c)| c.iter().position(&bad).map(|i| ci * SCAN_CHUNK + i))
+        .filter_map(in_chunk)
         .min()
 }
 
@@ -172,19 +184,27 @@ pub fn check_sorted(t: &[i64]) -> Result<(), EventError> {
     let Some((next, prev)) = t.get(1..).zip(t.get(..t.len().saturating_sub(1))) else {
         return Ok(());
     };
-    // Pairs (t[i+1], t[i]) compared chunk by chunk.
-    let bad = next
-        .par_chunks(SCAN_CHUNK)
-        .zip(prev.par_chunks(SCAN_CHUNK))
-        .enumerate()
-        .filter(|(_, (a, b))| a.iter().zip(*b).fold(false, |acc, (x, y)| acc | (x < y)))
-        .filter_map(|(ci, (a, b))| {
+    // Pairs (t[i+1], t[i]) compared chunk by chunk, as in `first_index`.
+    let in_chunk = |(ci, (a, b)): (usize, (&[i64], &[i64]))| {
+        let any = a.iter().zip(b).fold(false, |acc, (x, y)| acc | (x < y));
+        any.then(|| {
             a.iter()
                 .zip(b)
                 .position(|(x, y)| x < y)
                 .map(|i| ci * SCAN_CHUNK + i)
         })
-        .min();
+        .flatten()
+    };
+    let bad = if next.len() < PAR_MIN_SCAN {
+        (next.chunks(SCAN_CHUNK).zip(prev.chunks(SCAN_CHUNK)))
+            .enumerate()
+            .find_map(in_chunk)
+    } else {
+        (next.par_chunks(SCAN_CHUNK).zip(prev.par_chunks(SCAN_CHUNK)))
+            .enumerate()
+            .filter_map(in_chunk)
+            .min()
+    };
     match bad {
         None => Ok(()),
         Some(i) => Err(EventError::NotSorted {
@@ -348,6 +368,30 @@ mod tests {
             }
         );
         assert!(e.to_string().contains("index 2 (t=6 < 7)"));
+    }
+
+    /// Below and above PAR_MIN_SCAN (on the calling thread and on rayon's workers), with bad
+    /// elements planted in two chunks: the scans report the first one.
+    #[test]
+    fn scans_report_the_first_bad_index_at_any_length() {
+        for len in [PAR_MIN_SCAN - 1, PAR_MIN_SCAN + 5 * SCAN_CHUNK] {
+            let first = len - 3 * SCAN_CHUNK + 7;
+            let mut x = vec![0u16; len];
+            x[first] = 4;
+            x[len - 2] = 9;
+            assert_eq!(first_index(&x, |&v| v >= 4), Some(first));
+            let mut t: Vec<i64> = (0..len as i64).collect();
+            t[first] = -1;
+            t[len - 2] = -1;
+            assert_eq!(
+                check_sorted(&t),
+                Err(EventError::NotSorted {
+                    index: first,
+                    t: -1,
+                    prev: first as i64 - 1
+                })
+            );
+        }
     }
 
     #[test]

@@ -30,8 +30,10 @@ def mlp_grad_norms(mlp: torch.nn.Module, weighted: dict[str, torch.Tensor]) -> d
 
 def first_nonfinite_grad(*modules: torch.nn.Module) -> str | None:
     """``gradient of <parameter>`` for the first parameter with a NaN or Inf gradient."""
-    for module in modules:
-        for name, p in module.named_parameters():
-            if p.grad is not None and not bool(torch.isfinite(p.grad).all()):
-                return f"gradient of {name}"
-    return None
+    grads = [
+        (name, p.grad) for m in modules for name, p in m.named_parameters() if p.grad is not None
+    ]
+    # One test of them all first: a step almost never has a bad one, and each test costs a call.
+    if not grads or bool(torch.isfinite(torch.cat([g.reshape(-1) for _, g in grads])).all()):
+        return None
+    return next(f"gradient of {name}" for name, g in grads if not bool(torch.isfinite(g).all()))
