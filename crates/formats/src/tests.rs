@@ -227,18 +227,28 @@ fn bag(records: &[Vec<u8>]) -> Vec<u8> {
     out
 }
 
-fn decode_bag(data: &[u8], topic: Option<&str>) -> (Events, Stats) {
-    let mut reader = crate::rosbag::BagReader::new(data, topic, 7).expect("a bag");
+/// Every event a reader's `next_chunk` gives in chunks of `max_events`, until an empty one.
+fn drain(
+    mut next_chunk: impl FnMut(usize) -> std::io::Result<Events>,
+    max_events: usize,
+) -> std::io::Result<Events> {
     let mut all = Events::default();
     loop {
-        let c = reader.next_chunk(2).expect("a slice reads");
+        let c = next_chunk(max_events)?;
         if c.is_empty() {
-            return (all, reader.stats());
+            return Ok(all);
         }
-        for i in 0..c.len() {
-            all.push(c.x[i], c.y[i], c.t[i], c.p[i]);
-        }
+        all.x.extend(c.x);
+        all.y.extend(c.y);
+        all.t.extend(c.t);
+        all.p.extend(c.p);
     }
+}
+
+fn decode_bag(data: &[u8], topic: Option<&str>) -> (Events, Stats) {
+    let mut reader = crate::rosbag::BagReader::new(data, topic, 7).expect("a bag");
+    let all = drain(|n| reader.next_chunk(n), 2).expect("a slice reads");
+    (all, reader.stats())
 }
 
 #[test]
@@ -513,16 +523,8 @@ fn mcap_message(channel: u16, events: &[(u16, u16, i32, u32, u8)]) -> Vec<u8> {
 
 fn decode_mcap(data: &[u8]) -> (Events, Stats) {
     let mut reader = crate::mcap::McapReader::new(data, None, 7).expect("an MCAP file");
-    let mut all = Events::default();
-    loop {
-        let c = reader.next_chunk(2).expect("a slice reads");
-        if c.is_empty() {
-            return (all, reader.stats());
-        }
-        for i in 0..c.len() {
-            all.push(c.x[i], c.y[i], c.t[i], c.p[i]);
-        }
-    }
+    let all = drain(|n| reader.next_chunk(n), 2).expect("a slice reads");
+    (all, reader.stats())
 }
 
 #[test]
@@ -610,17 +612,13 @@ fn db3_all(
     max_events: usize,
 ) -> std::io::Result<(Events, Stats)> {
     let mut reader = crate::db3::Db3Reader::new(paths, topic, chunk)?;
-    let mut all = Events::default();
-    loop {
-        let c = reader.next_chunk(max_events)?;
-        assert!(c.len() <= max_events);
-        if c.is_empty() {
-            return Ok((all, reader.stats()));
-        }
-        for i in 0..c.len() {
-            all.push(c.x[i], c.y[i], c.t[i], c.p[i]);
-        }
-    }
+    let next = |n| {
+        let c = reader.next_chunk(n)?;
+        assert!(c.len() <= n);
+        Ok(c)
+    };
+    let all = drain(next, max_events)?;
+    Ok((all, reader.stats()))
 }
 
 #[test]

@@ -75,8 +75,11 @@ CHUNK_EVENTS = 1 << 20
 BLOCK_BYTES = 4 << 20
 
 
+CHECK_FILE = "check the file"  # the fix a reader's I/O error names when it has none better
+
+
 def decoded_chunks(
-    path: Path, open_decoder: Callable, dropped: Dropped, fix: str = "check the file"
+    path: Path, open_decoder: Callable, dropped: Dropped, fix: str = CHECK_FILE
 ) -> Iterator[Chunk]:
     """The chunks of the Rust reader that ``open_decoder()`` makes, until it is exhausted;
     ``dropped`` is filled in then. An I/O error, opening or reading, is one line naming the

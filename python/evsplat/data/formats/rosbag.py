@@ -28,6 +28,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from evsplat import _core
 from evsplat.data.formats import (
     BLOCK_BYTES,
+    CHECK_FILE,
     CHUNK_EVENTS,
     Chunk,
     Dropped,
@@ -183,6 +184,28 @@ DB3_FIX = (
 )
 
 
+def _rust_source(
+    path: Path,
+    chosen: str,
+    decoder: object,
+    size: tuple[int, int] | None,
+    dropped: Dropped,
+    fix: str = CHECK_FILE,
+) -> EventSource:
+    """The EventSource of a Rust bag reader opened on topic ``chosen``, whose first event
+    message gave ``size``; a missing or unfilled sensor size is a one-line error."""
+    if size is None:
+        raise EvsplatError(f"{path}: topic {chosen} has no readable event messages")
+    width, height = size
+    if not (width > 0 and height > 0):
+        raise EvsplatError(
+            f"{path}: topic {chosen} gives sensor size {width}x{height}; "
+            "the driver did not fill width/height: re-record or fix the messages"
+        )
+    chunks = decoded_chunks(path, lambda: decoder, dropped, fix)
+    return EventSource(path, int(width), int(height), chunks, "rosbag", "evsplat", dropped)
+
+
 def open_db3_bag(path: Path, files: list[Path], *, topic: str | None = None) -> EventSource:
     """Opens the event topic of a ROS 2 SQLite bag (its ``files``, in order) with the Rust
     reader; the sensor size comes from its first event message."""
@@ -195,17 +218,8 @@ def open_db3_bag(path: Path, files: list[Path], *, topic: str | None = None) -> 
     except OSError as e:
         what = " ".join(str(e).split())
         raise EvsplatError(f"{path}: cannot open the bag ({what}); {DB3_FIX}") from None
-    if size is None:
-        raise EvsplatError(f"{path}: topic {chosen} has no readable event messages")
-    width, height = size
-    if not (width > 0 and height > 0):
-        raise EvsplatError(
-            f"{path}: topic {chosen} gives sensor size {width}x{height}; "
-            "the driver did not fill width/height: re-record or fix the messages"
-        )
     dropped = Dropped(words_are="messages not of the EventArray layout")
-    chunks = decoded_chunks(path, lambda: decoder, dropped, DB3_FIX)
-    return EventSource(path, int(width), int(height), chunks, "rosbag", "evsplat", dropped)
+    return _rust_source(path, chosen, decoder, size, dropped, DB3_FIX)
 
 
 def _msgtype(ros1_type: str) -> str:
@@ -237,17 +251,8 @@ def open_rust_bag(path: Path, file: Path, *, topic: str | None = None) -> EventS
         size = decoder.sensor_size()
     except OSError as e:
         raise _rust_fail(path, e) from None
-    if size is None:
-        raise EvsplatError(f"{path}: topic {chosen} has no readable event messages")
-    width, height = size
-    if not (width > 0 and height > 0):
-        raise EvsplatError(
-            f"{path}: topic {chosen} gives sensor size {width}x{height}; "
-            "the driver did not fill width/height: re-record or fix the messages"
-        )
     dropped = Dropped(words_are="event messages or records that could not be read")
-    chunks = decoded_chunks(path, lambda: decoder, dropped)
-    return EventSource(path, int(width), int(height), chunks, "rosbag", "evsplat", dropped)
+    return _rust_source(path, chosen, decoder, size, dropped)
 
 
 def open_bag(path: Path, *, topic: str | None = None) -> EventSource:
