@@ -17,6 +17,8 @@ def _fake_row(cell):
     psnr = {"static": 15.0, "no-motion-losses": 16.0}.get(variant, 18.0 + speed)
     return {
         **cell.labels,
+        "seed": cell.seed,
+        "host": "hostA",
         "iterations": cell.config["schedule"]["iterations"],
         "wall_seconds": 1.0 + len(variant),
         "iterations_per_second": 7.0,
@@ -47,14 +49,16 @@ def no_simulation(monkeypatch):
     monkeypatch.setattr(paper, "simulate_cases", lambda cases, out: {c.name: out for c in cases})
 
 
-def _args(tmp_path, doc, tables):
+def _args(tmp_path, doc, tables, seeds="0"):
     return argparse.Namespace(
         full_size=False,
         iters=7,
         out=tmp_path / "b",
         doc=doc,
         tables=tables,
+        seeds=seeds,
         ray=None,
+        jobs=1,
         max_retries=3,
         cpus_per_cell=1.0,
         fresh=False,
@@ -75,7 +79,7 @@ def test_tables_hold_every_run_and_the_papers_numbers(tmp_path, monkeypatch):
     assert "| 9.00 / 12.00 / 16.00 | 2.0 / 2.0 |" in text  # flat, static, full; tracking
     assert "| x3 | 19.14 | 21.00 (12.00) | 0.500 | 18.00 (9.00) | 4.0 |" in text
     assert "| L_e | 18.61 | 19.00 (12.00) |" in text
-    assert text.count("; 7 iterations per run.") == 3
+    assert text.count("; 7 iterations per run; seed 0; run on hostA.") == 3
     assert text.rstrip().endswith("ball 400x400: kept")
     assert (tmp_path / "results_pareto.png").stat().st_size > 0
 
@@ -96,3 +100,26 @@ def test_rerunning_one_table_keeps_the_others_as_measured(tmp_path, monkeypatch)
     assert "| L_e | 18.61 | 30.00 (12.00) |" in text
     assert "| L_e | 18.61 | 30.00 (12.00) |" not in first
     assert text.index(paper.TITLES["1"]) < text.index(paper.TITLES["3"]) < text.index("![time")
+
+
+def test_several_seeds_give_each_cell_its_mean_and_standard_deviation(tmp_path, monkeypatch):
+    calls = []
+
+    def sweep(cells, out, options):
+        calls.extend(cells)
+        rows = [_fake_row(c) for c in cells]
+        for r in rows:  # seeds 0, 1, 5: PSNR +0, +1, +5 (mean +2, sample sd sqrt(7))
+            r["psnr"] += r["seed"]
+            r["host"] = f"host{r['seed']}"
+        return SweepResult(rows=rows)
+
+    monkeypatch.setattr(paper, "run_sweep", sweep)
+    doc = tmp_path / "results.md"
+    assert paper.run(_args(tmp_path, doc, "3", seeds="0,1,5")) == 0
+    assert len(calls) == 3 * 5 and sorted({c.seed for c in calls}) == [0, 1, 5]
+    text = doc.read_text()
+    # L_e: 19 + seed -> 21.00 +- 2.65; the unchanged metrics have no spread; flat stays plain.
+    assert "| L_e | 18.61 | 21.00 ± 2.65 (12.00) | 0.500 ± 0.000 | 16.00 ± 0.00 (9.00) | " in text
+    assert "mean ± sd over seeds 0,1,5; run on host0, host1, host5." in text
+    with pytest.raises(paper.EvsplatError, match="--seeds"):
+        paper.run(_args(tmp_path, doc, "3", seeds="0,x"))

@@ -75,6 +75,25 @@ def test_local_sweep_scores_like_a_direct_run_and_a_rerun_executes_nothing(
     assert summary["executed"] == 0 and summary["datasets"] == [str(data)]
 
 
+def test_cells_run_at_once_in_worker_processes_score_as_one_at_a_time(tiny_scene, tmp_path):
+    data = tiny_scene("ball")
+    cells = [Cell("ball", data, tiny_config(), seed=s) for s in (0, 1, 2)]
+    serial = run_sweep(cells, tmp_path / "serial", quiet())
+    pooled = run_sweep(cells, tmp_path / "pooled", SweepOptions(jobs=2, progress=False))
+    assert pooled.exit_code == 0 and pooled.executed == 3
+    # Oracle: the same cells run one at a time in this process.
+    for a, b in zip(serial.rows, pooled.rows):
+        assert (a["seed"], a["key"]) == (b["seed"], b["key"])
+        assert b["psnr"] == pytest.approx(a["psnr"], abs=1e-3)
+    hosts = json.loads((tmp_path / "pooled" / "summary.json").read_text())["backend"]
+    assert hosts == "local (2 cells at a time)"
+    assert not list(store.cells_dir(tmp_path / "pooled").glob(store.TMP_PREFIX + "*"))
+    with pytest.raises(EvsplatError, match="--jobs 0"):
+        run_sweep(cells, tmp_path / "x", SweepOptions(jobs=0, progress=False))
+    with pytest.raises(EvsplatError, match="--cpus-per-cell"):
+        run_sweep(cells, tmp_path / "x", SweepOptions(jobs=2, ray="local", progress=False))
+
+
 def test_a_half_written_attempt_or_cell_folder_is_never_taken_as_finished(tiny_scene, tmp_path):
     data = tiny_scene("ball")
     out = tmp_path / "sweep"

@@ -25,6 +25,7 @@ from evsplat.bench.train import (
     simulate_cases,
 )
 from evsplat.data.atomic import write_text_atomic
+from evsplat.errors import EvsplatError
 from evsplat.sweep import SweepOptions, add_sweep_arguments, run_sweep
 
 HELP = "the paper's Tables 1-3 (scenes, speed factors, loss ablation) into docs/results.md"
@@ -69,7 +70,44 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--tables", default="1,2,3", help="comma list of the tables to run (default 1,2,3)"
     )
+    parser.add_argument(
+        "--seeds",
+        default="0",
+        help="comma list of training seeds; with several, each table cell is the mean +- the "
+        "standard deviation over them (default 0)",
+    )
     add_sweep_arguments(parser)
+
+
+SPREAD = ("psnr", "ssim", "lpips", "psnr_moving", "track_px", "wall_seconds")
+
+
+def _over_seeds(rows: list[dict]) -> list[dict]:
+    """One row per (case, variant): each metric's mean over the seeds' rows, and in
+    ``sd`` its sample standard deviation (None with one seed or where a seed lacks it)."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["case"], r["variant"]), []).append(r)
+    merged = []
+    for group in groups.values():
+        row = dict(group[0], seeds=len(group), sd={})
+        for key in {k for r in group for k, v in r.items() if isinstance(v, int | float)}:
+            values = [r.get(key) for r in group]
+            if key == "seed" or any(v is None or isinstance(v, bool) for v in values):
+                continue
+            mean = sum(values) / len(values)
+            row[key] = mean
+            if key in SPREAD and len(values) > 1:
+                var = sum((v - mean) ** 2 for v in values) / (len(values) - 1)
+                row["sd"][key] = var**0.5
+        merged.append(row)
+    return merged
+
+
+def _cell(r: dict, key: str, nd: int = 2) -> str:
+    """``r[key]`` to ``nd`` decimals, with '± sd' where the row averages several seeds."""
+    sd = r.get("sd", {}).get(key)
+    return fmt(r.get(key), nd) + ("" if sd is None else f" ± {sd:.{nd}f}")
 
 
 def _table1(rows: list[dict]) -> list[str]:
@@ -84,7 +122,7 @@ def _table1(rows: list[dict]) -> list[str]:
             continue
         p = PAPER_TABLE1[scene]
         cells = [
-            f"{fmt(by[v]['psnr'])} / {fmt(by[v]['ssim'], 3)} / {fmt(by[v]['lpips'], 3)}"
+            f"{_cell(by[v], 'psnr')} / {_cell(by[v], 'ssim', 3)} / {_cell(by[v], 'lpips', 3)}"
             if v in by
             else "-"
             for v in TABLE1_VARIANTS
@@ -92,10 +130,10 @@ def _table1(rows: list[dict]) -> list[str]:
         st, fu = by.get("static", {}), by.get("full", {})
         any_row = fu or st or next(iter(by.values()))
         moving = (
-            f"{fmt(any_row.get('psnr_moving_flat'))} / {fmt(st.get('psnr_moving'))} / "
-            f"{fmt(fu.get('psnr_moving'))}"
+            f"{fmt(any_row.get('psnr_moving_flat'))} / {_cell(st, 'psnr_moving')} / "
+            f"{_cell(fu, 'psnr_moving')}"
         )
-        track = f"{fmt(st.get('track_px'), 1)} / {fmt(fu.get('track_px'), 1)}"
+        track = f"{_cell(st, 'track_px', 1)} / {_cell(fu, 'track_px', 1)}"
         lines.append(
             f"| {scene} | {p[0]} / {p[1]} / {p[2]} | {fmt(any_row.get('psnr_flat'))} | "
             + " | ".join(cells)
@@ -113,9 +151,9 @@ def _table2(rows: list[dict]) -> list[str]:
     for r in rows:
         k = int(r["case"].rsplit("-x", 1)[1])
         lines.append(
-            f"| x{k} | {PAPER_TABLE2[k]} | {fmt(r['psnr'])} ({fmt(r.get('psnr_flat'))}) | "
-            f"{fmt(r['ssim'], 3)} | {fmt(r['psnr_moving'])} ({fmt(r.get('psnr_moving_flat'))}) | "
-            f"{fmt(r.get('track_px'), 1)} |"
+            f"| x{k} | {PAPER_TABLE2[k]} | {_cell(r, 'psnr')} ({fmt(r.get('psnr_flat'))}) | "
+            f"{_cell(r, 'ssim', 3)} | {_cell(r, 'psnr_moving')} "
+            f"({fmt(r.get('psnr_moving_flat'))}) | {_cell(r, 'track_px', 1)} |"
         )
     return lines
 
@@ -129,9 +167,9 @@ def _table3(rows: list[dict]) -> list[str]:
     for r in sorted(rows, key=lambda r: ABLATION.index(r["variant"])):
         paper = PAPER_TABLE3.get(r["variant"], "-")
         lines.append(
-            f"| {ABLATION_LABEL[r['variant']]} | {paper} | {fmt(r['psnr'])} "
-            f"({fmt(r.get('psnr_flat'))}) | {fmt(r['ssim'], 3)} | {fmt(r['psnr_moving'])} "
-            f"({fmt(r.get('psnr_moving_flat'))}) | {fmt(r.get('track_px'), 1)} | "
+            f"| {ABLATION_LABEL[r['variant']]} | {paper} | {_cell(r, 'psnr')} "
+            f"({fmt(r.get('psnr_flat'))}) | {_cell(r, 'ssim', 3)} | {_cell(r, 'psnr_moving')} "
+            f"({fmt(r.get('psnr_moving_flat'))}) | {_cell(r, 'track_px', 1)} | "
             f"{r['wall_seconds']:.0f} |"
         )
     return lines
@@ -147,8 +185,19 @@ def _old_section(old: str, title: str) -> list[str]:
     return [*rest[: min(ends, default=len(rest))].rstrip("\n").split("\n"), ""]
 
 
+def _seeds(text: str) -> list[int]:
+    try:
+        seeds = list(dict.fromkeys(int(s) for s in text.split(",") if s.strip()))
+    except ValueError:
+        seeds = []
+    if not seeds or min(seeds) < 0:
+        raise EvsplatError(f"--seeds {text!r}: expected a comma list of seeds such as 0,1,2")
+    return seeds
+
+
 def run(args: argparse.Namespace) -> int:
     tables = {int(t) for t in args.tables.split(",") if t}
+    seeds = _seeds(args.seeds)
     tiny = not args.full_size
     spec = {"train_preset": "tiny" if tiny else "default", "iterations": args.iters}
     info = machine_info()
@@ -163,29 +212,34 @@ def run(args: argparse.Namespace) -> int:
         plan += [("2", Case("ball", tiny=tiny, speed=k), "full") for k in (1, 2, 3, 4)]
     if 3 in tables:
         plan += [("3", Case("ball", tiny=tiny), v) for v in ABLATION]
-    # ball x1 full serves all three tables: one cell, its row shared.
+    # ball x1 full serves all three tables: one cell per seed, its row shared.
     runs = list(dict.fromkeys((case, variant) for _, case, variant in plan))
     data = simulate_cases(list(dict.fromkeys(case for case, _ in runs)), out)
-    cells = [bench_cell(c, v, spec, data[c.name], args.iters) for c, v in runs]
+    cells = [
+        bench_cell(c, v, spec, data[c.name], args.iters, seed=seed)
+        for seed in seeds
+        for c, v in runs
+    ]
     sweep = run_sweep(cells, out, SweepOptions.from_args(args))
-    done = {(r["case"], r["variant"]): r for r in sweep.rows}
-    for table, case, variant in plan:
-        r = done.get((case.name, variant))
-        if r is None:
-            continue
-        results[table].append(r)
+    for r in sweep.rows:
         print(
-            f"table {table}: {case.name:<16} {variant:<18} {r['iterations']:>5} it "
+            f"{r['case']:<16} {r['variant']:<18} seed {r['seed']:<3} {r['iterations']:>5} it "
             f"{r['wall_seconds']:>7.1f} s  PSNR {fmt(r['psnr'])}  SSIM {fmt(r['ssim'], 3)}  "
             f"moving {fmt(r['psnr_moving'])}",
             flush=True,
         )
-    rows = list(done.values())
+    done = {(r["case"], r["variant"]): r for r in _over_seeds(sweep.rows)}
+    for table, case, variant in plan:
+        if (case.name, variant) in done:
+            results[table].append(done[(case.name, variant)])
+    rows = sweep.rows
     write_text_atomic(out / "results.json", json.dumps({**info, "rows": rows}, indent=2))
     plot_pareto(rows, args.doc.parent / "results_pareto.png", f"paper tables ({info['adapter']})")
 
     size = "96x96 tiny variants, preset tiny" if tiny else "full size, preset default"
     iters = rows[0]["iterations"] if rows else "-"
+    over = f"mean ± sd over seeds {args.seeds}" if len(seeds) > 1 else f"seed {seeds[0]}"
+    hosts = ", ".join(sorted({r.get("host", "?") for r in rows}))
     old = args.doc.read_text() if args.doc.is_file() else ""
     doc = [
         "# Results: the paper's experiments on our built-in scenes",
@@ -206,7 +260,10 @@ def run(args: argparse.Namespace) -> int:
     made = {"1": _table1, "2": _table2, "3": _table3}
     for key, title in TITLES.items():
         if results[key]:
-            provenance = f"Commit {info['commit']}; {size}; {iters} iterations per run."
+            provenance = (
+                f"Commit {info['commit']}; {size}; {iters} iterations per run; {over}; "
+                f"run on {hosts}."
+            )
             doc += [title, "", provenance, "", *made[key](results[key]), ""]
         else:
             doc += _old_section(old, title)

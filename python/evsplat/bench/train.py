@@ -146,10 +146,12 @@ def bench_cell(
     iters: int | None,
     apply: Callable | None = None,
     cli: tuple[str, ...] = (),
+    seed: int | None = None,
 ) -> Cell:
     """One run of the grid: the preset's config changed by ``apply`` (default: the named entry
-    of ``VARIANTS``) and ``cli`` as extra `evsplat train` arguments. The sweep trains it in its
-    own process (so peak memory is per run) and scores it on the held-out frames."""
+    of ``VARIANTS``), ``cli`` as extra `evsplat train` arguments, and ``seed`` (default the
+    preset's). The sweep trains it in its own process (so peak memory is per run) and scores
+    it on the held-out frames."""
     from evsplat.config import preset
 
     cfg = preset(spec["train_preset"])
@@ -161,7 +163,7 @@ def bench_cell(
         scene=case.name,
         data=data,
         config=cfg.to_dict(),
-        seed=cfg.seed,
+        seed=cfg.seed if seed is None else seed,
         train_args=tuple(cli),
         labels={"case": case.name, "variant": variant},
     )

@@ -1,6 +1,6 @@
-"""Where cells run: one after another in this process (the default, no Ray needed), or as Ray
-tasks on a local or existing cluster. Both run ``execute_cell``; the runner sees only
-``submit`` and ``poll``."""
+"""Where cells run: on this machine (one after another in this process by default, or several
+at a time in a process pool; no Ray needed), or as Ray tasks on a local or existing cluster.
+All run ``execute_cell``; the runner sees only ``submit`` and ``poll``."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ import logging
 import os
 import pickle
 import socket
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from multiprocessing import get_context
 from pathlib import Path
 
 from evsplat.errors import EvsplatError
@@ -21,27 +23,69 @@ RAY_EXTRA = "--ray needs Ray: pip install 'evsplat[ray]' (or pip install ray)"
 
 
 class LocalBackend:
-    """Cells in order, in this process (each trains in its own child process)."""
+    """Cells on this machine: one after another in this process, or ``jobs`` at a time, each
+    in a worker process of a pool (each cell trains in its own child process either way)."""
 
-    description = "local (one cell at a time)"
-
-    def __init__(self) -> None:
+    def __init__(self, jobs: int = 1) -> None:
+        if jobs < 1:
+            raise EvsplatError(f"--jobs {jobs}: must be 1 or more")
+        self.jobs = jobs
+        self.description = (
+            "local (one cell at a time)" if jobs == 1 else f"local ({jobs} cells at a time)"
+        )
         self._queue: list[tuple[Cell, Path, str]] = []
+        self._pool: ProcessPoolExecutor | None = None
+        self._pending: dict[Future, tuple[Cell, Path, str]] = {}
 
     def submit(self, cells: list[Cell], out: Path, code: str) -> None:
-        self._queue += [(c, out, code) for c in cells]
+        if self.jobs == 1:
+            self._queue += [(c, out, code) for c in cells]
+            return
+        if cells and self._pool is None:
+            # spawn, not fork: a forked copy of a process holding a GPU device is not safe.
+            self._pool = ProcessPoolExecutor(self.jobs, mp_context=get_context("spawn"))
+        for c in cells:
+            self._pending[self._pool.submit(execute_cell, c, out, code)] = (c, out, code)
 
     def poll(self, timeout: float) -> list[Outcome]:
-        return [execute_cell(*self._queue.pop(0))] if self._queue else []
+        if self.jobs == 1:
+            return [execute_cell(*self._queue.pop(0))] if self._queue else []
+        if not self._pending:
+            return []
+        ready, _ = wait(list(self._pending), timeout=timeout, return_when=FIRST_COMPLETED)
+        outcomes = []
+        for fut in ready:
+            cell, out, code = self._pending.pop(fut)
+            try:
+                outcomes.append(fut.result())
+            except Exception as e:  # the worker process died (killed, out of memory)
+                key = cell.key(code)
+                outcomes.append(
+                    Outcome(
+                        key,
+                        None,
+                        f"{type(e).__name__}: the local worker running it died "
+                        f"(log: {store.log_path(out, key)})",
+                    )
+                )
+        return outcomes
 
     def running(self, out: Path, waiting: set[str]) -> int:
-        return min(1, len(waiting))  # the next poll runs one
+        if self.jobs == 1:
+            return min(1, len(waiting))  # the next poll runs one
+        return store.running(out, waiting)
 
     def object_store_bytes(self) -> int:
         return 0
 
     def close(self) -> None:
         self._queue.clear()
+        if self._pool is not None:
+            for fut in self._pending:
+                fut.cancel()
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        self._pending.clear()
 
 
 class RayBackend:

@@ -27,6 +27,7 @@ class SweepOptions:
     ray: str | None = None  # None: local; LOCAL_CLUSTER: start one here; else an address
     max_retries: int = 3
     cpus_per_cell: float = 1.0
+    jobs: int = 1  # without Ray: cells run at once on this machine
     fresh: bool = False
     progress: bool = True
 
@@ -36,6 +37,7 @@ class SweepOptions:
             ray=args.ray,
             max_retries=args.max_retries,
             cpus_per_cell=args.cpus_per_cell,
+            jobs=args.jobs,
             fresh=args.fresh,
             progress=not getattr(args, "no_progress", False),
         )
@@ -62,6 +64,14 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
         "--cpus-per-cell", type=float, default=1.0, help="with --ray: CPUs each cell asks for"
     )
     g.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        metavar="N",
+        help="without --ray: run N cells at once on this machine, each in its own process "
+        "(default 1; a GPU machine's cores; each cell takes its preset's torch threads)",
+    )
+    g.add_argument(
         "--fresh", action="store_true", help="run finished cells again instead of reusing them"
     )
 
@@ -85,9 +95,13 @@ def run_sweep(
     options = options or SweepOptions()
     if options.max_retries < 0:
         raise EvsplatError(f"--max-retries {options.max_retries}: must be 0 or more")
+    if options.jobs != 1 and options.ray is not None:
+        raise EvsplatError(
+            f"--jobs {options.jobs} with --ray: Ray places the cells; set --cpus-per-cell instead"
+        )
     # A missing extra or an unreachable address fails here, before anything is written.
     backend = (
-        LocalBackend()
+        LocalBackend(options.jobs)
         if options.ray is None
         else RayBackend(options.ray, options.max_retries, options.cpus_per_cell)
     )
