@@ -114,7 +114,7 @@ def test_several_seeds_give_each_cell_its_mean_and_standard_deviation(tmp_path, 
         return SweepResult(rows=rows)
 
     monkeypatch.setattr(paper, "run_sweep", sweep)
-    doc = tmp_path / "results.md"
+    doc = tmp_path / "new" / "results.md"  # a folder that does not exist yet
     assert paper.run(_args(tmp_path, doc, "3", seeds="0,1,5")) == 0
     assert len(calls) == 3 * 5 and sorted({c.seed for c in calls}) == [0, 1, 5]
     text = doc.read_text()

@@ -234,6 +234,7 @@ def run(args: argparse.Namespace) -> int:
             results[table].append(done[(case.name, variant)])
     rows = sweep.rows
     write_text_atomic(out / "results.json", json.dumps({**info, "rows": rows}, indent=2))
+    args.doc.parent.mkdir(parents=True, exist_ok=True)
     plot_pareto(rows, args.doc.parent / "results_pareto.png", f"paper tables ({info['adapter']})")
 
     size = "96x96 tiny variants, preset tiny" if tiny else "full size, preset default"
@@ -271,7 +272,6 @@ def run(args: argparse.Namespace) -> int:
     # Sections after KEEP_FROM (full-size runs recorded by hand) survive regeneration.
     if KEEP_FROM in old:
         doc += [old[old.index(KEEP_FROM) :].rstrip("\n"), ""]
-    args.doc.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.doc, "\n".join(doc))
     print(f"written: {args.doc}, {args.doc.parent / 'results_pareto.png'}, {out / 'results.json'}")
     return sweep.exit_code
