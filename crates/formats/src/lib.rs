@@ -5,9 +5,11 @@
 //! chunk. Each decoder keeps its state (time base,
 //! row, vector base) across calls, so a recording streams through a bounded buffer. Headers are
 //! parsed by the Python reader (python/evsplat/data/formats/prophesee.py); this crate sees the
-//! bytes after them.
+//! bytes after them. On the way out, `blosc` compresses the HDF5 event file's chunks as the
+//! HDF5 Blosc filter does.
 
 pub mod aedat4;
+pub mod blosc;
 mod bytes;
 mod cdr;
 #[cfg(any(test, feature = "check"))]

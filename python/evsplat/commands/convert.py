@@ -64,8 +64,9 @@ def _batched(chunks, size: int):
 def _ahead(chunks: Iterator[tuple], depth: int = 2) -> Iterator[tuple]:
     """``chunks`` produced by a second thread up to ``depth`` ahead: the Rust readers decode
     and validate with the GIL released, so the next batch is made while this thread writes
-    the one before (HDF5 and its compression run here, with the GIL). Errors reach the caller
-    in order; a caller that stops early stops the thread at its next chunk."""
+    the one before (HDF5 runs here, with the GIL; the default Blosc compression without it).
+    Errors reach the caller in order; a caller that stops early stops the thread at its next
+    chunk."""
     import queue
     import threading
 

@@ -41,6 +41,65 @@ def codecs() -> dict[str, Mapping]:
     }
 
 
+#: Threads compressing one column's chunks: on the 2-core test machine a second one made the
+#: writes alone faster only with a core to spare, and ``evsplat convert``, whose reader and
+#: checksum threads take that core, no faster (docs/results.md, session 24).
+_BLOSC_THREADS = 1
+
+
+class _BloscColumn:
+    """One column written as the Blosc filter's LZ4 chunks made by ``_core.blosc_chunks`` (the
+    layout, filter id and cd_values of ``hdf5plugin.Blosc()``'s filter, which stock h5py +
+    hdf5plugin read) and handed to HDF5 whole with ``write_direct_chunk``: compressed without
+    the GIL (h5py runs its filters on the calling thread, holding it), so the reader's and the
+    checksum's threads run meanwhile. A chunk's tail waits for the next stream, so every chunk
+    is compressed once."""
+
+    def __init__(self, dset: h5py.Dataset, clevel: int, shuffle: bool) -> None:
+        self.dset, self.clevel, self.shuffle = dset, clevel, shuffle
+        self.chunk = dset.chunks[0]
+        self.tail = np.zeros(0, dset.dtype)
+        self.start = 0  # first event of the tail
+
+    def add(self, values: np.ndarray) -> None:
+        """Appends ``values`` (the dataset already resized to hold them); writes every whole
+        chunk."""
+        values = np.concatenate([self.tail, values]) if len(self.tail) else values
+        whole = len(values) // self.chunk * self.chunk
+        self._write(values[:whole])
+        self.tail = values[whole:].copy()
+        self.start += whole
+
+    def close(self) -> None:
+        """Writes the last, partial chunk (zero-padded, as HDF5 pads an edge chunk)."""
+        self._write(self.tail)
+        self.start += len(self.tail)
+        self.tail = self.tail[:0]
+
+    def _write(self, values: np.ndarray) -> None:
+        if len(values) == 0:
+            return
+        from evsplat import _core
+
+        raw = np.ascontiguousarray(values, self.dset.dtype).view(np.uint8)
+        size = self.dset.dtype.itemsize
+        chunks = _core.blosc_chunks(
+            raw, size, self.chunk * size, self.clevel, self.shuffle, _BLOSC_THREADS
+        )
+        for i, (data, mask) in enumerate(chunks):
+            self.dset.id.write_direct_chunk((self.start + i * self.chunk,), data, mask)
+
+
+def _blosc_lz4(options: Mapping) -> tuple[int, bool] | None:
+    """(clevel, shuffle) of an ``hdf5plugin.Blosc`` codec that ``_BloscColumn`` writes (LZ4,
+    byte shuffle or none); None for any other codec."""
+    if not isinstance(options, hdf5plugin.Blosc) or options.cname != "lz4":
+        return None
+    if options.shuffle not in (hdf5plugin.Blosc.NOSHUFFLE, hdf5plugin.Blosc.SHUFFLE):
+        return None
+    return options.clevel, options.shuffle == hdf5plugin.Blosc.SHUFFLE
+
+
 def write_events(
     path: str | os.PathLike,
     width: int,
@@ -82,6 +141,8 @@ def write_events(
                 )
                 for k, dt in dtypes.items()
             }
+            blosc = _blosc_lz4(options[compression])
+            direct = {k: _BloscColumn(d, *blosc) for k, d in dsets.items()} if blosc else {}
             index: IndexBuilder | None = None
             last_t = None
             for ev in streams:
@@ -97,10 +158,15 @@ def write_events(
                 n = written + len(ev)
                 for k in "xytp":
                     dsets[k].resize((n,))
-                dsets["x"][written:], dsets["y"][written:] = ev.x, ev.y
-                dsets["t"][written:] = ev.t - index.origin
-                dsets["p"][written:] = ev.p
+                columns = {"x": ev.x, "y": ev.y, "t": ev.t - index.origin, "p": ev.p}
+                for k, values in columns.items():
+                    if direct:
+                        direct[k].add(values)
+                    else:
+                        dsets[k][written:] = values
                 written, last_t = n, int(ev.t[-1])
+            for column in direct.values():
+                column.close()
             f["t_offset"] = np.int64(index.origin if index else 0)
             ms_to_idx = index.result() if index else np.zeros(0, np.int64)
             f.create_dataset("ms_to_idx", data=ms_to_idx.astype(np.uint64))
