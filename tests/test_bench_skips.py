@@ -51,6 +51,7 @@ def test_each_variant_reaches_its_run_and_the_table_reports_both_sides(tmp_path,
         ray=None,
         max_retries=3,
         cpus_per_cell=1.0,
+        jobs=1,
         fresh=False,
     )
     assert skips.run(args) == 0
