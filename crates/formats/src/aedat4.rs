@@ -12,7 +12,7 @@
 use std::io::{self, BufReader, Read};
 
 use crate::bytes::{i64_at, u16_at, u32_at};
-use crate::{Events, Stats};
+use crate::{EventSource, Events, Stats};
 
 /// The first line of every AEDAT 4 file.
 pub const MAGIC: &[u8] = b"#!AER-DAT4.0\r\n";
@@ -192,45 +192,11 @@ impl<R: Read> AedatReader<R> {
         }
     }
 
-    /// What was read but not turned into events so far (complete once a chunk came back empty).
-    pub fn stats(&self) -> Stats {
-        self.stats
-    }
-
     /// The capacities of the packet buffers (compressed, uncompressed), the most bytes one
     /// packet unpacked to and the bytes all unpacked to so far (the fuzzers' bounds).
     pub fn buffers(&self) -> ([usize; 2], usize, u64) {
         let caps = [self.raw.capacity(), self.packet.capacity()];
         (caps, self.largest, self.unpacked)
-    }
-
-    /// The next chunk: `max_events` events (at least 1), fewer only at the end of the
-    /// packets, where it is empty.
-    pub fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
-        let max_events = max_events.max(1);
-        let mut out = Events::with_capacity(max_events.min(1 << 16));
-        while out.len() < max_events {
-            let Some((at, left)) = self.pending.filter(|&(_, left)| left > 0) else {
-                if self.eof {
-                    break;
-                }
-                self.next_packet()?;
-                continue;
-            };
-            let take = left.min(max_events - out.len());
-            let records = self.packet[at..at + take * EVENT].chunks_exact(EVENT);
-            let i16_at = |r: &[u8], i: usize| i16::from_le_bytes([r[i], r[i + 1]]) as u16;
-            out.t.extend(
-                records
-                    .clone()
-                    .map(|r| i64::from_le_bytes([r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7]])),
-            );
-            out.x.extend(records.clone().map(|r| i16_at(r, 8)));
-            out.y.extend(records.clone().map(|r| i16_at(r, 10)));
-            out.p.extend(records.map(|r| (r[12] != 0) as i8));
-            self.pending = Some((at + take * EVENT, left - take));
-        }
-        Ok(out)
     }
 
     /// Up to `n` bytes of the source into `buf` (replaced), counted against the data table.
@@ -295,6 +261,39 @@ impl<R: Read> AedatReader<R> {
             }
         }
         Ok(())
+    }
+}
+
+impl<R: Read> EventSource for AedatReader<R> {
+    fn stats(&self) -> Stats {
+        self.stats
+    }
+
+    fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
+        let max_events = max_events.max(1);
+        let mut out = Events::with_capacity(max_events.min(1 << 16));
+        while out.len() < max_events {
+            let Some((at, left)) = self.pending.filter(|&(_, left)| left > 0) else {
+                if self.eof {
+                    break;
+                }
+                self.next_packet()?;
+                continue;
+            };
+            let take = left.min(max_events - out.len());
+            let records = self.packet[at..at + take * EVENT].chunks_exact(EVENT);
+            let i16_at = |r: &[u8], i: usize| i16::from_le_bytes([r[i], r[i + 1]]) as u16;
+            out.t.extend(
+                records
+                    .clone()
+                    .map(|r| i64::from_le_bytes([r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7]])),
+            );
+            out.x.extend(records.clone().map(|r| i16_at(r, 8)));
+            out.y.extend(records.clone().map(|r| i16_at(r, 10)));
+            out.p.extend(records.map(|r| (r[12] != 0) as i8));
+            self.pending = Some((at + take * EVENT, left - take));
+        }
+        Ok(out)
     }
 }
 

@@ -3,7 +3,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::{ChunkReader, Encoding, Events, Stats};
+use crate::{ChunkReader, Encoding, EventSource, Events, Stats};
 
 /// Longest an input may take through all the decodes below (microseconds for the seeds): more
 /// is a hang. Generous, since a shared machine can stall a thread for a second; libFuzzer's
@@ -35,15 +35,7 @@ pub fn decode_checked(encoding: Encoding, data: &[u8]) -> (Events, Stats) {
     let cut = data.len() * 2 / 3;
     let (head, head_stats) = decode_all(encoding, &data[..cut], 4096, 4096);
     assert_eq!(head_stats.truncated_bytes as usize, cut % word);
-    let n = head.len();
-    assert!(n <= events.len(), "a truncated copy has more events");
-    assert!(
-        head.x == events.x[..n]
-            && head.y == events.y[..n]
-            && head.t == events.t[..n]
-            && head.p == events.p[..n],
-        "a truncated copy's events are not a prefix"
-    );
+    assert_prefix(&head, &events);
     assert!(start.elapsed() < HANG, "took {:?}", start.elapsed());
     (events, stats)
 }
@@ -55,32 +47,9 @@ pub fn decode_all(
     block: usize,
     max_events: usize,
 ) -> (Events, Stats) {
-    let limit = max_events.max(1);
     let mut reader = ChunkReader::new(data, encoding, block);
-    let mut all = Events::default();
-    let mut last = limit;
-    loop {
-        let chunk = match reader.next_chunk(max_events) {
-            Ok(chunk) => chunk,
-            Err(e) => panic!("reading a slice failed: {e}"),
-        };
-        assert!(chunk.len() <= limit, "chunk of {} > {limit}", chunk.len());
-        // Vec's smallest allocation is 8 elements (for bytes): the floor of the bound.
-        let capacity = [chunk.x.capacity(), chunk.y.capacity(), chunk.t.capacity()];
-        assert!(
-            capacity.iter().all(|&c| c <= (2 * limit).max(8)),
-            "chunk capacity {capacity:?}"
-        );
-        if chunk.is_empty() {
-            return (all, reader.stats());
-        }
-        assert!(last == limit, "a chunk of {last} < {limit} before the end");
-        last = chunk.len();
-        all.x.extend(chunk.x);
-        all.y.extend(chunk.y);
-        all.t.extend(chunk.t);
-        all.p.extend(chunk.p);
-    }
+    let all = drain(&mut reader, max_events, |_| {});
+    (all, reader.stats())
 }
 
 /// The same properties for a ROS 1 bag (`rosbag::BagReader`, every event-array connection):
@@ -116,15 +85,7 @@ pub fn decode_bag_checked(data: &[u8]) -> Option<(Events, Stats)> {
     let cut = data.len() * 2 / 3;
     if cut >= crate::rosbag::MAGIC.len() {
         let (head, _, _) = decode_bag_all(&data[..cut], 4096, 4096).expect("a cut bag opens");
-        let n = head.len();
-        assert!(n <= events.len(), "a truncated copy has more events");
-        assert!(
-            head.x == events.x[..n]
-                && head.y == events.y[..n]
-                && head.t == events.t[..n]
-                && head.p == events.p[..n],
-            "a truncated copy's events are not a prefix"
-        );
+        assert_prefix(&head, &events);
     }
     assert!(start.elapsed() < HANG, "took {:?}", start.elapsed());
     Some((events, stats))
@@ -137,40 +98,15 @@ pub fn decode_bag_all(
     block: usize,
     max_events: usize,
 ) -> Option<(Events, Stats, usize)> {
-    let limit = max_events.max(1);
     let mut reader = crate::rosbag::BagReader::new(data, None, block).ok()?;
-    let mut all = Events::default();
-    let mut last = limit;
-    loop {
-        let chunk = match reader.next_chunk(max_events) {
-            Ok(chunk) => chunk,
-            Err(e) => panic!("reading a slice failed: {e}"),
-        };
-        assert!(chunk.len() <= limit, "chunk of {} > {limit}", chunk.len());
-        let capacity = [chunk.x.capacity(), chunk.y.capacity(), chunk.t.capacity()];
-        assert!(
-            capacity.iter().all(|&c| c <= (2 * limit).max(8)),
-            "chunk capacity {capacity:?}"
-        );
+    let all = drain(&mut reader, max_events, |r| {
         // Held memory: never the declared or unpacked size of a chunk, only the input and the
         // window (`rosbag::MAX_WINDOW`), each buffer at most twice the bytes it holds.
-        let (buffers, largest, unpacked) = reader.buffers();
+        let (buffers, largest, _) = r.buffers();
         let window = largest.min(crate::rosbag::MAX_WINDOW);
-        let bound = 2 * data.len().max(window).max(32);
-        assert!(
-            buffers.iter().all(|&c| c <= bound),
-            "buffers {buffers:?} > {bound}"
-        );
-        if chunk.is_empty() {
-            return Some((all, reader.stats(), unpacked as usize));
-        }
-        assert!(last == limit, "a chunk of {last} < {limit} before the end");
-        last = chunk.len();
-        all.x.extend(chunk.x);
-        all.y.extend(chunk.y);
-        all.t.extend(chunk.t);
-        all.p.extend(chunk.p);
-    }
+        assert_buffers(&buffers, data.len().max(window));
+    });
+    Some((all, reader.stats(), reader.buffers().2 as usize))
 }
 
 /// The same properties for AEDAT 4 packets (`aedat4::AedatReader`, stream 0, no data table):
@@ -196,15 +132,7 @@ pub fn decode_aedat_checked(data: &[u8]) -> (Events, Stats) {
     }
     let cut = data.len() * 2 / 3;
     let (head, _, _) = decode_aedat_all(&data[..cut], 4096, 4096);
-    let n = head.len();
-    assert!(n <= events.len(), "a truncated copy has more events");
-    assert!(
-        head.x == events.x[..n]
-            && head.y == events.y[..n]
-            && head.t == events.t[..n]
-            && head.p == events.p[..n],
-        "a truncated copy's events are not a prefix"
-    );
+    assert_prefix(&head, &events);
     assert!(start.elapsed() < HANG, "took {:?}", start.elapsed());
     (events, stats)
 }
@@ -213,7 +141,6 @@ pub fn decode_aedat_checked(data: &[u8]) -> (Events, Stats) {
 /// `block`-byte read buffer in chunks of `max_events`, its stats and its unpacked bytes.
 pub fn decode_aedat_all(data: &[u8], block: usize, max_events: usize) -> (Events, Stats, usize) {
     use crate::aedat4::{AedatReader, Compression};
-    let limit = max_events.max(1);
     let (compression, packets) = match data.split_first() {
         Some((&c, rest)) => (
             [Compression::None, Compression::Lz4, Compression::Zstd][c as usize % 3],
@@ -222,35 +149,11 @@ pub fn decode_aedat_all(data: &[u8], block: usize, max_events: usize) -> (Events
         None => (Compression::None, data),
     };
     let mut reader = AedatReader::new(packets, compression, 0, 0, -1, block);
-    let mut all = Events::default();
-    let mut last = limit;
-    loop {
-        let chunk = match reader.next_chunk(max_events) {
-            Ok(chunk) => chunk,
-            Err(e) => panic!("reading a slice failed: {e}"),
-        };
-        assert!(chunk.len() <= limit, "chunk of {} > {limit}", chunk.len());
-        let capacity = [chunk.x.capacity(), chunk.y.capacity(), chunk.t.capacity()];
-        assert!(
-            capacity.iter().all(|&c| c <= (2 * limit).max(8)),
-            "chunk capacity {capacity:?}"
-        );
-        let (buffers, largest, unpacked) = reader.buffers();
-        let bound = 2 * data.len().max(largest).max(32);
-        assert!(
-            buffers.iter().all(|&c| c <= bound),
-            "buffers {buffers:?} > {bound}"
-        );
-        if chunk.is_empty() {
-            return (all, reader.stats(), unpacked as usize);
-        }
-        assert!(last == limit, "a chunk of {last} < {limit} before the end");
-        last = chunk.len();
-        all.x.extend(chunk.x);
-        all.y.extend(chunk.y);
-        all.t.extend(chunk.t);
-        all.p.extend(chunk.p);
-    }
+    let all = drain(&mut reader, max_events, |r| {
+        let (buffers, largest, _) = r.buffers();
+        assert_buffers(&buffers, data.len().max(largest));
+    });
+    (all, reader.stats(), reader.buffers().2 as usize)
 }
 
 /// The bag properties for an MCAP file (`mcap::McapReader`, every event-array channel): the
@@ -281,15 +184,7 @@ pub fn decode_mcap_checked(data: &[u8]) -> Option<(Events, Stats)> {
     let cut = data.len() * 2 / 3;
     if cut >= crate::mcap::MAGIC.len() {
         let (head, _, _) = decode_mcap_all(&data[..cut], 4096, 4096).expect("a cut file opens");
-        let n = head.len();
-        assert!(n <= events.len(), "a truncated copy has more events");
-        assert!(
-            head.x == events.x[..n]
-                && head.y == events.y[..n]
-                && head.t == events.t[..n]
-                && head.p == events.p[..n],
-            "a truncated copy's events are not a prefix"
-        );
+        assert_prefix(&head, &events);
     }
     assert!(start.elapsed() < HANG, "took {:?}", start.elapsed());
     Some((events, stats))
@@ -303,8 +198,20 @@ pub fn decode_mcap_all(
     block: usize,
     max_events: usize,
 ) -> Option<(Events, Stats, usize)> {
-    let limit = max_events.max(1);
     let mut reader = crate::mcap::McapReader::new(data, None, block).ok()?;
+    let all = drain(&mut reader, max_events, |r| {
+        let (buffers, largest, _) = r.buffers();
+        assert_buffers(&buffers, data.len().max(largest));
+    });
+    let unpacked = data.len() + reader.buffers().2 as usize;
+    Some((all, reader.stats(), unpacked))
+}
+
+/// Every event of `reader` in chunks of `max_events`, asserting that each chunk but the last
+/// is full, that its vectors hold at most twice `max_events` (Vec's smallest allocation, 8
+/// elements, is the floor), and `each` (the reader's own bounds) after every chunk.
+fn drain<S: EventSource>(reader: &mut S, max_events: usize, mut each: impl FnMut(&S)) -> Events {
+    let limit = max_events.max(1);
     let mut all = Events::default();
     let mut last = limit;
     loop {
@@ -318,14 +225,9 @@ pub fn decode_mcap_all(
             capacity.iter().all(|&c| c <= (2 * limit).max(8)),
             "chunk capacity {capacity:?}"
         );
-        let (buffers, largest, unpacked) = reader.buffers();
-        let bound = 2 * data.len().max(largest).max(32);
-        assert!(
-            buffers.iter().all(|&c| c <= bound),
-            "buffers {buffers:?} > {bound}"
-        );
+        each(reader);
         if chunk.is_empty() {
-            return Some((all, reader.stats(), data.len() + unpacked as usize));
+            return all;
         }
         assert!(last == limit, "a chunk of {last} < {limit} before the end");
         last = chunk.len();
@@ -334,4 +236,26 @@ pub fn decode_mcap_all(
         all.t.extend(chunk.t);
         all.p.extend(chunk.p);
     }
+}
+
+/// Every buffer at most twice `held` bytes (at least 32): what a reader may hold for an input.
+fn assert_buffers(buffers: &[usize], held: usize) {
+    let bound = 2 * held.max(32);
+    assert!(
+        buffers.iter().all(|&c| c <= bound),
+        "buffers {buffers:?} > {bound}"
+    );
+}
+
+/// `head` (the events of a truncated copy) is a prefix of `events`.
+fn assert_prefix(head: &Events, events: &Events) {
+    let n = head.len();
+    assert!(n <= events.len(), "a truncated copy has more events");
+    assert!(
+        head.x == events.x[..n]
+            && head.y == events.y[..n]
+            && head.t == events.t[..n]
+            && head.p == events.p[..n],
+        "a truncated copy's events are not a prefix"
+    );
 }

@@ -20,7 +20,7 @@ use std::sync::Mutex;
 use rusqlite::{Connection, OpenFlags};
 
 use crate::cdr::{event_array, push_events};
-use crate::{Events, Stats};
+use crate::{EventSource, Events, Stats};
 
 /// A topic of a .db3 file: its id, name and message type (`pkg/msg/Name`).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -197,46 +197,11 @@ impl Db3Reader {
         })
     }
 
-    /// What was read but not turned into events so far (final once a chunk came back empty).
-    pub fn stats(&self) -> Stats {
-        self.stats
-    }
-
     /// The (width, height) of the first event message, reading up to it; None when the topic
     /// has no readable event message.
     pub fn sensor_size(&mut self) -> io::Result<Option<(u32, u32)>> {
         while self.size.is_none() && self.receive()? {}
         Ok(self.size)
-    }
-
-    /// The next chunk: `max_events` events (at least 1), fewer only at the end, where it is
-    /// empty.
-    pub fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
-        let max_events = max_events.max(1);
-        let mut out = Events::default();
-        while out.len() < max_events {
-            let (at, left) = (self.at, self.current.len() - self.at);
-            if left == 0 {
-                if !self.receive()? {
-                    break;
-                }
-                continue;
-            }
-            let take = left.min(max_events - out.len());
-            if at == 0 && take == left && out.is_empty() {
-                // The whole chunk, as the thread made it.
-                out = std::mem::take(&mut self.current);
-                self.at = 0;
-                continue;
-            }
-            let c = &self.current;
-            out.x.extend_from_slice(&c.x[at..at + take]);
-            out.y.extend_from_slice(&c.y[at..at + take]);
-            out.t.extend_from_slice(&c.t[at..at + take]);
-            out.p.extend_from_slice(&c.p[at..at + take]);
-            self.at += take;
-        }
-        Ok(out)
     }
 
     /// Takes the thread's next chunk (true), or finds it ended (false).
@@ -266,5 +231,39 @@ impl Db3Reader {
                 Ok(false)
             }
         }
+    }
+}
+
+impl EventSource for Db3Reader {
+    fn stats(&self) -> Stats {
+        self.stats
+    }
+
+    fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
+        let max_events = max_events.max(1);
+        let mut out = Events::default();
+        while out.len() < max_events {
+            let (at, left) = (self.at, self.current.len() - self.at);
+            if left == 0 {
+                if !self.receive()? {
+                    break;
+                }
+                continue;
+            }
+            let take = left.min(max_events - out.len());
+            if at == 0 && take == left && out.is_empty() {
+                // The whole chunk, as the thread made it.
+                out = std::mem::take(&mut self.current);
+                self.at = 0;
+                continue;
+            }
+            let c = &self.current;
+            out.x.extend_from_slice(&c.x[at..at + take]);
+            out.y.extend_from_slice(&c.y[at..at + take]);
+            out.t.extend_from_slice(&c.t[at..at + take]);
+            out.p.extend_from_slice(&c.p[at..at + take]);
+            self.at += take;
+        }
+        Ok(out)
     }
 }

@@ -26,6 +26,19 @@ pub use reader::{ChunkReader, Encoding};
 
 pub use evsplat_events::Events;
 
+/// A recording's events, chunk by chunk: every format's reader (`ChunkReader` for the EVT and
+/// DAT words, `rosbag::BagReader`, `mcap::McapReader`, `db3::Db3Reader`,
+/// `aedat4::AedatReader`).
+pub trait EventSource {
+    /// What was read but not turned into events so far (complete once a chunk came back
+    /// empty).
+    fn stats(&self) -> Stats;
+
+    /// The next chunk of at most `max_events` events (at least 1), fewer only at the end of
+    /// the recording, where it is empty.
+    fn next_chunk(&mut self, max_events: usize) -> std::io::Result<Events>;
+}
+
 /// What a decoder read but did not turn into events.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
 pub struct Stats {

@@ -19,7 +19,7 @@ use std::collections::HashMap;
 use std::io::{self, BufReader, Read, Seek, SeekFrom};
 
 use crate::bytes::{u16_at, u32_at, u64_at};
-use crate::{Events, Stats};
+use crate::{EventSource, Events, Stats};
 
 /// The first (and last) 8 bytes of every MCAP file.
 pub const MAGIC: &[u8] = b"\x89MCAP0\r\n";
@@ -127,11 +127,6 @@ impl<R: Read> McapReader<R> {
         }
     }
 
-    /// What was read but not turned into events so far (complete once a chunk came back empty).
-    pub fn stats(&self) -> Stats {
-        self.stats
-    }
-
     /// The channels seen so far, by id (type "?" while its schema is unseen).
     pub fn channels(&self) -> Vec<Channel> {
         let mut all: Vec<_> = (self.channels.iter())
@@ -172,23 +167,6 @@ impl<R: Read> McapReader<R> {
         self.wanted.clear();
         while self.advance()? {}
         Ok(())
-    }
-
-    /// The next chunk: `max_events` events (at least 1), fewer only at the end of the data,
-    /// where it is empty.
-    pub fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
-        let max_events = max_events.max(1);
-        let mut out = Events::with_capacity(max_events.min(1 << 16));
-        while out.len() < max_events && self.advance()? {
-            let Some((start, n, next)) = self.pending else {
-                continue;
-            };
-            let take = (n - next).min(max_events - out.len());
-            crate::cdr::push_events(&self.chunk, start, next, take, &mut out);
-            let next = next + take;
-            self.pending = (next < n).then_some((start, n, next));
-        }
-        Ok(out)
     }
 
     /// Steps until a message with events left is pending (true) or the data ends (false).
@@ -347,6 +325,27 @@ impl<R: Read> McapReader<R> {
             self.stats.unknown_words += 1;
         }
         self.unpacked += self.chunk.len() as u64;
+    }
+}
+
+impl<R: Read> EventSource for McapReader<R> {
+    fn stats(&self) -> Stats {
+        self.stats
+    }
+
+    fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
+        let max_events = max_events.max(1);
+        let mut out = Events::with_capacity(max_events.min(1 << 16));
+        while out.len() < max_events && self.advance()? {
+            let Some((start, n, next)) = self.pending else {
+                continue;
+            };
+            let take = (n - next).min(max_events - out.len());
+            crate::cdr::push_events(&self.chunk, start, next, take, &mut out);
+            let next = next + take;
+            self.pending = (next < n).then_some((start, n, next));
+        }
+        Ok(out)
     }
 }
 

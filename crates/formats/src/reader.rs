@@ -2,7 +2,7 @@
 
 use std::io::{self, Read};
 
-use crate::{dat, evt2, evt3, Decode, Events, Stats};
+use crate::{dat, evt2, evt3, Decode, EventSource, Events, Stats};
 
 /// The binary encodings this crate decodes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -75,14 +75,33 @@ impl<R: Read> ChunkReader<R> {
         }
     }
 
-    /// What was read but not turned into events so far (complete once a chunk came back empty).
-    pub fn stats(&self) -> Stats {
+    /// Moves the partial word left in the buffer to its front and reads after it.
+    fn refill(&mut self) -> io::Result<()> {
+        self.buf.copy_within(self.start..self.end, 0);
+        self.end -= self.start;
+        self.start = 0;
+        while self.end < self.buf.len() {
+            match self.src.read(&mut self.buf[self.end..]) {
+                Ok(0) => {
+                    self.eof = true;
+                    break;
+                }
+                Ok(n) => self.end += n,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(())
+    }
+}
+
+impl<R: Read> EventSource for ChunkReader<R> {
+    fn stats(&self) -> Stats {
         self.stats
     }
 
-    /// The next chunk: `max_events` events (at least 1), fewer only at the end of the input,
-    /// where it is empty. A trailing partial word is counted in `stats().truncated_bytes`.
-    pub fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
+    /// A trailing partial word is counted in `stats().truncated_bytes`.
+    fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
         let max_events = max_events.max(1);
         if self.end - self.start < self.encoding.word() && !self.eof {
             self.refill()?;
@@ -113,24 +132,5 @@ impl<R: Read> ChunkReader<R> {
             }
             self.refill()?;
         }
-    }
-
-    /// Moves the partial word left in the buffer to its front and reads after it.
-    fn refill(&mut self) -> io::Result<()> {
-        self.buf.copy_within(self.start..self.end, 0);
-        self.end -= self.start;
-        self.start = 0;
-        while self.end < self.buf.len() {
-            match self.src.read(&mut self.buf[self.end..]) {
-                Ok(0) => {
-                    self.eof = true;
-                    break;
-                }
-                Ok(n) => self.end += n,
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                Err(e) => return Err(e),
-            }
-        }
-        Ok(())
     }
 }

@@ -27,7 +27,7 @@ use std::collections::HashMap;
 use std::io::{self, BufReader, Read, Seek, SeekFrom};
 
 use crate::bytes::u32_at;
-use crate::{Events, Stats};
+use crate::{EventSource, Events, Stats};
 
 /// The first line of every ROS 1 bag this reader reads.
 pub const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
@@ -280,11 +280,6 @@ impl<R: Read> BagReader<R> {
         }
     }
 
-    /// What was read but not turned into events so far (complete once a chunk came back empty).
-    pub fn stats(&self) -> Stats {
-        self.stats
-    }
-
     /// The connections seen so far, by id.
     pub fn connections(&self) -> Vec<Connection> {
         let mut all: Vec<_> = self.connections.values().cloned().collect();
@@ -310,42 +305,6 @@ impl<R: Read> BagReader<R> {
     pub fn sensor_size(&mut self) -> io::Result<Option<(u32, u32)>> {
         while self.size.is_none() && self.advance()? {}
         Ok(self.size)
-    }
-
-    /// The next chunk: `max_events` events (at least 1), fewer only at the end of the input,
-    /// where it is empty.
-    pub fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
-        let max_events = max_events.max(1);
-        // Grown by doubling from a small start: a small bag allocates little.
-        let mut out = Events::with_capacity(max_events.min(1 << 16));
-        while out.len() < max_events && self.advance()? {
-            let in_window = (self.chunk.len() - self.pos) / EVENT;
-            if in_window == 0 {
-                // A streamed message continues past the window (its length was checked
-                // against the chunk's, so only a decoder failing now ends it early).
-                if !self.fill(EVENT) {
-                    self.pending = 0;
-                }
-                continue;
-            }
-            let take = self.pending.min(max_events - out.len()).min(in_window);
-            let bytes = &self.chunk[self.pos..self.pos + take * EVENT];
-            // Column by column: exact-size iterators extend without a capacity check per event.
-            let records = bytes.chunks_exact(EVENT);
-            out.x
-                .extend(records.clone().map(|r| u16::from_le_bytes([r[0], r[1]])));
-            out.y
-                .extend(records.clone().map(|r| u16::from_le_bytes([r[2], r[3]])));
-            out.t.extend(records.clone().map(|r| {
-                let sec = u32::from_le_bytes([r[4], r[5], r[6], r[7]]) as i64;
-                let nsec = u32::from_le_bytes([r[8], r[9], r[10], r[11]]) as i64;
-                sec * 1_000_000 + nsec / 1000
-            }));
-            out.p.extend(records.map(|r| (r[12] != 0) as i8));
-            self.pos += take * EVENT;
-            self.pending -= take;
-        }
-        Ok(out)
     }
 
     /// Reads through the bag to its end, registering its connections; no events.
@@ -695,6 +654,46 @@ impl<R: Read> BagReader<R> {
             return Ok(Read1::Cut(done));
         }
         Ok(Read1::Whole)
+    }
+}
+
+impl<R: Read> EventSource for BagReader<R> {
+    fn stats(&self) -> Stats {
+        self.stats
+    }
+
+    fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
+        let max_events = max_events.max(1);
+        // Grown by doubling from a small start: a small bag allocates little.
+        let mut out = Events::with_capacity(max_events.min(1 << 16));
+        while out.len() < max_events && self.advance()? {
+            let in_window = (self.chunk.len() - self.pos) / EVENT;
+            if in_window == 0 {
+                // A streamed message continues past the window (its length was checked
+                // against the chunk's, so only a decoder failing now ends it early).
+                if !self.fill(EVENT) {
+                    self.pending = 0;
+                }
+                continue;
+            }
+            let take = self.pending.min(max_events - out.len()).min(in_window);
+            let bytes = &self.chunk[self.pos..self.pos + take * EVENT];
+            // Column by column: exact-size iterators extend without a capacity check per event.
+            let records = bytes.chunks_exact(EVENT);
+            out.x
+                .extend(records.clone().map(|r| u16::from_le_bytes([r[0], r[1]])));
+            out.y
+                .extend(records.clone().map(|r| u16::from_le_bytes([r[2], r[3]])));
+            out.t.extend(records.clone().map(|r| {
+                let sec = u32::from_le_bytes([r[4], r[5], r[6], r[7]]) as i64;
+                let nsec = u32::from_le_bytes([r[8], r[9], r[10], r[11]]) as i64;
+                sec * 1_000_000 + nsec / 1000
+            }));
+            out.p.extend(records.map(|r| (r[12] != 0) as i8));
+            self.pos += take * EVENT;
+            self.pending -= take;
+        }
+        Ok(out)
     }
 }
 

@@ -1,7 +1,7 @@
 //! Each decoder on words written by hand from the format's spec.
 
 use crate::check::decode_all as decode;
-use crate::{Encoding, Events, Stats};
+use crate::{Encoding, EventSource, Events, Stats};
 
 fn rows(e: &Events) -> Vec<(u16, u16, i64, i8)> {
     (0..e.len())

@@ -9,6 +9,7 @@ use std::io::Write;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use evsplat_formats::rosbag::{BagReader, MAX_WINDOW};
+use evsplat_formats::EventSource;
 
 struct Counting;
 

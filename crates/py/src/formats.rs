@@ -16,7 +16,26 @@ use evsplat_formats::blosc::{Compressor, Filtered};
 use evsplat_formats::db3::{db3_topics, Db3Reader};
 use evsplat_formats::mcap::{mcap_channels, McapReader};
 use evsplat_formats::rosbag::{bag_connections, BagReader};
-use evsplat_formats::{ChunkReader, Encoding};
+use evsplat_formats::{ChunkReader, Encoding, EventSource};
+
+/// `source`'s next chunk of at most `max_events` events as numpy arrays (empty at its end),
+/// read and decoded with the GIL released.
+fn next_chunk_of<'py, S: EventSource + Send>(
+    py: Python<'py>,
+    source: &mut S,
+    max_events: usize,
+) -> PyResult<EventArrays<'py>> {
+    let ev = py
+        .detach(|| source.next_chunk(max_events))
+        .map_err(PyOSError::new_err)?;
+    Ok(event_arrays(py, ev))
+}
+
+/// `source`'s (untimed events, unknown words or records, truncated bytes).
+fn dropped_of<S: EventSource>(source: &S) -> (u64, u64, u64) {
+    let s = source.stats();
+    (s.untimed_events, s.unknown_words, s.truncated_bytes)
+}
 
 /// The event words of a recording from byte `offset` on ("evt2", "evt3" or "dat"), read
 /// through a buffer of `block` bytes.
@@ -53,17 +72,13 @@ impl EventFileDecoder {
         py: Python<'py>,
         max_events: usize,
     ) -> PyResult<EventArrays<'py>> {
-        let ev = py
-            .detach(|| self.inner.next_chunk(max_events))
-            .map_err(PyOSError::new_err)?;
-        Ok(event_arrays(py, ev))
+        next_chunk_of(py, &mut self.inner, max_events)
     }
 
     /// (CD events before the first time base, words of undefined types, bytes after the last
     /// complete word): final once `next_chunk` came back empty.
     fn dropped(&self) -> (u64, u64, u64) {
-        let s = self.inner.stats();
-        (s.untimed_events, s.unknown_words, s.truncated_bytes)
+        dropped_of(&self.inner)
     }
 }
 
@@ -97,17 +112,13 @@ impl BagEventDecoder {
         py: Python<'py>,
         max_events: usize,
     ) -> PyResult<EventArrays<'py>> {
-        let ev = py
-            .detach(|| self.inner.next_chunk(max_events))
-            .map_err(PyOSError::new_err)?;
-        Ok(event_arrays(py, ev))
+        next_chunk_of(py, &mut self.inner, max_events)
     }
 
     /// (0, records not readable as what their header says, bytes of a last record the file
     /// ends in): final once `next_chunk` came back empty.
     fn dropped(&self) -> (u64, u64, u64) {
-        let s = self.inner.stats();
-        (s.untimed_events, s.unknown_words, s.truncated_bytes)
+        dropped_of(&self.inner)
     }
 }
 
@@ -174,17 +185,13 @@ impl Aedat4EventDecoder {
         py: Python<'py>,
         max_events: usize,
     ) -> PyResult<EventArrays<'py>> {
-        let ev = py
-            .detach(|| self.inner.next_chunk(max_events))
-            .map_err(PyOSError::new_err)?;
-        Ok(event_arrays(py, ev))
+        next_chunk_of(py, &mut self.inner, max_events)
     }
 
     /// (0, packets of the stream that are not whole event packets, bytes of a packet the file
     /// ends in): final once `next_chunk` came back empty.
     fn dropped(&self) -> (u64, u64, u64) {
-        let s = self.inner.stats();
-        (s.untimed_events, s.unknown_words, s.truncated_bytes)
+        dropped_of(&self.inner)
     }
 }
 
@@ -217,17 +224,13 @@ impl McapEventDecoder {
         py: Python<'py>,
         max_events: usize,
     ) -> PyResult<EventArrays<'py>> {
-        let ev = py
-            .detach(|| self.inner.next_chunk(max_events))
-            .map_err(PyOSError::new_err)?;
-        Ok(event_arrays(py, ev))
+        next_chunk_of(py, &mut self.inner, max_events)
     }
 
     /// (0, records not readable as what their op says, bytes of a last record the file ends
     /// in): final once `next_chunk` came back empty.
     fn dropped(&self) -> (u64, u64, u64) {
-        let s = self.inner.stats();
-        (s.untimed_events, s.unknown_words, s.truncated_bytes)
+        dropped_of(&self.inner)
     }
 }
 
@@ -276,16 +279,12 @@ impl Db3EventDecoder {
         py: Python<'py>,
         max_events: usize,
     ) -> PyResult<EventArrays<'py>> {
-        let ev = py
-            .detach(|| self.inner.next_chunk(max_events))
-            .map_err(PyOSError::new_err)?;
-        Ok(event_arrays(py, ev))
+        next_chunk_of(py, &mut self.inner, max_events)
     }
 
     /// (0, messages not of the EventArray layout, 0): final once `next_chunk` came back empty.
     fn dropped(&self) -> (u64, u64, u64) {
-        let s = self.inner.stats();
-        (s.untimed_events, s.unknown_words, s.truncated_bytes)
+        dropped_of(&self.inner)
     }
 }
 
