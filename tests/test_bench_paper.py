@@ -19,6 +19,7 @@ def _fake_row(cell):
         **cell.labels,
         "seed": cell.seed,
         "host": "hostA",
+        "adapter": "GPU A (DiscreteGpu, Vulkan)",
         "iterations": cell.config["schedule"]["iterations"],
         "wall_seconds": 1.0 + len(variant),
         "iterations_per_second": 7.0,
@@ -79,7 +80,8 @@ def test_tables_hold_every_run_and_the_papers_numbers(tmp_path, monkeypatch):
     assert "| 9.00 / 12.00 / 16.00 | 2.0 / 2.0 |" in text  # flat, static, full; tracking
     assert "| x3 | 19.14 | 21.00 (12.00) | 0.500 | 18.00 (9.00) | 4.0 |" in text
     assert "| L_e | 18.61 | 19.00 (12.00) |" in text
-    assert text.count("; 7 iterations per run; seed 0; run on hostA.") == 3
+    runs_on = "; 7 iterations per run; seed 0; run on hostA (GPU A (DiscreteGpu, Vulkan))."
+    assert text.count(runs_on) == 3
     assert text.rstrip().endswith("ball 400x400: kept")
     assert (tmp_path / "results_pareto.png").stat().st_size > 0
 
@@ -120,6 +122,6 @@ def test_several_seeds_give_each_cell_its_mean_and_standard_deviation(tmp_path, 
     text = doc.read_text()
     # L_e: 19 + seed -> 21.00 +- 2.65; the unchanged metrics have no spread; flat stays plain.
     assert "| L_e | 18.61 | 21.00 ± 2.65 (12.00) | 0.500 ± 0.000 | 16.00 ± 0.00 (9.00) | " in text
-    assert "mean ± sd over seeds 0,1,5; run on host0, host1, host5." in text
+    assert "mean ± sd over seeds 0,1,5; run on host0, host1, host5 (GPU A" in text
     with pytest.raises(paper.EvsplatError, match="--seeds"):
         paper.run(_args(tmp_path, doc, "3", seeds="0,x"))

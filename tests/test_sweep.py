@@ -85,6 +85,9 @@ def test_cells_run_at_once_in_worker_processes_score_as_one_at_a_time(tiny_scene
     for a, b in zip(serial.rows, pooled.rows):
         assert (a["seed"], a["key"]) == (b["seed"], b["key"])
         assert b["psnr"] == pytest.approx(a["psnr"], abs=1e-3)
+    from evsplat.gpu import adapter_label
+
+    assert all(r["adapter"] == adapter_label() for r in pooled.rows)  # the workers' adapter
     hosts = json.loads((tmp_path / "pooled" / "summary.json").read_text())["backend"]
     assert hosts == "local (2 cells at a time)"
     assert not list(store.cells_dir(tmp_path / "pooled").glob(store.TMP_PREFIX + "*"))

@@ -15,3 +15,9 @@ def adapter_info() -> dict:
         return dict(_core.adapter_info())
     except RuntimeError as e:
         raise EvsplatError(str(e)) from None
+
+
+def adapter_label() -> str:
+    """The adapter in one line: name (device type, backend)."""
+    a = adapter_info()
+    return f"{a['name']} ({a['device_type']}, {a['backend']})"

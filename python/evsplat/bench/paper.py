@@ -233,14 +233,16 @@ def run(args: argparse.Namespace) -> int:
         if (case.name, variant) in done:
             results[table].append(done[(case.name, variant)])
     rows = sweep.rows
+    hosts = ", ".join(sorted({r.get("host", "?") for r in rows}))
+    # Where the cells ran, which need not be this machine (a cluster's, a reused sweep's).
+    adapters = ", ".join(sorted({r.get("adapter", "adapter not recorded") for r in rows}))
     write_text_atomic(out / "results.json", json.dumps({**info, "rows": rows}, indent=2))
     args.doc.parent.mkdir(parents=True, exist_ok=True)
-    plot_pareto(rows, args.doc.parent / "results_pareto.png", f"paper tables ({info['adapter']})")
+    plot_pareto(rows, args.doc.parent / "results_pareto.png", f"paper tables ({adapters})")
 
     size = "96x96 tiny variants, preset tiny" if tiny else "full size, preset default"
     iters = rows[0]["iterations"] if rows else "-"
     over = f"mean ± sd over seeds {args.seeds}" if len(seeds) > 1 else f"seed {seeds[0]}"
-    hosts = ", ".join(sorted({r.get("host", "?") for r in rows}))
     old = args.doc.read_text() if args.doc.is_file() else ""
     doc = [
         "# Results: the paper's experiments on our built-in scenes",
@@ -251,8 +253,8 @@ def run(args: argparse.Namespace) -> int:
         "PSNR is computed on the pixels of the moving object only. LPIPS is '-' when its weights "
         "are not on the machine (they are never downloaded).",
         "",
-        f"- Machine: {info['machine']}",
-        f"- Adapter: {info['adapter']}",
+        f"- Written on: {info['machine']}; adapter {info['adapter']} (each table's line names "
+        "the hosts and adapters its runs used)",
         "- The paper's numbers are for its own BlenderDynamicEvent renders at 30k iterations on a "
         "GPU; ours are for our analytic re-creations of those scenes, so they are comparable in "
         "kind, not digit for digit.",
@@ -263,7 +265,7 @@ def run(args: argparse.Namespace) -> int:
         if results[key]:
             provenance = (
                 f"Commit {info['commit']}; {size}; {iters} iterations per run; {over}; "
-                f"run on {hosts}."
+                f"run on {hosts} ({adapters})."
             )
             doc += [title, "", provenance, "", *made[key](results[key]), ""]
         else:

@@ -106,7 +106,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def machine_info() -> dict:
     """Machine, adapter and commit, recorded with every benchmark's numbers."""
-    from evsplat.gpu import adapter_info
+    from evsplat.gpu import adapter_label
 
     try:
         commit = subprocess.run(
@@ -114,10 +114,9 @@ def machine_info() -> dict:
         ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         commit = "unknown"
-    adapter = adapter_info()
     return {
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.platform()}",
-        "adapter": f"{adapter['name']} ({adapter['device_type']}, {adapter['backend']})",
+        "adapter": adapter_label(),
         "commit": commit,
         "python": platform.python_version(),
     }

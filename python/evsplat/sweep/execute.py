@@ -91,6 +91,8 @@ def _train_and_score(cell: Cell, out: Path, key: str, log: Path, host: str, code
         raise CellError(f"training failed ({_failure(log, code_)}; log: {log})")
     stats = json.loads((run / "stats.json").read_text())
     metrics = _score(evaluate_run, run, cell.data)
+    from evsplat.gpu import adapter_label  # the worker's, which trained and scored the cell
+
     row = {
         "scene": cell.scene,
         "seed": cell.seed,
@@ -98,6 +100,7 @@ def _train_and_score(cell: Cell, out: Path, key: str, log: Path, host: str, code
         "code_version": code,
         "key": key,
         "host": host,
+        "adapter": adapter_label(),
         "run": f"cells/{key}/run",
         "iterations": stats["iterations"],
         "wall_seconds": round(wall, 2),
