@@ -2,6 +2,7 @@
 //! other dtypes, and index windows (by time, by count, equal-count splits).
 
 use std::borrow::Cow;
+use std::ops::Range;
 
 use rayon::prelude::*;
 
@@ -124,17 +125,27 @@ const PAR_MIN_SCAN: usize = 1 << 20;
 /// First index where `bad` holds. Each chunk is first tested with a branch-free OR (which
 /// vectorises); only a failing chunk is searched element by element.
 pub(crate) fn first_index<T: Sync>(v: &[T], bad: impl Fn(&T) -> bool + Sync) -> Option<usize> {
-    let in_chunk = |(ci, c): (usize, &[T])| {
+    first_in_chunks(v.len(), |r| {
+        let c = &v[r];
         let any = c.iter().fold(false, |acc, a| acc | bad(a));
-        any.then(|| c.iter().position(&bad).map(|i| ci * SCAN_CHUNK + i))
-            .flatten()
-    };
-    if v.len() < PAR_MIN_SCAN {
-        return v.chunks(SCAN_CHUNK).enumerate().find_map(in_chunk);
+        any.then(|| c.iter().position(&bad)).flatten()
+    })
+}
+
+/// The least index that `find` reports in the chunks of `SCAN_CHUNK` indices of `0..len` (it
+/// gets a chunk's range and returns an offset inside it): on the calling thread below
+/// `PAR_MIN_SCAN`, else on rayon's workers.
+fn first_in_chunks(
+    len: usize,
+    find: impl Fn(Range<usize>) -> Option<usize> + Sync,
+) -> Option<usize> {
+    let in_chunk = |start: usize| find(start..(start + SCAN_CHUNK).min(len)).map(|i| start + i);
+    if len < PAR_MIN_SCAN {
+        return (0..len).step_by(SCAN_CHUNK).find_map(in_chunk);
     }
-    v.par_chunks(SCAN_CHUNK)
-        .enumerate()
-        .filter_map(in_chunk)
+    (0..len.div_ceil(SCAN_CHUNK))
+        .into_par_iter()
+        .filter_map(|c| in_chunk(c * SCAN_CHUNK))
         .min()
 }
 
@@ -185,26 +196,12 @@ pub fn check_sorted(t: &[i64]) -> Result<(), EventError> {
         return Ok(());
     };
     // Pairs (t[i+1], t[i]) compared chunk by chunk, as in `first_index`.
-    let in_chunk = |(ci, (a, b)): (usize, (&[i64], &[i64]))| {
+    let bad = first_in_chunks(next.len(), |r| {
+        let (a, b) = (&next[r.clone()], &prev[r]);
         let any = a.iter().zip(b).fold(false, |acc, (x, y)| acc | (x < y));
-        any.then(|| {
-            a.iter()
-                .zip(b)
-                .position(|(x, y)| x < y)
-                .map(|i| ci * SCAN_CHUNK + i)
-        })
-        .flatten()
-    };
-    let bad = if next.len() < PAR_MIN_SCAN {
-        (next.chunks(SCAN_CHUNK).zip(prev.chunks(SCAN_CHUNK)))
-            .enumerate()
-            .find_map(in_chunk)
-    } else {
-        (next.par_chunks(SCAN_CHUNK).zip(prev.par_chunks(SCAN_CHUNK)))
-            .enumerate()
-            .filter_map(in_chunk)
-            .min()
-    };
+        any.then(|| a.iter().zip(b).position(|(x, y)| x < y))
+            .flatten()
+    });
     match bad {
         None => Ok(()),
         Some(i) => Err(EventError::NotSorted {

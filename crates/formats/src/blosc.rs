@@ -248,10 +248,7 @@ fn shuffle_8(src: &[u8], n: usize, out: &mut [u8]) {
 /// the tests' round trips and the fuzzing of the layout. `None` if it is not one.
 #[cfg(any(test, feature = "check"))]
 pub fn decompress_chunk(buf: &[u8]) -> Option<Vec<u8>> {
-    let u32_at = |i: usize| {
-        buf.get(i..i + 4)
-            .map(|b| u32::from_le_bytes(b.try_into().unwrap()))
-    };
+    let u32_at = |at: usize| crate::bytes::u32_at(buf, at);
     let (flags, typesize) = (*buf.get(2)?, *buf.get(3)? as usize);
     let (nbytes, blocksize) = (u32_at(4)? as usize, u32_at(8)? as usize);
     if buf[0] != VERSION_FORMAT || flags >> 5 != LZ4_CODE || u32_at(12)? as usize != buf.len() {

@@ -63,8 +63,15 @@ class _BloscColumn:
 
     def add(self, values: np.ndarray) -> None:
         """Appends ``values`` (the dataset already resized to hold them); writes every whole
-        chunk."""
-        values = np.concatenate([self.tail, values]) if len(self.tail) else values
+        chunk. Only the tail's chunk is joined with the head of ``values``, not the batch."""
+        if len(self.tail):
+            need = self.chunk - len(self.tail)
+            first, values = np.concatenate([self.tail, values[:need]]), values[need:]
+            if len(first) < self.chunk:
+                self.tail = first
+                return
+            self._write(first)
+            self.start += self.chunk
         whole = len(values) // self.chunk * self.chunk
         self._write(values[:whole])
         self.tail = values[whole:].copy()

@@ -23,33 +23,44 @@ RAY_EXTRA = "--ray needs Ray: pip install 'evsplat[ray]' (or pip install ray)"
 
 
 class LocalBackend:
-    """Cells on this machine: one after another in this process, or ``jobs`` at a time, each
-    in a worker process of a pool (each cell trains in its own child process either way)."""
+    """Cells in order, in this process (each trains in its own child process)."""
 
-    def __init__(self, jobs: int = 1) -> None:
-        if jobs < 1:
-            raise EvsplatError(f"--jobs {jobs}: must be 1 or more")
-        self.jobs = jobs
-        self.description = (
-            "local (one cell at a time)" if jobs == 1 else f"local ({jobs} cells at a time)"
-        )
+    description = "local (one cell at a time)"
+
+    def __init__(self) -> None:
         self._queue: list[tuple[Cell, Path, str]] = []
-        self._pool: ProcessPoolExecutor | None = None
+
+    def submit(self, cells: list[Cell], out: Path, code: str) -> None:
+        self._queue += [(c, out, code) for c in cells]
+
+    def poll(self, timeout: float) -> list[Outcome]:
+        return [execute_cell(*self._queue.pop(0))] if self._queue else []
+
+    def running(self, out: Path, waiting: set[str]) -> int:
+        return min(1, len(waiting))  # the next poll runs one
+
+    def object_store_bytes(self) -> int:
+        return 0
+
+    def close(self) -> None:
+        self._queue.clear()
+
+
+class PoolBackend:
+    """Cells ``jobs`` at a time on this machine, each in a worker process of a pool (and
+    trained in its own child process there)."""
+
+    def __init__(self, jobs: int) -> None:
+        self.description = f"local ({jobs} cells at a time)"
+        # spawn, not fork: a forked copy of a process holding a GPU device is not safe.
+        self._pool = ProcessPoolExecutor(jobs, mp_context=get_context("spawn"))
         self._pending: dict[Future, tuple[Cell, Path, str]] = {}
 
     def submit(self, cells: list[Cell], out: Path, code: str) -> None:
-        if self.jobs == 1:
-            self._queue += [(c, out, code) for c in cells]
-            return
-        if cells and self._pool is None:
-            # spawn, not fork: a forked copy of a process holding a GPU device is not safe.
-            self._pool = ProcessPoolExecutor(self.jobs, mp_context=get_context("spawn"))
         for c in cells:
             self._pending[self._pool.submit(execute_cell, c, out, code)] = (c, out, code)
 
     def poll(self, timeout: float) -> list[Outcome]:
-        if self.jobs == 1:
-            return [execute_cell(*self._queue.pop(0))] if self._queue else []
         if not self._pending:
             return []
         ready, _ = wait(list(self._pending), timeout=timeout, return_when=FIRST_COMPLETED)
@@ -71,20 +82,14 @@ class LocalBackend:
         return outcomes
 
     def running(self, out: Path, waiting: set[str]) -> int:
-        if self.jobs == 1:
-            return min(1, len(waiting))  # the next poll runs one
+        """Cells with an attempt folder: started in a worker."""
         return store.running(out, waiting)
 
     def object_store_bytes(self) -> int:
         return 0
 
     def close(self) -> None:
-        self._queue.clear()
-        if self._pool is not None:
-            for fut in self._pending:
-                fut.cancel()
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+        self._pool.shutdown(wait=True, cancel_futures=True)
         self._pending.clear()
 
 

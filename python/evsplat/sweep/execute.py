@@ -62,6 +62,7 @@ def execute_cell(cell: Cell, out: Path, code: str) -> Outcome:
 
 def _train_and_score(cell: Cell, out: Path, key: str, log: Path, host: str, code: str) -> dict:
     from evsplat.eval import evaluate_run
+    from evsplat.gpu import adapter_label  # the worker's, which trained and scored the cell
 
     mine = code_version()
     if mine != code:
@@ -91,8 +92,6 @@ def _train_and_score(cell: Cell, out: Path, key: str, log: Path, host: str, code
         raise CellError(f"training failed ({_failure(log, code_)}; log: {log})")
     stats = json.loads((run / "stats.json").read_text())
     metrics = _score(evaluate_run, run, cell.data)
-    from evsplat.gpu import adapter_label  # the worker's, which trained and scored the cell
-
     row = {
         "scene": cell.scene,
         "seed": cell.seed,

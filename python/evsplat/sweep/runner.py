@@ -16,7 +16,7 @@ from pathlib import Path
 from evsplat.data.atomic import write_text_atomic
 from evsplat.errors import EvsplatError
 from evsplat.sweep import store
-from evsplat.sweep.backends import LOCAL_CLUSTER, LocalBackend, RayBackend
+from evsplat.sweep.backends import LOCAL_CLUSTER, LocalBackend, PoolBackend, RayBackend
 from evsplat.sweep.cell import Cell, code_version
 
 POLL_S = 1.0  # how often the bar's running count and ETA are refreshed while Ray works
@@ -95,16 +95,19 @@ def run_sweep(
     options = options or SweepOptions()
     if options.max_retries < 0:
         raise EvsplatError(f"--max-retries {options.max_retries}: must be 0 or more")
+    if options.jobs < 1:
+        raise EvsplatError(f"--jobs {options.jobs}: must be 1 or more")
     if options.jobs != 1 and options.ray is not None:
         raise EvsplatError(
             f"--jobs {options.jobs} with --ray: Ray places the cells; set --cpus-per-cell instead"
         )
     # A missing extra or an unreachable address fails here, before anything is written.
-    backend = (
-        LocalBackend(options.jobs)
-        if options.ray is None
-        else RayBackend(options.ray, options.max_retries, options.cpus_per_cell)
-    )
+    if options.ray is not None:
+        backend = RayBackend(options.ray, options.max_retries, options.cpus_per_cell)
+    elif options.jobs > 1:
+        backend = PoolBackend(options.jobs)
+    else:
+        backend = LocalBackend()
     out = Path(out).resolve()  # workers get absolute paths
     code = code_version()
     keys = [c.key(code) for c in cells]
