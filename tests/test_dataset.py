@@ -76,6 +76,32 @@ def test_mono_and_speed_factor(tmp_path):
     assert read_png(out / "test" / "rgb_00000.png").ndim == 2
 
 
+def test_pixels_integrate_their_area_and_meta_says_how(tmp_path):
+    """Oracle: a 3x3-sample test image is the mean of nine one-ray renders whose principal
+    point moved by the sub-pixel offsets; the one-ray dataset's images are those renders'
+    middle. The aliased dataset makes more events: its edges crawl as a staircase."""
+    from evsplat.scenes import get_scene
+
+    one = simulate_dataset("ball", tmp_path / "one", tiny=True, samples=1, progress=False)
+    three = simulate_dataset("ball", tmp_path / "three", tiny=True, progress=False)
+    metas = [json.loads((d / "meta.json").read_text()) for d in (one, three)]
+    assert [m["pixel_samples"] for m in metas] == [1, 3]
+    assert metas[0]["num_events"] > metas[1]["num_events"]
+    frame = json.loads((three / "test" / "frames.json").read_text())[2]
+    scene = get_scene("ball", tiny=True, samples=1)
+    k0 = scene.K.copy()
+    want = np.zeros((scene.height, scene.width, 3))
+    for oy in (1 / 6, 1 / 2, 5 / 6):
+        for ox in (1 / 6, 1 / 2, 5 / 6):
+            scene.K = k0 + np.array([[0, 0, 0.5 - ox], [0, 0, 0.5 - oy], [0, 0, 0]])
+            scene.__post_init__()
+            want += scene.render(frame["time_us"])[0] / 9
+    got = read_png(three / "test" / frame["rgb"])
+    assert np.abs(got - want).max() < 2e-4  # 16-bit PNG quantisation
+    plain = read_png(one / "test" / frame["rgb"])
+    assert np.abs(got - plain).max() > 0.1  # edges mix colours, one ray does not
+
+
 def leftovers(parent):
     return sorted(p.name for p in parent.iterdir())
 
@@ -85,6 +111,9 @@ def test_bad_simulate_inputs_fail_in_one_line_and_write_nothing(tmp_path, capsys
         (["--scene", "cat"], "unknown scene 'cat'"),
         (["--scene", "ball", "--speed", "0"], "--speed 0"),
         (["--scene", "ball", "--size", "2x2"], "--size 2x2"),
+        (["--scene", "ball", "--samples", "2"], "--samples 2"),
+        (["--scene", "ball", "--samples", "11"], "--samples 11"),
+        (["--scene", "ball", "--samples", "-1"], "--samples -1"),
     ]:
         assert (
             main(["simulate", *argv, "--tiny", "--no-progress", "--out", str(tmp_path / "o")]) == 2

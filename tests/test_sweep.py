@@ -84,7 +84,9 @@ def test_cells_run_at_once_in_worker_processes_score_as_one_at_a_time(tiny_scene
     # Oracle: the same cells run one at a time in this process.
     for a, b in zip(serial.rows, pooled.rows):
         assert (a["seed"], a["key"]) == (b["seed"], b["key"])
-        assert b["psnr"] == pytest.approx(a["psnr"], abs=1e-3)
+        # Not to the last digit: the backward's float atomics add in the order the threads
+        # reach them, so two runs of one cell differ by ~1e-3 dB (seeds by ~0.1 dB, Table 3).
+        assert b["psnr"] == pytest.approx(a["psnr"], abs=0.02)
     from evsplat.gpu import adapter_label
 
     assert all(r["adapter"] == adapter_label() for r in pooled.rows)  # the workers' adapter

@@ -98,18 +98,21 @@ struct SceneRenderer {
     width: usize,
     height: usize,
     k: [f64; 4],
+    samples: usize,
 }
 
 #[pymethods]
 impl SceneRenderer {
     /// `primitives`: (shape, size, texture, texture_params, moving) per primitive;
-    /// `k`: (fx, fy, cx, cy).
+    /// `k`: (fx, fy, cx, cy); `samples`: rays per pixel side (odd; each pixel's colour is their
+    /// mean).
     #[new]
     fn new(
         primitives: Vec<PrimitiveSpec>,
         width: usize,
         height: usize,
         k: [f64; 4],
+        samples: usize,
     ) -> PyResult<Self> {
         let prims = primitives
             .iter()
@@ -123,6 +126,7 @@ impl SceneRenderer {
             width,
             height,
             k,
+            samples,
         })
     }
 
@@ -138,7 +142,7 @@ impl SceneRenderer {
         let poses: Vec<Pose> = poses.as_array().outer_iter().map(pose_of).collect();
         let (w, h) = (self.width, self.height);
         let f = py
-            .detach(|| render::render(&self.prims, &poses, cam, self.k, w, h))
+            .detach(|| render::render(&self.prims, &poses, cam, self.k, (w, h), self.samples))
             .map_err(value_err)?;
         Ok((
             Array::from_shape_vec((h, w, 3), f.rgb)
@@ -157,5 +161,6 @@ impl SceneRenderer {
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<EventSimulator>()?;
     m.add_class::<SceneRenderer>()?;
+    m.add("MAX_PIXEL_SAMPLES", render::MAX_SAMPLES)?;
     Ok(())
 }

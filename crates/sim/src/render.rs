@@ -1,6 +1,9 @@
 //! Analytic ray caster for the synthetic scenes: textured spheres, boxes, thin quads and
 //! wing-shaped quads. It shares nothing with the splatting rasterizer, so ground truth cannot
-//! inherit the rasterizer's bugs. One ray per pixel centre; the nearest hit wins.
+//! inherit the rasterizer's bugs. The nearest hit wins. A pixel's colour is the mean of an n x n
+//! grid of rays over its area (a real pixel integrates the light that falls on it, and Blender,
+//! which renders the paper's scenes, filters over the pixel too); depth and the moving mask are
+//! the centre ray's, so they stay exact.
 
 use rayon::prelude::*;
 
@@ -30,7 +33,12 @@ pub enum RenderError {
     },
     #[error("{got} poses given for {prims} primitives")]
     PoseCount { got: usize, prims: usize },
+    #[error("{0} samples per pixel side: use an odd number from 1 to {MAX_SAMPLES}")]
+    Samples(usize),
 }
+
+/// Most rays per pixel side (a 9x9 grid): beyond it the cost grows with no visible change.
+pub const MAX_SAMPLES: usize = 9;
 
 type V3 = [f64; 3];
 
@@ -91,14 +99,17 @@ pub struct Pose {
 }
 
 /// Render `prims` at their object-to-world `poses` seen from camera `c2w` with intrinsics
-/// (fx, fy, cx, cy) and size width x height. Rays go through pixel centres (j+0.5, i+0.5).
+/// (fx, fy, cx, cy) and size width x height. Each pixel's colour is the mean of `samples` x
+/// `samples` rays through the centres of a regular grid over the pixel (`samples` odd, so the
+/// middle ray goes through the pixel centre (j+0.5, i+0.5); 1 = that ray alone); depth and
+/// mask are the middle ray's.
 pub fn render(
     prims: &[Primitive],
     poses: &[Pose],
     c2w: Pose,
     k: [f64; 4],
-    width: usize,
-    height: usize,
+    size: (usize, usize),
+    samples: usize,
 ) -> Result<Frame, RenderError> {
     if poses.len() != prims.len() {
         return Err(RenderError::PoseCount {
@@ -106,11 +117,20 @@ pub fn render(
             prims: prims.len(),
         });
     }
+    if samples.is_multiple_of(2) || samples > MAX_SAMPLES {
+        return Err(RenderError::Samples(samples));
+    }
+    let (width, height) = size;
     let [fx, fy, cx, cy] = k;
     let n = width * height;
     let mut rgb = vec![0f32; n * 3];
     let mut depth = vec![0f32; n];
     let mut mask = vec![false; n];
+    let offsets: Vec<f64> = (0..samples)
+        .map(|s| (s as f64 + 0.5) / samples as f64)
+        .collect();
+    let weight = 1.0 / (samples * samples) as f64;
+    let middle = samples / 2;
     rgb.par_chunks_mut(width * 3)
         .zip(depth.par_chunks_mut(width))
         .zip(mask.par_chunks_mut(width))
@@ -118,33 +138,66 @@ pub fn render(
         .for_each(|(i, ((rgb_row, depth_row), mask_row))| {
             // Camera origin in each object frame is the same for the whole row.
             let origins: Vec<V3> = poses.iter().map(|p| mtv(&p.r, sub(c2w.t, p.t))).collect();
+            let scene = Scene {
+                prims,
+                poses,
+                origins: &origins,
+                c2w: &c2w,
+            };
             for j in 0..width {
-                let dc = [(j as f64 + 0.5 - cx) / fx, (i as f64 + 0.5 - cy) / fy, 1.0];
-                let dw = mv(&c2w.r, dc);
-                let mut best: Option<(f64, usize, V3, V3)> = None;
-                for (kp, (prim, pose)) in prims.iter().zip(poses).enumerate() {
-                    let dl = mtv(&pose.r, dw);
-                    if let Some((s, p, nrm)) = prim.intersect(origins[kp], dl) {
-                        if best.is_none_or(|b| s < b.0) {
-                            best = Some((s, kp, p, nrm));
+                let mut colour = [0f64; 3];
+                for (a, &oy) in offsets.iter().enumerate() {
+                    for (b, &ox) in offsets.iter().enumerate() {
+                        let dc = [(j as f64 + ox - cx) / fx, (i as f64 + oy - cy) / fy, 1.0];
+                        let Some((s, kp, c)) = scene.cast(dc) else {
+                            continue;
+                        };
+                        for ch in 0..3 {
+                            colour[ch] += c[ch] * weight;
+                        }
+                        if a == middle && b == middle {
+                            // The camera-frame ray has z = 1, so the ray parameter is the depth.
+                            depth_row[j] = s as f32;
+                            mask_row[j] = prims[kp].moving;
                         }
                     }
                 }
-                if let Some((s, kp, p, nrm)) = best {
-                    let prim = &prims[kp];
-                    let nw = mv(&poses[kp].r, nrm);
-                    let shade = AMBIENT + (1.0 - AMBIENT) * dot(nw, LIGHT).max(0.0);
-                    let c = prim.texture.colour(p, nrm);
-                    for ch in 0..3 {
-                        rgb_row[j * 3 + ch] = (c[ch].clamp(0.0, 1.0) as f64 * shade) as f32;
-                    }
-                    // The camera-frame ray has z = 1, so the ray parameter is the depth.
-                    depth_row[j] = s as f32;
-                    mask_row[j] = prim.moving;
+                for ch in 0..3 {
+                    rgb_row[j * 3 + ch] = colour[ch] as f32;
                 }
             }
         });
     Ok(Frame { rgb, depth, mask })
+}
+
+/// The primitives at their poses, seen from one camera (object-frame camera origins cached).
+struct Scene<'a> {
+    prims: &'a [Primitive],
+    poses: &'a [Pose],
+    origins: &'a [V3],
+    c2w: &'a Pose,
+}
+
+impl Scene<'_> {
+    /// The nearest hit of the camera-frame ray direction `dc`: (ray parameter, primitive, shaded
+    /// colour), or None when it hits nothing.
+    fn cast(&self, dc: V3) -> Option<(f64, usize, [f64; 3])> {
+        let dw = mv(&self.c2w.r, dc);
+        let mut best: Option<(f64, usize, V3, V3)> = None;
+        for (kp, (prim, pose)) in self.prims.iter().zip(self.poses).enumerate() {
+            let dl = mtv(&pose.r, dw);
+            if let Some((s, p, nrm)) = prim.intersect(self.origins[kp], dl) {
+                if best.is_none_or(|b| s < b.0) {
+                    best = Some((s, kp, p, nrm));
+                }
+            }
+        }
+        let (s, kp, p, nrm) = best?;
+        let nw = mv(&self.poses[kp].r, nrm);
+        let shade = AMBIENT + (1.0 - AMBIENT) * dot(nw, LIGHT).max(0.0);
+        let c = self.prims[kp].texture.colour(p, nrm);
+        Some((s, kp, c.map(|v| v.clamp(0.0, 1.0) as f64 * shade)))
+    }
 }
 
 #[cfg(test)]
@@ -162,7 +215,7 @@ mod tests {
             t: [0.0, 0.0, 5.0],
         };
         let cam = Pose { r: ID, t: [0.0; 3] };
-        let f = render(&[prim], &[pose], cam, [10.0, 10.0, 8.0, 8.0], 16, 16).unwrap();
+        let f = render(&[prim], &[pose], cam, [10.0, 10.0, 8.0, 8.0], (16, 16), 1).unwrap();
         for i in 0..16 {
             for j in 0..16 {
                 let (x, y) = ((j as f64 + 0.5 - 8.0) / 10.0, (i as f64 + 0.5 - 8.0) / 10.0);
@@ -196,10 +249,69 @@ mod tests {
             },
         ];
         let cam = Pose { r: ID, t: [0.0; 3] };
-        let f = render(&[quad, cube], &poses, cam, [4.0, 4.0, 4.0, 4.0], 8, 8).unwrap();
+        let f = render(&[quad, cube], &poses, cam, [4.0, 4.0, 4.0, 4.0], (8, 8), 1).unwrap();
         assert!((f.depth[4 * 8 + 4] - 1.5).abs() < 1e-6); // front face of the cube
         assert!((f.depth[0] - 4.0).abs() < 1e-6); // wall at the corner
         assert!(f.mask[4 * 8 + 4] && !f.mask[0]);
+    }
+
+    /// A textured sphere in front of a textured wall, seen a little off-axis.
+    fn edge_scene() -> (Vec<Primitive>, Vec<Pose>, Pose) {
+        // checker: cells u, v; scale u, v; axes u, v; colours a, b.
+        let wall_tex = [3.0, 8.0, 1.0, 1.0, 0.0, 1.0, 0.9, 0.2, 0.1, 0.1, 0.3, 0.8];
+        let ball_tex = [5.0, 6.0, 1.0, 1.0, 0.0, 1.0, 1.0, 0.9, 0.0, 0.1, 0.5, 1.0];
+        let wall = Primitive::new("quad", &[10.0, 10.0], "checker", &wall_tex, false).unwrap();
+        let ball = Primitive::new("sphere", &[0.7], "checker", &ball_tex, true).unwrap();
+        let at = |t: V3| Pose { r: ID, t };
+        (
+            vec![wall, ball],
+            vec![at([0.0, 0.0, 4.0]), at([0.3, -0.2, 2.5])],
+            at([0.05, 0.0, 0.0]),
+        )
+    }
+
+    #[test]
+    fn a_pixel_is_the_mean_of_centre_rays_through_its_sub_pixel_grid() {
+        // Oracle: the ray at sub-pixel offset (ox, oy) of pixel (i, j) is the centre ray of a
+        // one-sample render whose principal point moved by (0.5 - ox, 0.5 - oy).
+        let (prims, poses, cam) = edge_scene();
+        let (k, n) = ([14.0, 14.0, 10.0, 9.0], 3);
+        let f = render(&prims, &poses, cam, k, (20, 18), n).unwrap();
+        let mut want = vec![0f64; 20 * 18 * 3];
+        for a in 0..n {
+            for b in 0..n {
+                let (ox, oy) = ((b as f64 + 0.5) / n as f64, (a as f64 + 0.5) / n as f64);
+                let shifted = [k[0], k[1], k[2] + 0.5 - ox, k[3] + 0.5 - oy];
+                let g = render(&prims, &poses, cam, shifted, (20, 18), 1).unwrap();
+                for (w, v) in want.iter_mut().zip(&g.rgb) {
+                    *w += *v as f64 / (n * n) as f64;
+                }
+            }
+        }
+        let centre = render(&prims, &poses, cam, k, (20, 18), 1).unwrap();
+        assert!(f
+            .rgb
+            .iter()
+            .zip(&want)
+            .all(|(a, b)| (*a as f64 - b).abs() < 1e-5));
+        // Depth and mask are the centre ray's; edges (and only edges) mix colours.
+        assert_eq!(f.depth, centre.depth);
+        assert_eq!(f.mask, centre.mask);
+        let mixed = f
+            .rgb
+            .iter()
+            .zip(&centre.rgb)
+            .filter(|(a, b)| (*a - *b).abs() > 1e-3);
+        assert!(mixed.count() > 20);
+    }
+
+    #[test]
+    fn even_or_too_many_samples_are_an_error() {
+        let (prims, poses, cam) = edge_scene();
+        for n in [0, 2, MAX_SAMPLES + 2] {
+            let got = render(&prims, &poses, cam, [4.0, 4.0, 4.0, 4.0], (8, 8), n);
+            assert_eq!(got.err(), Some(RenderError::Samples(n)));
+        }
     }
 
     fn texture(name: &str, params: &[f64]) -> Texture {

@@ -66,6 +66,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--seed", type=int, default=0, help="random seed for thresholds and noise (default 0)"
     )
+    parser.add_argument(
+        "--samples",
+        type=int,
+        default=None,
+        help="rays per pixel side, odd; a pixel's colour is their mean over its area "
+        "(default 3; 1 = one ray through each pixel centre, aliased edges)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -82,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         tiny=args.tiny,
         progress=not args.no_progress,
+        samples=args.samples,
     )
     meta = json.loads((out / "meta.json").read_text())
     wall = time.perf_counter() - start

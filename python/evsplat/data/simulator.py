@@ -126,7 +126,9 @@ def simulate_events(
 
 # ----------------------------------------------------------------- dataset generation
 
-GENERATOR_VERSION = 2  # 2: test frames carry the tracked object's centre, test/track.json
+# 2: test frames carry the tracked object's centre, test/track.json; 3: pixels integrate their
+# area (`samples` rays per side, meta.json's `pixel_samples`)
+GENERATOR_VERSION = 3
 MEASURED_POSE_HZ = 100  # "measured" poses, as from a motion-capture system
 GT_POSE_HZ = 1000  # dense ground-truth poses
 TEST_FRAMES_FULL = 12
@@ -160,6 +162,7 @@ def simulate_dataset(
     seed: int = 0,
     tiny: bool = False,
     progress: bool = True,
+    samples: int | None = None,
 ) -> Path:
     """Render a built-in scene, simulate its events and write a dataset folder (docs/dataset.md).
 
@@ -169,7 +172,7 @@ def simulate_dataset(
     from evsplat.data.event_writer import write_events_h5
     from evsplat.data.images import write_exr, write_png
     from evsplat.data.poses import write_tum
-    from evsplat.scenes import get_scene
+    from evsplat.scenes import PIXEL_SAMPLES, get_scene
 
     if (
         isinstance(speed, bool)
@@ -185,7 +188,8 @@ def simulate_dataset(
         raise EvsplatError(
             f"{out}: already exists and is not empty; remove it or choose another --out"
         )
-    scene = get_scene(scene_name, size=size, tiny=tiny)
+    samples = PIXEL_SAMPLES if samples is None else samples
+    scene = get_scene(scene_name, size=size, tiny=tiny, samples=samples)
     if not out.parent.is_dir():
         raise EvsplatError(f"{out.parent}: parent folder does not exist; create it first")
     bayer = "RGGB" if color else "mono"
@@ -260,6 +264,7 @@ def simulate_dataset(
         meta = {
             "generator": "evsplat simulate",
             "generator_version": GENERATOR_VERSION,
+            "pixel_samples": samples,
             "scene": scene.name,
             "description": scene.description,
             "width": scene.width,

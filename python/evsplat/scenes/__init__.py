@@ -20,6 +20,13 @@ TINY_SIZE = 96  # longer side of the tiny variant
 # with resolution so per-frame motion in pixels stays the same at every size.
 BASE_FPS = 1000.0
 BASE_HEIGHT = 400
+# Rays per pixel side: a pixel's colour is the mean of 3x3 rays over its area, as a sensor's
+# pixel integrates the light on it (Blender, which renders the paper's scenes, filters over the
+# pixel too). One ray per pixel drew every edge as a staircase that crawls as things move: 17%
+# (ball) to 37% (duck) of the tiny scenes' events came from that crawl, and a model with smooth
+# edges lost ~1.7 dB on the ball's mask against aliased ground truth (docs/results.md,
+# session 25).
+PIXEL_SAMPLES = 3
 # Focal length in units of the image height (a ~51° vertical field of view).
 FOCAL_PER_HEIGHT = 1.05
 # The tiny variant zooms in so the moving object covers a good part of its few pixels.
@@ -42,12 +49,13 @@ class Scene:
     # The moving object whose path evaluation tracks: seconds -> object-to-world 4x4 or xyz.
     # None: the translation of the first moving primitive's pose (none if nothing moves).
     track: Callable[[float], np.ndarray] | None = None
+    samples: int = 1  # rays per pixel side; a pixel's colour is their mean (PIXEL_SAMPLES)
     _renderer: _core.SceneRenderer = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         k = (self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2])
         specs = [p.spec() for p in self.primitives]
-        self._renderer = _core.SceneRenderer(specs, self.width, self.height, k)
+        self._renderer = _core.SceneRenderer(specs, self.width, self.height, k, self.samples)
 
     def c2w(self, t_us: int | float | np.ndarray) -> np.ndarray:
         """Camera-to-world pose(s) float64[..., 4, 4] at `t_us`."""
@@ -100,11 +108,27 @@ def scene_descriptions() -> dict[str, str]:
     return {name: make()["description"] for name, make in SCENES.items()}
 
 
-def get_scene(name: str, size: tuple[int, int] | None = None, tiny: bool = False) -> Scene:
+def get_scene(
+    name: str,
+    size: tuple[int, int] | None = None,
+    tiny: bool = False,
+    samples: int = PIXEL_SAMPLES,
+) -> Scene:
     """The built-in scene `name` at its full size (400x400; duck 600x400), at `size` = (W, H),
-    or as the tiny variant (longer side 96 px, zoomed in 1.6x, 0.6 s) for tests and the demo."""
+    or as the tiny variant (longer side 96 px, zoomed in 1.6x, 0.6 s) for tests and the demo;
+    each pixel the mean of `samples` x `samples` rays over its area."""
     if name not in SCENES:
         raise EvsplatError(f"unknown scene '{name}'; choose one of: {', '.join(SCENES)}")
+    top = _core.MAX_PIXEL_SAMPLES
+    if (
+        isinstance(samples, bool)
+        or not isinstance(samples, int)
+        or samples not in range(1, top + 1, 2)
+    ):
+        raise EvsplatError(
+            f"--samples {samples!r}: rays per pixel side must be an odd number from 1 to {top} "
+            "(1 = one ray through each pixel centre)"
+        )
     spec = SCENES[name]()
     bw, bh = spec["base_size"]
     if size is not None:
@@ -131,4 +155,5 @@ def get_scene(name: str, size: tuple[int, int] | None = None, tiny: bool = False
         primitives=spec["primitives"],
         camera=spec["camera"],
         track=spec.get("track"),
+        samples=samples,
     )
