@@ -21,6 +21,7 @@ pub mod evt3;
 pub mod mcap;
 mod reader;
 pub mod rosbag;
+mod unpack;
 
 pub use reader::{ChunkReader, Encoding};
 
@@ -48,6 +49,14 @@ pub struct Stats {
     pub unknown_words: u64,
     /// Bytes after the last complete word or record (a truncated file).
     pub truncated_bytes: u64,
+}
+
+impl std::ops::AddAssign for Stats {
+    fn add_assign(&mut self, other: Self) {
+        self.untimed_events += other.untimed_events;
+        self.unknown_words += other.unknown_words;
+        self.truncated_bytes += other.truncated_bytes;
+    }
 }
 
 /// One format's word decoder: the state carried from one call to the next.

@@ -15,11 +15,13 @@
 //!
 //! The messages' CDR EventArray layout is `cdr`'s (shared with the .db3 reader).
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
+use std::fs::File;
 use std::io::{self, BufReader, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
 
 use crate::bytes::{u16_at, u32_at, u64_at};
-use crate::{EventSource, Events, Stats};
+use crate::{unpack, EventSource, Events, Stats};
 
 /// The first (and last) 8 bytes of every MCAP file.
 pub const MAGIC: &[u8] = b"\x89MCAP0\r\n";
@@ -36,9 +38,6 @@ const OP_CHANNEL: u8 = 0x04;
 const OP_MESSAGE: u8 = 0x05;
 const OP_CHUNK: u8 = 0x06;
 const OP_DATA_END: u8 = 0x0F;
-/// Most bytes a chunk may unpack to per compressed byte, past its declared size's own check:
-/// a larger output is a decompression bomb.
-const MAX_RATIO: u64 = 256;
 
 /// A topic's channel: its id, topic and message type (its schema's name).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -305,7 +304,8 @@ impl<R: Read> McapReader<R> {
             self.stats.unknown_words += 1;
             return;
         };
-        let cap = size.min((records.len() as u64).saturating_mul(MAX_RATIO) + (1 << 16));
+        // Past its declared size's own check: a larger output is a decompression bomb.
+        let cap = size.min(unpack::cap(records.len() as u64));
         let unpacked = match compression {
             b"" => {
                 self.chunk.extend_from_slice(records);
@@ -344,6 +344,103 @@ impl<R: Read> EventSource for McapReader<R> {
             crate::cdr::push_events(&self.chunk, start, next, take, &mut out);
             let next = next + take;
             self.pending = (next < n).then_some((start, n, next));
+        }
+        Ok(out)
+    }
+}
+
+/// The chosen topic's events in the MCAP files of a bag split over several (rosbag2 writes
+/// each as a whole MCAP file, its schemas and channels included), file after file in the
+/// given order, each through `McapReader` (its chunks bounded as in one file); a chunk of
+/// events continues into the next file, so only the last one is short. Errors name the file.
+#[derive(Debug)]
+pub struct McapFiles {
+    /// The files after the current one.
+    rest: VecDeque<PathBuf>,
+    path: PathBuf,
+    current: McapReader<File>,
+    topic: Option<String>,
+    block: usize,
+    /// The counts of the files read through.
+    done: Stats,
+}
+
+impl McapFiles {
+    /// A reader of `topic` (None: every event-array channel) in `paths`, each through a read
+    /// buffer of `block` bytes; the first file is opened here (fails without the magic), each
+    /// further one when the reading reaches it.
+    pub fn new(paths: &[PathBuf], topic: Option<&str>, block: usize) -> io::Result<Self> {
+        let mut rest: VecDeque<PathBuf> = paths.iter().cloned().collect();
+        let path = rest
+            .pop_front()
+            .ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, "no MCAP file to read"))?;
+        let current = Self::open(&path, topic, block)?;
+        Ok(Self {
+            rest,
+            path,
+            current,
+            topic: topic.map(str::to_string),
+            block,
+            done: Stats::default(),
+        })
+    }
+
+    fn open(path: &Path, topic: Option<&str>, block: usize) -> io::Result<McapReader<File>> {
+        File::open(path)
+            .and_then(|file| McapReader::new(file, topic, block))
+            .map_err(|e| io::Error::new(e.kind(), format!("{}: {e}", path.display())))
+    }
+
+    /// Moves on to the next file (true), or finds none left (false).
+    fn next_file(&mut self) -> io::Result<bool> {
+        let Some(path) = self.rest.pop_front() else {
+            return Ok(false);
+        };
+        let next = Self::open(&path, self.topic.as_deref(), self.block)?;
+        self.done += self.current.stats;
+        (self.current, self.path) = (next, path);
+        Ok(true)
+    }
+
+    fn named(&self, e: io::Error) -> io::Error {
+        io::Error::new(e.kind(), format!("{}: {e}", self.path.display()))
+    }
+
+    /// The (width, height) of the first event message, reading up to it (through files
+    /// without one); None when no file has a readable event message.
+    pub fn sensor_size(&mut self) -> io::Result<Option<(u32, u32)>> {
+        loop {
+            if let Some(size) = self.current.sensor_size().map_err(|e| self.named(e))? {
+                return Ok(Some(size));
+            }
+            if !self.next_file()? {
+                return Ok(None);
+            }
+        }
+    }
+}
+
+impl EventSource for McapFiles {
+    fn stats(&self) -> Stats {
+        let mut all = self.done;
+        all += self.current.stats;
+        all
+    }
+
+    fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
+        let max_events = max_events.max(1);
+        let mut out = self
+            .current
+            .next_chunk(max_events)
+            .map_err(|e| self.named(e))?;
+        // A short chunk is the end of the current file's events.
+        while out.len() < max_events && self.next_file()? {
+            let more =
+                (self.current.next_chunk(max_events - out.len())).map_err(|e| self.named(e))?;
+            out.x.extend(more.x);
+            out.y.extend(more.y);
+            out.t.extend(more.t);
+            out.p.extend(more.p);
         }
         Ok(out)
     }

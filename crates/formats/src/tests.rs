@@ -608,10 +608,11 @@ fn cdr_event_array(events: &[(u16, u16, i32, u32, u8)]) -> Vec<u8> {
 fn db3_all(
     paths: &[std::path::PathBuf],
     topic: &str,
+    compression: crate::db3::Compression,
     chunk: usize,
     max_events: usize,
 ) -> std::io::Result<(Events, Stats)> {
-    let mut reader = crate::db3::Db3Reader::new(paths, topic, chunk)?;
+    let mut reader = crate::db3::Db3Reader::new(paths, topic, compression, chunk)?;
     let next = |n| {
         let c = reader.next_chunk(n)?;
         assert!(c.len() <= n);
@@ -621,33 +622,38 @@ fn db3_all(
     Ok((all, reader.stats()))
 }
 
+/// A .db3 file as rosbag2 lays it out: topics 1 ("/other") and 2 ("/dvs/events"), and the
+/// messages (topic id, timestamp, data) inserted in the given order.
+fn make_db3(path: &std::path::Path, messages: &[(i64, i64, Vec<u8>)]) -> std::path::PathBuf {
+    let _ = std::fs::remove_file(path);
+    let db = rusqlite::Connection::open(path).expect("a new database");
+    db.execute_batch(
+        "CREATE TABLE topics (id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
+           serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
+         CREATE TABLE messages (id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,
+           timestamp INTEGER NOT NULL, data BLOB NOT NULL);
+         CREATE INDEX timestamp_idx ON messages (timestamp ASC);
+         INSERT INTO topics VALUES (1, '/other', 'dvs_msgs/msg/EventArray', 'cdr', '');
+         INSERT INTO topics VALUES (2, '/dvs/events', 'dvs_msgs/msg/EventArray', 'cdr', '');",
+    )
+    .expect("the bag tables");
+    for (topic, stamp, data) in messages {
+        db.execute(
+            "INSERT INTO messages (topic_id, timestamp, data) VALUES (?1, ?2, ?3)",
+            rusqlite::params![topic, stamp, data],
+        )
+        .expect("a message");
+    }
+    path.to_path_buf()
+}
+
+const PLAIN: crate::db3::Compression = crate::db3::Compression::None;
+
 #[test]
 fn db3_reader_takes_a_topics_event_arrays_in_timestamp_order_across_files() {
     let dir = std::env::temp_dir().join(format!("evsplat-db3-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("a temp folder");
-    let make = |name: &str, messages: &[(i64, i64, Vec<u8>)]| {
-        let path = dir.join(name);
-        let _ = std::fs::remove_file(&path);
-        let db = rusqlite::Connection::open(&path).expect("a new database");
-        db.execute_batch(
-            "CREATE TABLE topics (id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
-               serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
-             CREATE TABLE messages (id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,
-               timestamp INTEGER NOT NULL, data BLOB NOT NULL);
-             CREATE INDEX timestamp_idx ON messages (timestamp ASC);
-             INSERT INTO topics VALUES (1, '/other', 'dvs_msgs/msg/EventArray', 'cdr', '');
-             INSERT INTO topics VALUES (2, '/dvs/events', 'dvs_msgs/msg/EventArray', 'cdr', '');",
-        )
-        .expect("the bag tables");
-        for (topic, stamp, data) in messages {
-            db.execute(
-                "INSERT INTO messages (topic_id, timestamp, data) VALUES (?1, ?2, ?3)",
-                rusqlite::params![topic, stamp, data],
-            )
-            .expect("a message");
-        }
-        path
-    };
+    let make = |name: &str, messages: &[(i64, i64, Vec<u8>)]| make_db3(&dir.join(name), messages);
     let a = cdr_event_array(&[(1, 2, 10, 5_999, 1), (3, 4, 10, 1_000_000, 0)]);
     let b = cdr_event_array(&[(5, 6, 11, 999_999_999, 1)]);
     let c = cdr_event_array(&[(7, 8, 12, 0, 0)]);
@@ -661,9 +667,9 @@ fn db3_reader_takes_a_topics_event_arrays_in_timestamp_order_across_files() {
     let second = make("second.db3", &[(2, 300, c)]);
     // The thread's chunks handed over whole, split, and gathered from several.
     let files = [first.clone(), second.clone()];
-    let (ev, stats) = db3_all(&files, "/dvs/events", 3, 3).expect("reads");
+    let (ev, stats) = db3_all(&files, "/dvs/events", PLAIN, 3, 3).expect("reads");
     for (chunk, max_events) in [(1, 1), (2, 3), (1 << 20, 2), (3, 1 << 20)] {
-        let other = db3_all(&files, "/dvs/events", chunk, max_events).expect("reads");
+        let other = db3_all(&files, "/dvs/events", PLAIN, chunk, max_events).expect("reads");
         assert!(
             other == (ev.clone(), stats),
             "chunk {chunk}, max {max_events} differ"
@@ -684,9 +690,173 @@ fn db3_reader_takes_a_topics_event_arrays_in_timestamp_order_across_files() {
     // Not a database: an error naming the file, when opened.
     let junk = dir.join("junk.db3");
     std::fs::write(&junk, [7u8; 4096]).expect("a file");
-    let err = db3_all(&[first, junk.clone()], "/dvs/events", 2, 2).expect_err("junk fails");
+    let err = db3_all(&[first, junk.clone()], "/dvs/events", PLAIN, 2, 2).expect_err("junk fails");
     assert!(
         err.to_string().contains(&junk.display().to_string()),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// This process's temporary .db3 files (the unpacked copies of `NAME.db3.zstd` files).
+fn temp_db3s() -> Vec<std::path::PathBuf> {
+    let prefix = format!("evsplat-{}-", std::process::id());
+    let listed = std::fs::read_dir(std::env::temp_dir()).expect("the temp folder");
+    (listed.flatten())
+        .map(|e| e.path())
+        .filter(|p| {
+            (p.file_name().and_then(|n| n.to_str()))
+                .is_some_and(|n| n.starts_with(&prefix) && n.ends_with(".db3"))
+        })
+        .collect()
+}
+
+#[test]
+fn db3_reader_unpacks_zstd_messages_and_files_within_bounds_and_leaves_no_temp_file() {
+    use crate::db3::Compression;
+    let dir = std::env::temp_dir().join(format!("evsplat-db3-zstd-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temp folder");
+    let a = cdr_event_array(&[(1, 2, 10, 5_999, 1), (3, 4, 10, 1_000_000, 0)]);
+    let b = cdr_event_array(&[(5, 6, 11, 999_999_999, 1)]);
+    let messages = [(2, 200, b), (1, 50, a.clone()), (2, 100, a)];
+    let plain = make_db3(&dir.join("plain.db3"), &messages);
+    let (want, _) =
+        db3_all(std::slice::from_ref(&plain), "/dvs/events", PLAIN, 2, 2).expect("reads");
+    assert_eq!(want.len(), 3);
+    let zstd = |data: &[u8]| zstd::stream::encode_all(data, 3).expect("zstd");
+    // "message": each message's data a zstd frame.
+    let framed: Vec<_> = (messages.iter())
+        .map(|(topic, stamp, data)| (*topic, *stamp, zstd(data)))
+        .collect();
+    let per_message = make_db3(&dir.join("message.db3"), &framed);
+    let read = |path: &std::path::PathBuf, how| {
+        db3_all(std::slice::from_ref(path), "/dvs/events", how, 2, 2)
+    };
+    assert_eq!(
+        read(&per_message, Compression::Message).expect("reads").0,
+        want
+    );
+    // "file": the whole .db3 one zstd stream, unpacked into a temporary file, then removed.
+    let whole = dir.join("plain.db3.zstd");
+    std::fs::write(&whole, zstd(&std::fs::read(&plain).expect("the .db3"))).expect("written");
+    let before = temp_db3s();
+    let files = [whole.clone(), whole.clone()];
+    let (twice, _) = db3_all(&files, "/dvs/events", Compression::File, 1, 1).expect("reads");
+    assert_eq!(rows(&twice), [rows(&want), rows(&want)].concat());
+    // A reader dropped after its first chunk: its thread stops and removes its copy too.
+    let mut early =
+        crate::db3::Db3Reader::new(&files, "/dvs/events", Compression::File, 1).expect("opens");
+    assert_eq!(early.next_chunk(1).expect("a chunk").len(), 1);
+    drop(early);
+    // A damaged frame, a decompression bomb (zeros: far more than 256 bytes per byte) and a
+    // cut file: one error naming the file (and the message), no temporary file left.
+    let mut bad = framed.clone();
+    bad[2].2[6] ^= 0xff;
+    let bomb = (2, 300, zstd(&vec![0u8; 64 << 20]));
+    for (name, messages, what) in [
+        ("damaged.db3", bad, "message 1 of /dvs/events: zstd"),
+        (
+            "bomb.db3",
+            vec![bomb],
+            "more than 256 bytes per compressed byte",
+        ),
+    ] {
+        let path = make_db3(&dir.join(name), &messages);
+        let err = read(&path, Compression::Message).expect_err("fails");
+        let msg = err.to_string();
+        assert!(
+            msg.starts_with(&path.display().to_string()) && msg.contains(what),
+            "{msg}"
+        );
+    }
+    let data = std::fs::read(&whole).expect("the .zstd");
+    let cut = dir.join("cut.db3.zstd");
+    std::fs::write(&cut, &data[..data.len() / 2]).expect("written");
+    let err = read(&cut, Compression::File).expect_err("a cut file fails");
+    assert!(
+        err.to_string().starts_with(&cut.display().to_string()),
+        "{err}"
+    );
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while temp_db3s() != before && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert_eq!(temp_db3s(), before, "a temporary .db3 left behind");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A CDR event: x, y, sec, nanosec, polarity.
+type CdrEvent = (u16, u16, i32, u32, u8);
+
+/// An MCAP file of top-level records: the event-array schema, `channel` on "/events", and a
+/// message of each event list there.
+fn mcap_file(channel: u16, messages: &[&[CdrEvent]]) -> Vec<u8> {
+    let mut schema = 7u16.to_le_bytes().to_vec();
+    schema.extend(mcap_string(b"dvs_msgs/msg/EventArray"));
+    let mut chan = channel.to_le_bytes().to_vec();
+    chan.extend(7u16.to_le_bytes());
+    chan.extend(mcap_string(b"/events"));
+    let mut data = crate::mcap::MAGIC.to_vec();
+    data.extend(mcap_record(0x03, &schema));
+    data.extend(mcap_record(0x04, &chan));
+    for events in messages {
+        data.extend(mcap_message(channel, events));
+    }
+    data
+}
+
+#[test]
+fn split_mcap_files_read_one_after_another_in_full_chunks() {
+    let dir = std::env::temp_dir().join(format!("evsplat-mcap-split-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temp folder");
+    let first: &[CdrEvent] = &[(1, 2, 10, 0, 1), (3, 4, 10, 5_000, 0)];
+    let second: &[CdrEvent] = &[(5, 6, 11, 0, 1)];
+    let third: &[CdrEvent] = &[(7, 8, 12, 0, 0), (9, 9, 12, 1_000, 1)];
+    // Each file its own channel ids (rosbag2 writes every split file whole); the first ends
+    // in a cut record, counted in the stats.
+    let mut a = mcap_file(3, &[first, second]);
+    a.extend(&mcap_message(3, third)[..10]);
+    let paths = [dir.join("bag_0.mcap"), dir.join("bag_1.mcap")];
+    std::fs::write(&paths[0], &a).expect("written");
+    std::fs::write(&paths[1], mcap_file(1, &[third])).expect("written");
+    let read = |paths: &[std::path::PathBuf], n: usize| {
+        let mut reader = crate::mcap::McapFiles::new(paths, Some("/events"), 7)?;
+        let size = reader.sensor_size()?;
+        let mut chunks = Vec::new();
+        loop {
+            let c = reader.next_chunk(n)?;
+            if c.is_empty() {
+                return Ok::<_, std::io::Error>((chunks, size, reader.stats()));
+            }
+            chunks.push(c);
+        }
+    };
+    let (chunks, size, stats) = read(&paths, 2).expect("reads");
+    assert_eq!(size, Some((320, 240)));
+    assert_eq!(stats.truncated_bytes, 10);
+    let lens: Vec<_> = chunks.iter().map(Events::len).collect();
+    assert_eq!(
+        lens,
+        [2, 2, 1],
+        "only the last chunk short, across the files"
+    );
+    let all: Vec<_> = chunks.iter().flat_map(rows).collect();
+    assert_eq!(
+        all,
+        [
+            (1, 2, 10_000_000, 1),
+            (3, 4, 10_000_005, 0),
+            (5, 6, 11_000_000, 1),
+            (7, 8, 12_000_000, 0),
+            (9, 9, 12_000_001, 1)
+        ]
+    );
+    // A listed file that is not MCAP: an error naming it, once the reading reaches it.
+    let junk = dir.join("bag_2.mcap");
+    std::fs::write(&junk, b"not an MCAP file").expect("written");
+    let err = read(&[paths[0].clone(), junk.clone()], 100).expect_err("fails");
+    assert!(
+        err.to_string().starts_with(&junk.display().to_string()),
         "{err}"
     );
     let _ = std::fs::remove_dir_all(&dir);
