@@ -132,7 +132,13 @@ fn send_events(
         size: None,
         unknown: 0,
     };
-    let mut unpacked = Vec::new();
+    let mut frames = match Frames::new() {
+        Ok(frames) => frames,
+        Err(e) => {
+            let _ = tx.send(Err(e));
+            return;
+        }
+    };
     for path in paths {
         let file = FileRead {
             path,
@@ -140,7 +146,7 @@ fn send_events(
             compression,
             chunk,
         };
-        match file.send(&mut batch, &mut unpacked, tx) {
+        match file.send(&mut batch, &mut frames, tx) {
             Ok(true) => {}
             Ok(false) => return,
             Err(e) => {
@@ -162,11 +168,11 @@ struct FileRead<'a> {
 
 impl FileRead<'_> {
     /// Sends the full chunks of the topic's events in this file, the rest staying in `batch`
-    /// (`unpacked`: the buffer of a compressed message); false once the receiver is gone.
+    /// (`frames` unpacks compressed messages); false once the receiver is gone.
     fn send(
         &self,
         batch: &mut Batch,
-        unpacked: &mut Vec<u8>,
+        frames: &mut Frames,
         tx: &SyncSender<Sent>,
     ) -> io::Result<bool> {
         let sql = |e| sql_error(self.path, e);
@@ -192,11 +198,11 @@ impl FileRead<'_> {
             index += 1;
             let blob = row.get_ref(0).map_err(sql)?.as_blob().unwrap_or_default();
             let data = match self.compression {
-                Compression::Message => {
-                    unpacked.clear();
-                    self.unpack_message(blob, index, unpacked)?;
-                    &unpacked[..]
-                }
+                Compression::Message => frames.unpack(blob).map_err(|e| {
+                    let (path, topic) = (self.path.display(), self.topic);
+                    let what = format!("{path}: message {index} of {topic}: zstd: {e}");
+                    io::Error::new(io::ErrorKind::InvalidData, what)
+                })?,
                 _ => blob,
             };
             let Some((width, height, start, n)) = event_array(data) else {
@@ -222,22 +228,45 @@ impl FileRead<'_> {
         }
         Ok(true)
     }
+}
 
-    /// The `index`th message's zstd frame `blob` unpacked into `out`, within `unpack::cap`.
-    fn unpack_message(&self, blob: &[u8], index: u64, out: &mut Vec<u8>) -> io::Result<()> {
-        let unpacked = zstd::stream::read::Decoder::with_buffer(blob).and_then(|dec| {
-            unpack::bounded(dec, blob.len() as u64, |d| {
-                d.read_to_end(out).map(|n| n as u64)
-            })
-        });
-        unpacked.map(drop).map_err(|e| {
-            let what = format!(
-                "{}: message {index} of {}: zstd: {e}",
-                self.path.display(),
-                self.topic
-            );
-            io::Error::new(io::ErrorKind::InvalidData, what)
+/// Unpacks the zstd frames of a message-compressed bag: one decompression context for all
+/// (a fresh one per message cost as much as unpacking a small message) and one buffer.
+struct Frames {
+    context: zstd::bulk::Decompressor<'static>,
+    out: Vec<u8>,
+}
+
+impl Frames {
+    fn new() -> io::Result<Self> {
+        let context = zstd::bulk::Decompressor::new()?;
+        Ok(Self {
+            context,
+            out: Vec::new(),
         })
+    }
+
+    /// `blob` unpacked, within `unpack::cap`: in one call when its frame declares a size under
+    /// the cap (rosbag2's do), else (no size, several frames, a bomb) streaming, cut at it.
+    fn unpack(&mut self, blob: &[u8]) -> io::Result<&[u8]> {
+        self.out.clear();
+        let cap = unpack::cap(blob.len() as u64);
+        if let Ok(Some(size)) = zstd::zstd_safe::get_frame_content_size(blob) {
+            if size <= cap {
+                self.out.reserve_exact(size as usize);
+                let done = self.context.decompress_to_buffer(blob, &mut self.out);
+                if done.is_ok_and(|n| n as u64 == size) {
+                    return Ok(&self.out);
+                }
+                self.out.clear();
+            }
+        }
+        let dec = zstd::stream::read::Decoder::with_buffer(blob)?;
+        let out = &mut self.out;
+        unpack::bounded(dec, blob.len() as u64, |d| {
+            d.read_to_end(out).map(|n| n as u64)
+        })?;
+        Ok(&self.out)
     }
 }
 

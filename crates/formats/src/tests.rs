@@ -723,10 +723,15 @@ fn db3_reader_unpacks_zstd_messages_and_files_within_bounds_and_leaves_no_temp_f
     let (want, _) =
         db3_all(std::slice::from_ref(&plain), "/dvs/events", PLAIN, 2, 2).expect("reads");
     assert_eq!(want.len(), 3);
+    // Streamed (no size in the frame) and in one call (the size declared, as rosbag2 writes).
     let zstd = |data: &[u8]| zstd::stream::encode_all(data, 3).expect("zstd");
-    // "message": each message's data a zstd frame.
-    let framed: Vec<_> = (messages.iter())
-        .map(|(topic, stamp, data)| (*topic, *stamp, zstd(data)))
+    let sized = |data: &[u8]| zstd::bulk::compress(data, 3).expect("zstd");
+    // "message": each message's data a zstd frame, of both kinds.
+    let framed: Vec<_> = (messages.iter().enumerate())
+        .map(|(i, (topic, stamp, data))| {
+            let frame = if i % 2 == 0 { zstd(data) } else { sized(data) };
+            (*topic, *stamp, frame)
+        })
         .collect();
     let per_message = make_db3(&dir.join("message.db3"), &framed);
     let read = |path: &std::path::PathBuf, how| {
@@ -752,12 +757,18 @@ fn db3_reader_unpacks_zstd_messages_and_files_within_bounds_and_leaves_no_temp_f
     // cut file: one error naming the file (and the message), no temporary file left.
     let mut bad = framed.clone();
     bad[2].2[6] ^= 0xff;
-    let bomb = (2, 300, zstd(&vec![0u8; 64 << 20]));
+    let zeros = vec![0u8; 64 << 20];
+    let (bomb, sized_bomb) = ((2, 300, zstd(&zeros)), (2, 300, sized(&zeros)));
     for (name, messages, what) in [
         ("damaged.db3", bad, "message 1 of /dvs/events: zstd"),
         (
             "bomb.db3",
             vec![bomb],
+            "more than 256 bytes per compressed byte",
+        ),
+        (
+            "sized.db3",
+            vec![sized_bomb],
             "more than 256 bytes per compressed byte",
         ),
     ] {
