@@ -685,23 +685,36 @@ def _temp_db3s() -> list[Path]:
 
 
 @pytest.mark.parametrize("mode", ["message", "file"])
-def test_compressed_db3_reader_matches_rosbags_event_by_event(tmp_path, mode):
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_compressed_ros2_bag_readers_match_rosbags_event_by_event(tmp_path, storage, mode):
     x, y, t, p = _events(24, n=20_000, t0=1_600_000_000_000_000)
     poses = [(int(t[0]) + 50_000 * k, (0.0, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)) for k in range(20)]
-    bag = write_bag(tmp_path / "rec2", x, y, t, p, ros2=True, poses=poses, compression=mode)
-    found = rosbag.ros2_files(bag, "sqlite3")
+    mcap = storage == "mcap"
+    bag = write_bag(
+        tmp_path / "rec2", x, y, t, p, ros2=True, poses=poses, compression=mode, mcap=mcap
+    )
+    found = rosbag.ros2_files(bag, storage)
     assert found is not None and found.compression == mode
-    # rosbags names a compressed file NAME.db3.zstd and lists it so in metadata.yaml.
-    assert [f.name for f in found.files] == ["rec2.db3.zstd" if mode == "file" else "rec2.db3"]
+    # rosbags names a compressed file NAME.db3.zstd (.mcap.zstd), listed so in metadata.yaml.
+    name = "rec2.mcap" if mcap else "rec2.db3"
+    assert [f.name for f in found.files] == [f"{name}.zstd" if mode == "file" else name]
     before = _temp_db3s()
-    ours, dropped = _db3_events(found.files, compression=mode)
+    if mcap:
+        decoder = _core.McapEventDecoder(found.files, "/dvs/events", 1 << 12, mode)
+        chunks = []
+        while len((chunk := decoder.next_chunk(777))[0]):
+            chunks.append(chunk)
+        ours = tuple(np.concatenate([c[i] for c in chunks]) for i in range(4))
+        dropped = decoder.dropped()
+    else:
+        ours, dropped = _db3_events(found.files, compression=mode)
     _assert_same_events(ours, _rosbags_events(bag))
     _assert_same_events(ours, (x, y, t, p))
     assert dropped == (0, 0, 0)
     source = open_source(bag)
     n = sum(len(c[2]) for c in source.chunks)
     assert (source.decoder, source.width, source.height, n) == ("evsplat", W, H, len(t))
-    assert _temp_db3s() == before  # the unpacked copy is removed once read
+    assert _temp_db3s() == before  # a .db3's unpacked copy is removed once read
     times, _ = rosbag.read_bag_poses(bag)  # poses: still rosbags
     np.testing.assert_array_equal(times, [tp for tp, _, _ in poses])
 

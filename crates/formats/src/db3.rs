@@ -21,7 +21,7 @@
 //! (only a killed process leaves it, `evsplat-PID-N.db3`, behind).
 
 use std::fs::{File, OpenOptions};
-use std::io::{self, BufWriter, Read, Write};
+use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
@@ -30,30 +30,8 @@ use std::sync::Mutex;
 use rusqlite::{Connection, OpenFlags};
 
 use crate::cdr::{event_array, push_events};
-use crate::{unpack, EventSource, Events, Stats};
-
-/// How rosbag2 compressed a bag's .db3 files (metadata.yaml's `compression_mode`, with
-/// `compression_format` zstd, the only format rosbag2 writes).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Compression {
-    None,
-    /// Each message's data is a zstd frame.
-    Message,
-    /// Each file is a whole .db3 as one zstd stream (`NAME.db3.zstd`).
-    File,
-}
-
-impl Compression {
-    /// The mode as metadata.yaml spells it ("" or "none", "message", "file").
-    pub fn from_mode(mode: &str) -> Option<Self> {
-        match mode {
-            "" | "none" => Some(Self::None),
-            "message" => Some(Self::Message),
-            "file" => Some(Self::File),
-            _ => None,
-        }
-    }
-}
+use crate::unpack::{self, Frames};
+use crate::{EventSource, Events, Ros2Compression, Stats};
 
 /// A topic of a .db3 file: its id, name and message type (`pkg/msg/Name`).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -123,7 +101,7 @@ type Sent = Result<Batch, io::Error>;
 fn send_events(
     paths: &[PathBuf],
     topic: &str,
-    compression: Compression,
+    compression: Ros2Compression,
     chunk: usize,
     tx: &SyncSender<Sent>,
 ) {
@@ -162,7 +140,7 @@ fn send_events(
 struct FileRead<'a> {
     path: &'a Path,
     topic: &'a str,
-    compression: Compression,
+    compression: Ros2Compression,
     chunk: usize,
 }
 
@@ -177,7 +155,7 @@ impl FileRead<'_> {
     ) -> io::Result<bool> {
         let sql = |e| sql_error(self.path, e);
         let temp = match self.compression {
-            Compression::File => Some(unpack_file(self.path)?),
+            Ros2Compression::File => Some(unpack_file(self.path)?),
             _ => None,
         };
         let db = temp.as_ref().map_or(self.path, |t| &t.0);
@@ -198,7 +176,7 @@ impl FileRead<'_> {
             index += 1;
             let blob = row.get_ref(0).map_err(sql)?.as_blob().unwrap_or_default();
             let data = match self.compression {
-                Compression::Message => frames.unpack(blob).map_err(|e| {
+                Ros2Compression::Message => frames.unpack(blob).map_err(|e| {
                     let (path, topic) = (self.path.display(), self.topic);
                     let what = format!("{path}: message {index} of {topic}: zstd: {e}");
                     io::Error::new(io::ErrorKind::InvalidData, what)
@@ -227,46 +205,6 @@ impl FileRead<'_> {
             }
         }
         Ok(true)
-    }
-}
-
-/// Unpacks the zstd frames of a message-compressed bag: one decompression context for all
-/// (a fresh one per message cost as much as unpacking a small message) and one buffer.
-struct Frames {
-    context: zstd::bulk::Decompressor<'static>,
-    out: Vec<u8>,
-}
-
-impl Frames {
-    fn new() -> io::Result<Self> {
-        let context = zstd::bulk::Decompressor::new()?;
-        Ok(Self {
-            context,
-            out: Vec::new(),
-        })
-    }
-
-    /// `blob` unpacked, within `unpack::cap`: in one call when its frame declares a size under
-    /// the cap (rosbag2's do), else (no size, several frames, a bomb) streaming, cut at it.
-    fn unpack(&mut self, blob: &[u8]) -> io::Result<&[u8]> {
-        self.out.clear();
-        let cap = unpack::cap(blob.len() as u64);
-        if let Ok(Some(size)) = zstd::zstd_safe::get_frame_content_size(blob) {
-            if size <= cap {
-                self.out.reserve_exact(size as usize);
-                let done = self.context.decompress_to_buffer(blob, &mut self.out);
-                if done.is_ok_and(|n| n as u64 == size) {
-                    return Ok(&self.out);
-                }
-                self.out.clear();
-            }
-        }
-        let dec = zstd::stream::read::Decoder::with_buffer(blob)?;
-        let out = &mut self.out;
-        unpack::bounded(dec, blob.len() as u64, |d| {
-            d.read_to_end(out).map(|n| n as u64)
-        })?;
-        Ok(&self.out)
     }
 }
 
@@ -356,11 +294,11 @@ impl Db3Reader {
     pub fn new(
         paths: &[PathBuf],
         topic: &str,
-        compression: Compression,
+        compression: Ros2Compression,
         chunk: usize,
     ) -> io::Result<Self> {
         // A compressed file's SQLite is checked once the thread has unpacked it.
-        if compression != Compression::File {
+        if compression != Ros2Compression::File {
             for path in paths {
                 let check = || -> rusqlite::Result<()> {
                     let conn = open(path)?;

@@ -40,6 +40,29 @@ pub trait EventSource {
     fn next_chunk(&mut self, max_events: usize) -> std::io::Result<Events>;
 }
 
+/// How rosbag2 compressed a ROS 2 bag's files (.db3 or MCAP; metadata.yaml's
+/// `compression_mode`, with `compression_format` zstd, the only format rosbag2 writes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Ros2Compression {
+    None,
+    /// Each message's data is a zstd frame.
+    Message,
+    /// Each file is one zstd stream of the whole file (`NAME.db3.zstd`, `NAME.mcap.zstd`).
+    File,
+}
+
+impl Ros2Compression {
+    /// The mode as metadata.yaml spells it ("" or "none", "message", "file").
+    pub fn from_mode(mode: &str) -> Option<Self> {
+        match mode {
+            "" | "none" => Some(Self::None),
+            "message" => Some(Self::Message),
+            "file" => Some(Self::File),
+            _ => None,
+        }
+    }
+}
+
 /// What a decoder read but did not turn into events.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
 pub struct Stats {

@@ -495,6 +495,15 @@ fn mcap_string(s: &[u8]) -> Vec<u8> {
 
 /// A CDR EventArray message on `channel`: events (x, y, sec, nanosec, polarity).
 fn mcap_message(channel: u16, events: &[(u16, u16, i32, u32, u8)]) -> Vec<u8> {
+    mcap_message_packed(channel, events, |cdr| cdr)
+}
+
+/// The same, its CDR bytes through `pack` (rosbag2's zstd per message).
+fn mcap_message_packed(
+    channel: u16,
+    events: &[(u16, u16, i32, u32, u8)],
+    pack: impl Fn(Vec<u8>) -> Vec<u8>,
+) -> Vec<u8> {
     let mut cdr = vec![0u8, 1, 0, 0]; // little-endian CDR
     cdr.extend(5i32.to_le_bytes()); // stamp
     cdr.extend(0u32.to_le_bytes());
@@ -517,7 +526,7 @@ fn mcap_message(channel: u16, events: &[(u16, u16, i32, u32, u8)]) -> Vec<u8> {
     }
     let mut content = channel.to_le_bytes().to_vec();
     content.extend([0u8; 20]); // sequence, log and publish times
-    content.extend(cdr);
+    content.extend(pack(cdr));
     mcap_record(0x05, &content)
 }
 
@@ -608,7 +617,7 @@ fn cdr_event_array(events: &[(u16, u16, i32, u32, u8)]) -> Vec<u8> {
 fn db3_all(
     paths: &[std::path::PathBuf],
     topic: &str,
-    compression: crate::db3::Compression,
+    compression: crate::Ros2Compression,
     chunk: usize,
     max_events: usize,
 ) -> std::io::Result<(Events, Stats)> {
@@ -647,7 +656,7 @@ fn make_db3(path: &std::path::Path, messages: &[(i64, i64, Vec<u8>)]) -> std::pa
     path.to_path_buf()
 }
 
-const PLAIN: crate::db3::Compression = crate::db3::Compression::None;
+const PLAIN: crate::Ros2Compression = crate::Ros2Compression::None;
 
 #[test]
 fn db3_reader_takes_a_topics_event_arrays_in_timestamp_order_across_files() {
@@ -713,7 +722,7 @@ fn temp_db3s() -> Vec<std::path::PathBuf> {
 
 #[test]
 fn db3_reader_unpacks_zstd_messages_and_files_within_bounds_and_leaves_no_temp_file() {
-    use crate::db3::Compression;
+    use crate::Ros2Compression as Compression;
     let dir = std::env::temp_dir().join(format!("evsplat-db3-zstd-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("a temp folder");
     let a = cdr_event_array(&[(1, 2, 10, 5_999, 1), (3, 4, 10, 1_000_000, 0)]);
@@ -800,8 +809,12 @@ fn db3_reader_unpacks_zstd_messages_and_files_within_bounds_and_leaves_no_temp_f
 type CdrEvent = (u16, u16, i32, u32, u8);
 
 /// An MCAP file of top-level records: the event-array schema, `channel` on "/events", and a
-/// message of each event list there.
-fn mcap_file(channel: u16, messages: &[&[CdrEvent]]) -> Vec<u8> {
+/// message of each event list there, its CDR bytes through `pack`.
+fn mcap_file(
+    channel: u16,
+    messages: &[&[CdrEvent]],
+    pack: impl Fn(Vec<u8>) -> Vec<u8> + Copy,
+) -> Vec<u8> {
     let mut schema = 7u16.to_le_bytes().to_vec();
     schema.extend(mcap_string(b"dvs_msgs/msg/EventArray"));
     let mut chan = channel.to_le_bytes().to_vec();
@@ -811,7 +824,7 @@ fn mcap_file(channel: u16, messages: &[&[CdrEvent]]) -> Vec<u8> {
     data.extend(mcap_record(0x03, &schema));
     data.extend(mcap_record(0x04, &chan));
     for events in messages {
-        data.extend(mcap_message(channel, events));
+        data.extend(mcap_message_packed(channel, events, pack));
     }
     data
 }
@@ -825,13 +838,14 @@ fn split_mcap_files_read_one_after_another_in_full_chunks() {
     let third: &[CdrEvent] = &[(7, 8, 12, 0, 0), (9, 9, 12, 1_000, 1)];
     // Each file its own channel ids (rosbag2 writes every split file whole); the first ends
     // in a cut record, counted in the stats.
-    let mut a = mcap_file(3, &[first, second]);
+    let mut a = mcap_file(3, &[first, second], |cdr| cdr);
     a.extend(&mcap_message(3, third)[..10]);
     let paths = [dir.join("bag_0.mcap"), dir.join("bag_1.mcap")];
     std::fs::write(&paths[0], &a).expect("written");
-    std::fs::write(&paths[1], mcap_file(1, &[third])).expect("written");
+    std::fs::write(&paths[1], mcap_file(1, &[third], |cdr| cdr)).expect("written");
     let read = |paths: &[std::path::PathBuf], n: usize| {
-        let mut reader = crate::mcap::McapFiles::new(paths, Some("/events"), 7)?;
+        let mut reader =
+            crate::mcap::McapFiles::new(paths, Some("/events"), crate::Ros2Compression::None, 7)?;
         let size = reader.sensor_size()?;
         let mut chunks = Vec::new();
         loop {
@@ -869,6 +883,56 @@ fn split_mcap_files_read_one_after_another_in_full_chunks() {
     assert!(
         err.to_string().starts_with(&junk.display().to_string()),
         "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn mcap_files_compressed_per_message_or_per_file_read_as_plain_ones() {
+    use crate::Ros2Compression as Compression;
+    let dir = std::env::temp_dir().join(format!("evsplat-mcap-zstd-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temp folder");
+    let messages: [&[CdrEvent]; 2] = [
+        &[(1, 2, 10, 0, 1), (3, 4, 10, 5_000, 0)],
+        &[(5, 6, 11, 0, 1)],
+    ];
+    let read = |path: &std::path::Path, compression| {
+        let paths = [path.to_path_buf()];
+        let mut reader = crate::mcap::McapFiles::new(&paths, Some("/events"), compression, 7)?;
+        let all = drain(|n| reader.next_chunk(n), 2)?;
+        Ok::<_, std::io::Error>((rows(&all), reader.stats()))
+    };
+    let plain = dir.join("plain.mcap");
+    std::fs::write(&plain, mcap_file(3, &messages, |cdr| cdr)).expect("written");
+    let (want, stats) = read(&plain, Compression::None).expect("reads");
+    assert_eq!((want.len(), stats), (3, Stats::default()));
+    // "message": each message's data a zstd frame (rosbag2 declares its size).
+    let sized = |cdr: Vec<u8>| zstd::bulk::compress(&cdr, 3).expect("zstd");
+    let per_message = dir.join("message.mcap");
+    std::fs::write(&per_message, mcap_file(3, &messages, sized)).expect("written");
+    assert_eq!(
+        read(&per_message, Compression::Message).expect("reads"),
+        (want.clone(), stats)
+    );
+    // A frame that does not unpack: that message counted, the others read.
+    let broken = |cdr: Vec<u8>| {
+        if cdr.len() > 50 {
+            sized(cdr)[..20].to_vec()
+        } else {
+            sized(cdr)
+        }
+    };
+    let damaged = dir.join("damaged.mcap");
+    std::fs::write(&damaged, mcap_file(3, &messages, broken)).expect("written");
+    let (rest, stats) = read(&damaged, Compression::Message).expect("reads");
+    assert_eq!((rest.as_slice(), stats.unknown_words), (&want[2..], 1));
+    // "file": the whole file one zstd stream, unpacked as it is read.
+    let whole = dir.join("plain.mcap.zstd");
+    let packed = zstd::stream::encode_all(&std::fs::read(&plain).expect("read")[..], 3);
+    std::fs::write(&whole, packed.expect("zstd")).expect("written");
+    assert_eq!(
+        read(&whole, Compression::File).expect("reads"),
+        (want, Stats::default())
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

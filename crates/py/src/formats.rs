@@ -13,10 +13,10 @@ use crate::errors::value_err;
 use crate::events::{event_arrays, EventArrays};
 use evsplat_formats::aedat4::{self, AedatReader, Compression};
 use evsplat_formats::blosc::{Compressor, Filtered};
-use evsplat_formats::db3::{db3_topics, Compression as Db3Compression, Db3Reader};
+use evsplat_formats::db3::{db3_topics, Db3Reader};
 use evsplat_formats::mcap::{mcap_channels, McapFiles};
 use evsplat_formats::rosbag::{bag_connections, BagReader};
-use evsplat_formats::{ChunkReader, Encoding, EventSource};
+use evsplat_formats::{ChunkReader, Encoding, EventSource, Ros2Compression};
 
 /// `source`'s next chunk of at most `max_events` events as numpy arrays (empty at its end),
 /// read and decoded with the GIL released.
@@ -195,8 +195,18 @@ impl Aedat4EventDecoder {
     }
 }
 
+/// metadata.yaml's `compression_mode` of a ROS 2 bag ("none", "message" or "file").
+fn ros2_compression(mode: &str) -> PyResult<Ros2Compression> {
+    Ros2Compression::from_mode(mode).ok_or_else(|| {
+        value_err(format!(
+            "compression {mode:?} is unknown; use none, message or file"
+        ))
+    })
+}
+
 /// The event arrays of a ROS 2 MCAP bag's `topic` (None: every event-array channel), from
-/// its files (`paths`, read one after another: a split bag), each through a buffer of `block`
+/// its files (`paths`, read one after another: a split bag; `compression`: metadata.yaml's
+/// `compression_mode` of zstd, "none", "message" or "file"), each through a buffer of `block`
 /// bytes.
 #[pyclass(module = "evsplat._core")]
 struct McapEventDecoder {
@@ -206,9 +216,16 @@ struct McapEventDecoder {
 #[pymethods]
 impl McapEventDecoder {
     #[new]
-    #[pyo3(signature = (paths, topic, block))]
-    fn new(paths: Vec<std::path::PathBuf>, topic: Option<&str>, block: usize) -> PyResult<Self> {
-        let inner = McapFiles::new(&paths, topic, block).map_err(PyOSError::new_err)?;
+    #[pyo3(signature = (paths, topic, block, compression = "none"))]
+    fn new(
+        paths: Vec<std::path::PathBuf>,
+        topic: Option<&str>,
+        block: usize,
+        compression: &str,
+    ) -> PyResult<Self> {
+        let compression = ros2_compression(compression)?;
+        let inner =
+            McapFiles::new(&paths, topic, compression, block).map_err(PyOSError::new_err)?;
         Ok(Self { inner })
     }
 
@@ -270,11 +287,7 @@ impl Db3EventDecoder {
         chunk: usize,
         compression: &str,
     ) -> PyResult<Self> {
-        let Some(compression) = Db3Compression::from_mode(compression) else {
-            return Err(value_err(format!(
-                "compression {compression:?} is unknown; use none, message or file"
-            )));
-        };
+        let compression = ros2_compression(compression)?;
         let inner =
             Db3Reader::new(&paths, topic, compression, chunk).map_err(PyOSError::new_err)?;
         Ok(Self { inner })

@@ -2,21 +2,20 @@
 ``prophesee_event_msgs/EventArray`` from prophesee_ros_driver) and ``geometry_msgs/PoseStamped``
 poses.
 
-The events of a ROS 1 bag (.bag), of a ROS 2 bag in MCAP (one file, or split over several that
-its metadata.yaml lists, read one after another) and of a ROS 2 SQLite bag (one or several .db3
-files; uncompressed, or zstd-compressed by rosbag2 per message or per file, ``NAME.db3.zstd``)
-are decoded by the project's Rust readers (crates/formats, ``rosbag``, ``mcap`` and ``db3``), in
-bounded chunks of events. The first two read records in file order, chunks uncompressed or
-compressed (bags: LZ4, bzip2; MCAP: Zstd, LZ4), with no need for the index or summary, so a bag
-whose recording was cut off reads up to its last complete message or chunk; the .db3 reader
-queries SQLite for the topic's messages in timestamp order (a compressed file unpacked first
-into a temporary .db3, removed after it). Every bag's poses go through ``rosbags`` (pure
-Python), and so do the events of the one kind left, MCAP bags that rosbag2 compressed per
-message or per file (MCAP's own chunk compression is read in Rust); rosbags' reader is also
-`evsplat bench decode`'s reference. Its message definitions stored in the bag are used, and the
-two event types are also registered here, so ROS 2 bags recorded without definitions read too.
-The Rust readers were checked event by event against rosbags' deserialiser
-(tests/test_formats.py, tests/test_formats_samples.py)."""
+The events of every bag evsplat reads are decoded by the project's Rust readers (crates/formats,
+``rosbag``, ``mcap`` and ``db3``), in bounded chunks of events: a ROS 1 bag (.bag); a ROS 2 bag
+in MCAP or in SQLite (.db3), in one file or split over several that its metadata.yaml lists
+(read one after another), uncompressed or zstd-compressed by rosbag2 per message or per file
+(``NAME.mcap.zstd``, ``NAME.db3.zstd``). The .bag and MCAP readers read records in file order,
+chunks uncompressed or compressed (bags: LZ4, bzip2; MCAP: Zstd, LZ4), with no need for the
+index or summary, so a bag whose recording was cut off reads up to its last complete message
+or chunk (a compressed MCAP file is unpacked as it is read); the .db3 reader queries SQLite for
+the topic's messages in timestamp order (a compressed file unpacked first into a temporary
+.db3, removed after it). Poses go through ``rosbags`` (pure Python; a few thousand messages),
+whose reader is also `evsplat bench decode`'s reference for the events; its message
+definitions stored in the bag are used, and the two event types are also registered here, so
+ROS 2 bags recorded without definitions read too. The Rust readers were checked event by event
+against rosbags' deserialiser (tests/test_formats.py, tests/test_formats_samples.py)."""
 
 from __future__ import annotations
 
@@ -273,26 +272,29 @@ def _rust_fail(path: Path, e: OSError) -> EvsplatError:
     )
 
 
-def open_rust_bag(path: Path, files: list[Path], *, topic: str | None = None) -> EventSource:
-    """Opens the event topic of a ROS 1 bag (one file) or a ROS 2 MCAP bag (its ``files``,
-    read one after another) with the Rust readers; the sensor size comes from its first event
-    message."""
-    ros1 = files[0].suffix.lower() == ".bag"
+def open_rust_bag(path: Path, bag: Ros2Files, *, topic: str | None = None) -> EventSource:
+    """Opens the event topic of a ROS 1 bag (one file) or a ROS 2 MCAP bag (its files, read
+    one after another, plain or zstd-compressed) with the Rust readers; the sensor size comes
+    from its first event message."""
+    ros1 = bag.files[0].suffix.lower() == ".bag"
     try:
         if ros1:
-            listed = _core.bag_connections(files[0])
+            listed = _core.bag_connections(bag.files[0])
+        elif bag.compression == "file":  # a compressed file's channels: its metadata's topics
+            listed = [(0, c.topic, c.msgtype) for c in bag.topics]
         else:
-            listed = [row for f in files for row in _core.mcap_channels(f)]
+            listed = [row for f in bag.files for row in _core.mcap_channels(f)]
     except OSError as e:
         raise _rust_fail(path, e) from None
     connections = list(dict.fromkeys(Connection(t, _msgtype(m)) for _, t, m in listed))
     chosen = _pick(path, connections, topic, EVENT_TYPES, "event-array")[0].topic
-    block = max(1, min(BLOCK_BYTES, max(f.stat().st_size for f in files)))
+    block = max(1, min(BLOCK_BYTES, max(f.stat().st_size for f in bag.files)))
     try:
         if ros1:
-            decoder = _core.BagEventDecoder(files[0], chosen, block)
+            decoder = _core.BagEventDecoder(bag.files[0], chosen, block)
         else:
-            decoder = _core.McapEventDecoder([str(f) for f in files], chosen, block)
+            files = [str(f) for f in bag.files]
+            decoder = _core.McapEventDecoder(files, chosen, block, bag.compression)
         size = decoder.sensor_size()
     except OSError as e:
         raise _rust_fail(path, e) from None
@@ -301,29 +303,18 @@ def open_rust_bag(path: Path, files: list[Path], *, topic: str | None = None) ->
 
 
 def open_bag(path: Path, *, topic: str | None = None) -> EventSource:
-    """Opens the event topic of a bag; the sensor size comes from its first message."""
+    """Opens the event topic of a bag; the sensor size comes from its first message. Every
+    bag evsplat reads decodes in Rust; for any other input rosbags says what is wrong."""
     if is_ros1_bag(path):
-        return open_rust_bag(path, [path], topic=topic)
-    mcap = ros2_files(path, "mcap")
-    if mcap is not None and mcap.compression == "none":
-        return open_rust_bag(path, mcap.files, topic=topic)
+        return open_rust_bag(path, Ros2Files([path]), topic=topic)
+    if (mcap := ros2_files(path, "mcap")) is not None:
+        return open_rust_bag(path, mcap, topic=topic)
     if (db3 := ros2_files(path, "sqlite3")) is not None:
         return open_db3_bag(path, db3, topic=topic)
-    reader = _open(path)
-    conns = _pick(path, reader.connections, topic, EVENT_TYPES, "event-array")
-    first = next(reader.messages(connections=conns), None)
-    if first is None:
-        reader.close()
-        raise EvsplatError(f"{path}: topic {conns[0].topic} has no messages")
-    msg = reader.deserialize(first[2], first[0].msgtype)
-    if not (msg.width > 0 and msg.height > 0):
-        reader.close()
-        raise EvsplatError(
-            f"{path}: topic {conns[0].topic} gives sensor size {msg.width}x{msg.height}; "
-            "the driver did not fill width/height: re-record or fix the messages"
-        )
-    return EventSource(
-        path, int(msg.width), int(msg.height), _event_chunks(reader, conns), "rosbag", "rosbags"
+    _open(path).close()  # rosbags' own error for what it cannot open
+    raise EvsplatError(
+        f"{path}: not a bag evsplat reads (a ROS 1 .bag, or a ROS 2 bag in MCAP or SQLite with "
+        "its metadata.yaml, uncompressed or zstd-compressed); pass the bag's folder or file"
     )
 
 
@@ -370,9 +361,8 @@ def cdr_event_records(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def _event_chunks(reader: AnyReader, conns) -> Iterator[Chunk]:
-    """The event chunks of a bag through rosbags: MCAP bags compressed by rosbag2 per message
-    or per file; every other bag comes here only as `evsplat bench decode`'s reference (the
-    path evsplat took before its Rust readers)."""
+    """The event chunks of a bag through rosbags: `evsplat bench decode`'s reference decoder
+    (the path evsplat took before its Rust readers), with byte views of the event messages."""
     try:
         for conn, _, raw in reader.messages(connections=conns):
             # rosbags builds one Python object per event; a view of the bytes is ~100x faster.
