@@ -1,12 +1,14 @@
 """`evsplat bench decode`: the recording decoders (Prophesee EVT 2.0, EVT 3.0, DAT; ROS 1 bags,
-uncompressed and LZ4; ROS 2 MCAP, uncompressed, Zstd chunks and split over two files; ROS 2
-SQLite bags, uncompressed and zstd per message or per file; AEDAT 4, LZ4) against the disk and
-the reference decoders, on a recording generated for the run (deleted after it).
+uncompressed and LZ4; ROS 2 MCAP, uncompressed, Zstd chunks, split over two files and zstd per
+message or per file; ROS 2 SQLite bags, uncompressed and zstd per message or per file; AEDAT 4,
+LZ4) against the disk and the reference decoders, on a recording generated for the run (deleted
+after it).
 
 Per format, all in one run on the same file: the disk's sequential read speed (once with the
 file's pages dropped from the page cache by ``posix_fadvise(DONTNEED)`` after an ``fsync``:
 "cold", though a VM's host may still cache it; once warm), the project's Rust decoder
 (``_core.EventFileDecoder``, ``_core.BagEventDecoder``, ``_core.McapEventDecoder``,
+``_core.Db3EventDecoder``,
 ``_core.Aedat4EventDecoder``; warm and cold) and the reference decoder (``evt3`` for EVT 3.0,
 ``expelliarmus`` for EVT 2.0 and DAT, ``aedat`` for AEDAT 4, for bags ``rosbags``' reader with
 the byte views evsplat used before its Rust readers: rosbags' deserialiser, one Python object
@@ -42,8 +44,8 @@ HELP = (
 )
 
 FORMATS = (
-    "evt3", "evt2", "dat", "bag", "bag-lz4", "mcap", "mcap-zstd", "mcap-split", "db3",
-    "db3-message", "db3-file", "aedat4",
+    "evt3", "evt2", "dat", "bag", "bag-lz4", "mcap", "mcap-zstd", "mcap-split", "mcap-message",
+    "mcap-file", "db3", "db3-message", "db3-file", "aedat4",
 )  # fmt: skip
 #: The field's decoder each format is compared with.
 REFERENCES = {
@@ -55,6 +57,8 @@ REFERENCES = {
     "mcap": "rosbags",
     "mcap-zstd": "rosbags",
     "mcap-split": "rosbags",
+    "mcap-message": "rosbags",
+    "mcap-file": "rosbags",
     "db3": "rosbags",
     "db3-message": "rosbags",
     "db3-file": "rosbags",
@@ -399,11 +403,10 @@ def measure_format(args: argparse.Namespace, encoding: str, folder: Path) -> lis
     if encoding.startswith(("mcap", "db3")):  # a ROS 2 bag is a folder: its files are timed
         path = folder / encoding
         storage = "mcap" if encoding.startswith("mcap") else "sqlite3"
-        compression = {"mcap-zstd": "storage", "db3-message": "message", "db3-file": "file"}
+        compression = {"zstd": "storage", "message": "message", "file": "file"}
+        mode = compression.get(encoding.partition("-")[2], "none")
         split_at = args.events // 2 if encoding == "mcap-split" else None
-        files = write_ros2(
-            path, chunks(), 1280, 720, storage, compression.get(encoding, "none"), split_at
-        )
+        files = write_ros2(path, chunks(), 1280, 720, storage, mode, split_at)
     elif encoding == "aedat4":
         files = [path]
         write_aedat4(path, chunks(), 1280, 720)
