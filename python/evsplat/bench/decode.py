@@ -8,13 +8,13 @@ Per format, all in one run on the same file: the disk's sequential read speed (o
 file's pages dropped from the page cache by ``posix_fadvise(DONTNEED)`` after an ``fsync``:
 "cold", though a VM's host may still cache it; once warm), the project's Rust decoder
 (``_core.EventFileDecoder``, ``_core.BagEventDecoder``, ``_core.McapEventDecoder``,
-``_core.Db3EventDecoder``,
-``_core.Aedat4EventDecoder``; warm and cold) and the reference decoder (``evt3`` for EVT 3.0,
-``expelliarmus`` for EVT 2.0 and DAT, ``aedat`` for AEDAT 4, for bags ``rosbags``' reader with
-the byte views evsplat used before its Rust readers: rosbags' deserialiser, one Python object
-per event, is far too slow for these sizes), warm; with ``--convert``, ``evsplat convert`` end
-to end with and without compression and the SHA-256 of the file it computes alongside. Each
-decoder's events are summed (count, x, y, t, p) and compared with the generator's.
+``_core.Db3EventDecoder``, ``_core.Aedat4EventDecoder``; warm and cold, its opening included)
+and the reference decoder (``evt3`` for EVT 3.0, ``expelliarmus`` for EVT 2.0 and DAT,
+``aedat`` for AEDAT 4, for bags ``rosbags``' reader with the byte views evsplat used before its
+Rust readers: rosbags' deserialiser, one Python object per event, is far too slow for these
+sizes), warm; with ``--convert``, ``evsplat convert`` end to end with and without compression
+and the SHA-256 of the file it computes alongside. Each decoder's events are summed (count, x,
+y, t, p) and compared with the generator's.
 """
 
 from __future__ import annotations
@@ -494,9 +494,10 @@ def run(args: argparse.Namespace) -> int:
     print(table(rows))
     print(
         "O_DIRECT: past the page cache (the device); cold: the file's cached pages dropped first "
-        "(a VM's host may still cache them); warm: in the page cache. 'x disk': wall time against "
-        "the O_DIRECT read of the same file in this run. Decoder rows time the decoding only; "
-        "'same': count and sums of x, y, t, p equal to the generated events. convert runs once, "
+        "(a VM's host may still cache them); warm: in the page cache (a bag's files: all of them). "
+        "'x disk': wall time against the O_DIRECT read of the same file in this run. Decoder rows "
+        "time the reader's opening and decoding, not the checks; 'same': count and sums of x, y, "
+        "t, p equal to the generated events. convert runs once, "
         "in a fresh process: its own time as it prints it, then the whole process's."
     )
     return 0
