@@ -152,27 +152,27 @@ COMPRESSION_MODES = ("none", "message", "file")
 
 
 @dataclass(frozen=True)
-class Ros2Files:
-    """A ROS 2 bag's storage files in reading order, how they are compressed (metadata.yaml's
-    ``compression_mode`` of zstd: "none", "message": each message's data a zstd frame, "file":
-    each file one zstd stream, ``NAME.db3.zstd``) and its topics as its metadata lists them
-    (none without metadata)."""
+class BagFiles:
+    """A bag's files in reading order (a ROS 1 bag: its one file; a ROS 2 bag: its storage
+    files), how they are compressed (a ROS 2 bag's metadata.yaml ``compression_mode`` of zstd:
+    "none", "message": each message's data a zstd frame, "file": each file one zstd stream,
+    ``NAME.db3.zstd``) and its topics as its metadata lists them (none without metadata)."""
 
     files: list[Path]
     compression: str = "none"
     topics: tuple[Connection, ...] = ()
 
 
-def _lone(path: Path, storage: str) -> Ros2Files | None:
+def _lone(path: Path, storage: str) -> BagFiles | None:
     """A file of ``storage`` on its own, or a folder's only storage file, without metadata."""
     suffix = STORAGE_SUFFIXES[storage]
     if path.is_file():
-        return Ros2Files([path]) if path.suffix.lower() == suffix else None
+        return BagFiles([path]) if path.suffix.lower() == suffix else None
     found = [f for kind in STORAGE_SUFFIXES.values() for f in sorted(path.glob(f"*{kind}"))]
-    return Ros2Files(found) if len(found) == 1 and found[0].suffix.lower() == suffix else None
+    return BagFiles(found) if len(found) == 1 and found[0].suffix.lower() == suffix else None
 
 
-def ros2_files(path: Path, storage: str) -> Ros2Files | None:
+def ros2_files(path: Path, storage: str) -> BagFiles | None:
     """The files of a ROS 2 bag in ``storage`` ("sqlite3" or "mcap"), which the Rust readers
     decode: those its metadata.yaml lists, for the bag folder or one of its files; without
     metadata (or for a file it does not list), the file itself or a folder's only storage
@@ -200,7 +200,7 @@ def ros2_files(path: Path, storage: str) -> Ros2Files | None:
         return _lone(path, storage)
     if not (storage_ok and mode in COMPRESSION_MODES and (zstd or mode == "none")):
         return None
-    return Ros2Files(files, mode, topics) if files and all(f.is_file() for f in files) else None
+    return BagFiles(files, mode, topics) if files and all(f.is_file() for f in files) else None
 
 
 #: What to do about a .db3 file SQLite cannot read.
@@ -237,7 +237,7 @@ def _rust_source(
     return EventSource(path, int(width), int(height), chunks, "rosbag", "evsplat", dropped)
 
 
-def open_db3_bag(path: Path, bag: Ros2Files, *, topic: str | None = None) -> EventSource:
+def open_db3_bag(path: Path, bag: BagFiles, *, topic: str | None = None) -> EventSource:
     """Opens the event topic of a ROS 2 SQLite bag (its files, in order, plain or
     zstd-compressed) with the Rust reader; the sensor size comes from its first event
     message."""
@@ -272,7 +272,7 @@ def _rust_fail(path: Path, e: OSError) -> EvsplatError:
     )
 
 
-def open_rust_bag(path: Path, bag: Ros2Files, *, topic: str | None = None) -> EventSource:
+def open_rust_bag(path: Path, bag: BagFiles, *, topic: str | None = None) -> EventSource:
     """Opens the event topic of a ROS 1 bag (one file) or a ROS 2 MCAP bag (its files, read
     one after another, plain or zstd-compressed) with the Rust readers; the sensor size comes
     from its first event message."""
@@ -306,7 +306,7 @@ def open_bag(path: Path, *, topic: str | None = None) -> EventSource:
     """Opens the event topic of a bag; the sensor size comes from its first message. Every
     bag evsplat reads decodes in Rust; for any other input rosbags says what is wrong."""
     if is_ros1_bag(path):
-        return open_rust_bag(path, Ros2Files([path]), topic=topic)
+        return open_rust_bag(path, BagFiles([path]), topic=topic)
     if (mcap := ros2_files(path, "mcap")) is not None:
         return open_rust_bag(path, mcap, topic=topic)
     if (db3 := ros2_files(path, "sqlite3")) is not None:
