@@ -1,12 +1,12 @@
 //! Decoders of event-camera recordings: the binary words of Prophesee EVT 2.0, EVT 3.0 and DAT
-//! (CD events), the event-array messages of ROS 1 bags (`rosbag`) and of ROS 2 MCAP files
-//! (`mcap`) and of ROS 2 SQLite bags (`db3`), and the event packets of AEDAT 4 files
-//! (`aedat4`), turned into events, chunk by
-//! chunk. Each decoder keeps its state (time base,
-//! row, vector base) across calls, so a recording streams through a bounded buffer. Headers are
-//! parsed by the Python reader (python/evsplat/data/formats/prophesee.py); this crate sees the
-//! bytes after them. On the way out, `blosc` compresses the HDF5 event file's chunks as the
-//! HDF5 Blosc filter does.
+//! (CD events), the event-array messages of ROS 1 bags (`rosbag`), of ROS 2 bags in MCAP
+//! (`mcap`) and in SQLite (`db3`), split over several files or zstd-compressed by rosbag2 (per
+//! message or per file), and the event packets of AEDAT 4 files (`aedat4`), turned into events,
+//! chunk by chunk. Each decoder keeps its state (time base, row, vector base) across calls, so
+//! a recording streams through a bounded buffer; every compressed block unpacks within a bound
+//! (`unpack`). Headers are parsed by the Python reader (python/evsplat/data/formats/
+//! prophesee.py); this crate sees the bytes after them. On the way out, `blosc` compresses the
+//! HDF5 event file's chunks as the HDF5 Blosc filter does.
 
 pub mod aedat4;
 pub mod blosc;
@@ -28,7 +28,7 @@ pub use reader::{ChunkReader, Encoding};
 pub use evsplat_events::Events;
 
 /// A recording's events, chunk by chunk: every format's reader (`ChunkReader` for the EVT and
-/// DAT words, `rosbag::BagReader`, `mcap::McapReader`, `db3::Db3Reader`,
+/// DAT words, `rosbag::BagReader`, `mcap::McapReader` and `mcap::McapFiles`, `db3::Db3Reader`,
 /// `aedat4::AedatReader`).
 pub trait EventSource {
     /// What was read but not turned into events so far (complete once a chunk came back
