@@ -17,7 +17,9 @@ def test_bench_decode_prints_every_row_and_every_decoder_agrees(tmp_path, capsys
     rows = json.loads(capsys.readouterr().out)
     references = {"evt3": "evt3", "evt2": "expelliarmus", "dat": "expelliarmus"}
     references |= {"bag": "rosbags", "bag-lz4": "rosbags", "mcap": "rosbags"}
-    references |= {"mcap-zstd": "rosbags", "db3": "rosbags", "aedat4": "aedat"}
+    references |= {"mcap-zstd": "rosbags", "mcap-split": "rosbags", "mcap-message": "rosbags"}
+    references |= {"mcap-file": "rosbags", "db3": "rosbags"}
+    references |= {"db3-message": "rosbags", "db3-file": "rosbags", "aedat4": "aedat"}
     for fmt, reference in references.items():
         what = {r["what"]: r for r in rows if r["format"] == fmt}
         for name in ("disk read, O_DIRECT", "disk read, cold", "disk read, warm"):

@@ -116,7 +116,7 @@ def write_bag(
     """A bag with an event topic (messages of ~500 events) and optionally a pose topic; a
     ROS 1 bag's chunks ``compression`` ("none", "lz4", "bz2") of ``chunk_bytes`` (rosbags'
     default: 1 MiB); a ROS 2 bag in SQLite, or with ``mcap`` in MCAP (``compression`` "zstd":
-    zstd chunks)."""
+    zstd chunks; "message", "file": rosbag2's zstd compression of each message or file)."""
     store = rosbag.typestore(ros1=not ros2)
     if ros2:
         from rosbags.rosbag2 import StoragePlugin, Writer
@@ -124,8 +124,9 @@ def write_bag(
 
         plugin = StoragePlugin.MCAP if mcap else StoragePlugin.SQLITE3
         writer, ser = Writer(path, version=9, storage_plugin=plugin), store.serialize_cdr
-        if compression == "zstd":
-            writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        if compression != "none":
+            mode = "STORAGE" if compression == "zstd" else compression.upper()
+            writer.set_compression(CompressionMode[mode], CompressionFormat.ZSTD)
     else:
         from rosbags.rosbag1 import Writer
 
@@ -431,7 +432,7 @@ def test_ros2_mcap_reader_matches_rosbags_event_by_event(tmp_path, compression, 
         compression=compression,
     )  # fmt: skip
     (mcap,) = bag.glob("*.mcap")
-    decoder = _core.McapEventDecoder(mcap, "/dvs/events", 1 << 12)
+    decoder = _core.McapEventDecoder([mcap], "/dvs/events", 1 << 12)
     chunks = []
     while len((chunk := decoder.next_chunk(777))[0]):
         chunks.append(chunk)
@@ -601,8 +602,8 @@ def test_bad_recordings_fail_with_one_line_naming_the_file(tmp_path, capsys):
 # --- ROS 2 bags in SQLite (.db3), read in Rust --------------------------------------------
 
 
-def _db3_events(files: list[Path], topic: str = "/dvs/events"):
-    decoder = _core.Db3EventDecoder([str(f) for f in files], topic, 1000)
+def _db3_events(files: list[Path], topic: str = "/dvs/events", compression: str = "none"):
+    decoder = _core.Db3EventDecoder([str(f) for f in files], topic, 1000, compression)
     chunks = []
     while len((chunk := decoder.next_chunk(777))[0]):
         chunks.append(chunk)
@@ -650,9 +651,9 @@ def test_split_db3_bag_reads_its_files_in_the_metadata_order(tmp_path):
     name = db_a.name
     assert f"- {name}" in meta
     (first / "metadata.yaml").write_text(meta.replace(f"- {name}", f"- {name}\n  - a_1.db3"))
-    assert rosbag.db3_files(first) == [db_a, first / "a_1.db3"]
-    assert rosbag.db3_files(db_a) == [db_a, first / "a_1.db3"]
-    _assert_same_events(_db3_events(rosbag.db3_files(first))[0], (x, y, t, p))
+    assert rosbag.ros2_files(first, "sqlite3").files == [db_a, first / "a_1.db3"]
+    assert rosbag.ros2_files(db_a, "sqlite3").files == [db_a, first / "a_1.db3"]
+    _assert_same_events(_db3_events(rosbag.ros2_files(first, "sqlite3").files)[0], (x, y, t, p))
     _assert_same_events(_rosbags_events(first), (x, y, t, p))  # the oracle agrees
     stream = read_events(first)
     _assert_same(stream, x, y, t, p)
@@ -673,6 +674,106 @@ def test_damaged_db3_is_one_line_naming_the_file_and_the_fix(tmp_path):
         msg = str(err.value)
         assert "\n" not in msg and str(path) in msg, msg
         assert "sqlite3 BAG.db3 .recover" in msg and "re-record" in msg, msg
+
+
+def _temp_db3s() -> list[Path]:
+    """This process's temporary .db3 files (the Rust reader's unpacked .db3.zstd files)."""
+    import os
+    import tempfile
+
+    return sorted(Path(tempfile.gettempdir()).glob(f"evsplat-{os.getpid()}-*.db3"))
+
+
+@pytest.mark.parametrize("mode", ["message", "file"])
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_compressed_ros2_bag_readers_match_rosbags_event_by_event(tmp_path, storage, mode):
+    x, y, t, p = _events(24, n=20_000, t0=1_600_000_000_000_000)
+    poses = [(int(t[0]) + 50_000 * k, (0.0, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)) for k in range(20)]
+    mcap = storage == "mcap"
+    bag = write_bag(
+        tmp_path / "rec2", x, y, t, p, ros2=True, poses=poses, compression=mode, mcap=mcap
+    )
+    found = rosbag.ros2_files(bag, storage)
+    assert found is not None and found.compression == mode
+    # rosbags names a compressed file NAME.db3.zstd (.mcap.zstd), listed so in metadata.yaml.
+    name = "rec2.mcap" if mcap else "rec2.db3"
+    assert [f.name for f in found.files] == [f"{name}.zstd" if mode == "file" else name]
+    before = _temp_db3s()
+    if mcap:
+        decoder = _core.McapEventDecoder(found.files, "/dvs/events", 1 << 12, mode)
+        chunks = []
+        while len((chunk := decoder.next_chunk(777))[0]):
+            chunks.append(chunk)
+        ours = tuple(np.concatenate([c[i] for c in chunks]) for i in range(4))
+        dropped = decoder.dropped()
+    else:
+        ours, dropped = _db3_events(found.files, compression=mode)
+    _assert_same_events(ours, _rosbags_events(bag))
+    _assert_same_events(ours, (x, y, t, p))
+    assert dropped == (0, 0, 0)
+    source = open_source(bag)
+    n = sum(len(c[2]) for c in source.chunks)
+    assert (source.decoder, source.width, source.height, n) == ("evsplat", W, H, len(t))
+    assert _temp_db3s() == before  # a .db3's unpacked copy is removed once read
+    times, _ = rosbag.read_bag_poses(bag)  # poses: still rosbags
+    np.testing.assert_array_equal(times, [tp for tp, _, _ in poses])
+
+
+def test_damaged_compressed_db3_is_one_line_naming_the_file_and_the_fix(tmp_path, capsys):
+    import sqlite3
+
+    x, y, t, p = _events(25, n=6000, t0=2_000_000)
+    before = _temp_db3s()
+    message = write_bag(tmp_path / "message", x, y, t, p, ros2=True, compression="message")
+    (db3,) = message.glob("*.db3")
+    with sqlite3.connect(db3) as db:  # the last message's zstd frame cut in half
+        db.execute(
+            "UPDATE messages SET data = substr(data, 1, length(data) / 2) "
+            "WHERE id = (SELECT max(id) FROM messages)"
+        )
+    whole = write_bag(tmp_path / "file", x, y, t, p, ros2=True, compression="file")
+    (packed,) = whole.glob("*.db3.zstd")
+    packed.write_bytes(packed.read_bytes()[: packed.stat().st_size // 2])
+    cases = [(message, db3, "message 12 of /dvs/events: zstd"), (whole, packed, "zstd")]
+    for bag, named, what in cases:
+        out = tmp_path / "out.h5"
+        assert main(["convert", str(bag), str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and str(named) in err and what in err, err
+        assert "zstd -t" in err and "re-record" in err, err
+        assert not out.exists() and not list(tmp_path.glob(".out.h5*"))
+    assert _temp_db3s() == before
+
+
+def test_split_mcap_bag_reads_its_files_in_the_metadata_order(tmp_path):
+    # rosbags' Writer does not split bags: two bags' files put in one folder, its
+    # metadata.yaml edited to list both, as rosbag2 lists the files of a split bag.
+    x, y, t, p = _events(26, n=20_000, t0=1_600_000_000_000_000)
+    half = 11_000
+    first = write_bag(tmp_path / "a", x[:half], y[:half], t[:half], p[:half], ros2=True, mcap=True)
+    second = write_bag(tmp_path / "b", x[half:], y[half:], t[half:], p[half:], ros2=True, mcap=True)
+    (mcap_a,), (mcap_b,) = first.glob("*.mcap"), second.glob("*.mcap")
+    mcap_b.rename(first / "a_1.mcap")
+    meta = (first / "metadata.yaml").read_text()
+    assert f"- {mcap_a.name}" in meta
+    listed = meta.replace(f"- {mcap_a.name}", f"- {mcap_a.name}\n  - a_1.mcap")
+    (first / "metadata.yaml").write_text(listed)
+    files = [mcap_a, first / "a_1.mcap"]
+    assert rosbag.ros2_files(first, "mcap").files == files
+    assert rosbag.ros2_files(mcap_a, "mcap").files == files
+    decoder = _core.McapEventDecoder(files, "/dvs/events", 1 << 12)
+    assert decoder.sensor_size() == (W, H)
+    chunks = []
+    while len((chunk := decoder.next_chunk(777))[0]):
+        chunks.append(chunk)
+    assert all(len(c[0]) == 777 for c in chunks[:-1])  # chunks run on across the files
+    ours = tuple(np.concatenate([c[i] for c in chunks]) for i in range(4))
+    _assert_same_events(ours, _rosbags_events(first))
+    _assert_same_events(ours, (x, y, t, p))
+    assert decoder.dropped() == (0, 0, 0)
+    source = open_source(first)
+    assert source.decoder == "evsplat"
+    _assert_same(read_events(first), x, y, t, p)
 
 
 def test_convert_reads_ahead_in_order_passes_errors_on_and_stops_with_its_reader():

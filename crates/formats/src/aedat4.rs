@@ -12,16 +12,13 @@
 use std::io::{self, BufReader, Read};
 
 use crate::bytes::{i64_at, u16_at, u32_at};
-use crate::{EventSource, Events, Stats};
+use crate::{unpack, EventSource, Events, Stats};
 
 /// The first line of every AEDAT 4 file.
 pub const MAGIC: &[u8] = b"#!AER-DAT4.0\r\n";
 /// Bytes per event struct in an event packet.
 pub const EVENT: usize = 16;
 const EVENTS_ID: &[u8] = b"EVTS";
-/// Most bytes a packet may unpack to per compressed byte (LZ4's own limit, 255, plus a
-/// margin): a larger output is a decompression bomb, refused before it fills the memory.
-const MAX_RATIO: u64 = 256;
 
 /// How a file's packets are compressed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -297,12 +294,7 @@ impl<R: Read> EventSource for AedatReader<R> {
     }
 }
 
-/// Decompresses into `out`, refusing more than `MAX_RATIO` bytes per input byte (+ 64 KiB).
+/// Decompresses a packet of `input` bytes into `out`, within `unpack::cap(input)`.
 fn bounded<D: Read>(dec: D, input: usize, out: &mut Vec<u8>) -> io::Result<()> {
-    let cap = (input as u64).saturating_mul(MAX_RATIO) + (1 << 16);
-    dec.take(cap + 1).read_to_end(out)?;
-    if out.len() as u64 > cap {
-        return Err(invalid("a packet unpacks to more than 256 bytes per byte"));
-    }
-    Ok(())
+    unpack::bounded(dec, input as u64, |d| d.read_to_end(out).map(|n| n as u64)).map(drop)
 }

@@ -207,6 +207,30 @@ pub fn decode_mcap_all(
     Some((all, reader.stats(), unpacked))
 }
 
+/// A message-compressed bag's zstd frame (`unpack::Frames`, as the .db3 and MCAP readers
+/// unpack one), after `before` through the same unpacker: it unpacks to at most
+/// `unpack::cap` of its size (a bomb is an error, not an allocation), its buffer held within
+/// twice the larger cap of the two, and it all ends (`HANG`). Returns the unpacked bytes.
+pub fn unpack_frame_checked(before: &[u8], frame: &[u8]) -> Option<Vec<u8>> {
+    let start = Instant::now();
+    let mut frames = crate::unpack::Frames::new().expect("a zstd context");
+    let _ = frames.unpack(before);
+    let unpacked = frames.unpack(frame).ok().map(<[u8]>::to_vec);
+    let cap = crate::unpack::cap(frame.len() as u64) as usize;
+    let held = cap.max(crate::unpack::cap(before.len() as u64) as usize);
+    assert!(
+        unpacked.as_ref().is_none_or(|u| u.len() <= cap),
+        "past the cap"
+    );
+    assert!(
+        frames.capacity() <= 2 * (held + 1),
+        "a buffer of {}",
+        frames.capacity()
+    );
+    assert!(start.elapsed() < HANG, "took {:?}", start.elapsed());
+    unpacked
+}
+
 /// Every event of `reader` in chunks of `max_events`, asserting that each chunk but the last
 /// is full, that its vectors hold at most twice `max_events` (Vec's smallest allocation, 8
 /// elements, is the floor), and `each` (the reader's own bounds) after every chunk.

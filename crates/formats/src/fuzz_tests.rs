@@ -8,7 +8,10 @@ use std::path::Path;
 
 use proptest::prelude::*;
 
-use crate::check::{decode_aedat_checked, decode_bag_checked, decode_checked, decode_mcap_checked};
+use crate::check::{
+    decode_aedat_checked, decode_bag_checked, decode_checked, decode_mcap_checked,
+    unpack_frame_checked,
+};
 use crate::Encoding;
 
 /// The seed files of one encoding, in name order.
@@ -229,5 +232,33 @@ proptest! {
         decode_bag_checked(&data);
         decode_aedat_checked(&data);
         decode_mcap_checked(&data);
+    }
+
+    #[test]
+    fn zstd_frames_of_bag_messages_unpack_within_the_cap_when_mutated(
+        seed in any::<usize>(), m in prop::collection::vec(mutation(), 1..8), level in 1..4i32
+    ) {
+        // The seed files' bytes as messages of a message-compressed bag: in one call (the
+        // size declared) and streamed, mutated (the size field, the blocks, cut, spliced).
+        let seeds = seeds("mcap");
+        let message = &seeds[seed % seeds.len()];
+        let sized = zstd::bulk::compress(message, level).expect("zstd");
+        let mut frame = sized.clone();
+        for m in &m {
+            mutate(std::slice::from_ref(&sized), &mut frame, m, 1);
+        }
+        let streamed = zstd::stream::encode_all(&message[..], level).expect("zstd");
+        prop_assert_eq!(unpack_frame_checked(&frame, &sized), Some(message.clone()));
+        prop_assert_eq!(unpack_frame_checked(&sized, &streamed), Some(message.clone()));
+        unpack_frame_checked(&streamed, &frame);
+    }
+
+    #[test]
+    fn random_bytes_after_the_zstd_magic_unpack_within_the_cap(
+        data in prop::collection::vec(any::<u8>(), 0..4096)
+    ) {
+        let mut frame = vec![0x28, 0xb5, 0x2f, 0xfd];
+        frame.extend(data);
+        unpack_frame_checked(&[], &frame);
     }
 }

@@ -1,12 +1,12 @@
 //! Decoders of event-camera recordings: the binary words of Prophesee EVT 2.0, EVT 3.0 and DAT
-//! (CD events), the event-array messages of ROS 1 bags (`rosbag`) and of ROS 2 MCAP files
-//! (`mcap`) and of ROS 2 SQLite bags (`db3`), and the event packets of AEDAT 4 files
-//! (`aedat4`), turned into events, chunk by
-//! chunk. Each decoder keeps its state (time base,
-//! row, vector base) across calls, so a recording streams through a bounded buffer. Headers are
-//! parsed by the Python reader (python/evsplat/data/formats/prophesee.py); this crate sees the
-//! bytes after them. On the way out, `blosc` compresses the HDF5 event file's chunks as the
-//! HDF5 Blosc filter does.
+//! (CD events), the event-array messages of ROS 1 bags (`rosbag`), of ROS 2 bags in MCAP
+//! (`mcap`) and in SQLite (`db3`), split over several files or zstd-compressed by rosbag2 (per
+//! message or per file), and the event packets of AEDAT 4 files (`aedat4`), turned into events,
+//! chunk by chunk. Each decoder keeps its state (time base, row, vector base) across calls, so
+//! a recording streams through a bounded buffer; every compressed block unpacks within a bound
+//! (`unpack`). Headers are parsed by the Python reader (python/evsplat/data/formats/
+//! prophesee.py); this crate sees the bytes after them. On the way out, `blosc` compresses the
+//! HDF5 event file's chunks as the HDF5 Blosc filter does.
 
 pub mod aedat4;
 pub mod blosc;
@@ -21,13 +21,14 @@ pub mod evt3;
 pub mod mcap;
 mod reader;
 pub mod rosbag;
+mod unpack;
 
 pub use reader::{ChunkReader, Encoding};
 
 pub use evsplat_events::Events;
 
 /// A recording's events, chunk by chunk: every format's reader (`ChunkReader` for the EVT and
-/// DAT words, `rosbag::BagReader`, `mcap::McapReader`, `db3::Db3Reader`,
+/// DAT words, `rosbag::BagReader`, `mcap::McapReader` and `mcap::McapFiles`, `db3::Db3Reader`,
 /// `aedat4::AedatReader`).
 pub trait EventSource {
     /// What was read but not turned into events so far (complete once a chunk came back
@@ -39,6 +40,29 @@ pub trait EventSource {
     fn next_chunk(&mut self, max_events: usize) -> std::io::Result<Events>;
 }
 
+/// How rosbag2 compressed a ROS 2 bag's files (.db3 or MCAP; metadata.yaml's
+/// `compression_mode`, with `compression_format` zstd, the only format rosbag2 writes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Ros2Compression {
+    None,
+    /// Each message's data is a zstd frame.
+    Message,
+    /// Each file is one zstd stream of the whole file (`NAME.db3.zstd`, `NAME.mcap.zstd`).
+    File,
+}
+
+impl Ros2Compression {
+    /// The mode as metadata.yaml spells it ("" or "none", "message", "file").
+    pub fn from_mode(mode: &str) -> Option<Self> {
+        match mode {
+            "" | "none" => Some(Self::None),
+            "message" => Some(Self::Message),
+            "file" => Some(Self::File),
+            _ => None,
+        }
+    }
+}
+
 /// What a decoder read but did not turn into events.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
 pub struct Stats {
@@ -48,6 +72,14 @@ pub struct Stats {
     pub unknown_words: u64,
     /// Bytes after the last complete word or record (a truncated file).
     pub truncated_bytes: u64,
+}
+
+impl std::ops::AddAssign for Stats {
+    fn add_assign(&mut self, other: Self) {
+        self.untimed_events += other.untimed_events;
+        self.unknown_words += other.unknown_words;
+        self.truncated_bytes += other.truncated_bytes;
+    }
 }
 
 /// One format's word decoder: the state carried from one call to the next.

@@ -15,11 +15,14 @@
 //!
 //! The messages' CDR EventArray layout is `cdr`'s (shared with the .db3 reader).
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
+use std::fs::File;
 use std::io::{self, BufReader, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
 
 use crate::bytes::{u16_at, u32_at, u64_at};
-use crate::{EventSource, Events, Stats};
+use crate::unpack::{self, Frames};
+use crate::{EventSource, Events, Ros2Compression, Stats};
 
 /// The first (and last) 8 bytes of every MCAP file.
 pub const MAGIC: &[u8] = b"\x89MCAP0\r\n";
@@ -36,9 +39,6 @@ const OP_CHANNEL: u8 = 0x04;
 const OP_MESSAGE: u8 = 0x05;
 const OP_CHUNK: u8 = 0x06;
 const OP_DATA_END: u8 = 0x0F;
-/// Most bytes a chunk may unpack to per compressed byte, past its declared size's own check:
-/// a larger output is a decompression bomb.
-const MAX_RATIO: u64 = 256;
 
 /// A topic's channel: its id, topic and message type (its schema's name).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -86,6 +86,8 @@ pub struct McapReader<R> {
     wanted: HashMap<u16, bool>,
     size: Option<(u32, u32)>,
     largest: usize,
+    /// The unpacker of a message-compressed bag's messages (`unpack_messages`).
+    frames: Option<Frames>,
     unpacked: u64,
     eof: bool,
     stats: Stats,
@@ -121,10 +123,18 @@ impl<R: Read> McapReader<R> {
             wanted: HashMap::new(),
             size: None,
             largest: 0,
+            frames: None,
             unpacked: 0,
             eof: false,
             stats: Stats::default(),
         }
+    }
+
+    /// Unpacks each message's data as a zstd frame first (a bag rosbag2 compressed per
+    /// message); a frame that does not unpack is a record counted in `unknown_words`.
+    pub fn unpack_messages(&mut self) -> io::Result<()> {
+        self.frames = Some(Frames::new()?);
+        Ok(())
     }
 
     /// The channels seen so far, by id (type "?" while its schema is unseen).
@@ -219,16 +229,22 @@ impl<R: Read> McapReader<R> {
                 _ => self.stats.unknown_words += 1,
             },
             OP_MESSAGE => {
-                let id = u16_at(content, 0);
-                let array = content.get(22..).and_then(event_array);
-                if !id.is_some_and(|id| self.is_wanted(id)) {
+                let end = self.pos;
+                if !u16_at(content, 0).is_some_and(|id| self.is_wanted(id)) {
                     return;
                 }
+                let data = self.chunk.get(content_at + 22..end).unwrap_or_default();
+                // A message-compressed bag's data is a zstd frame, unpacked into `frames`
+                // (pending then points into it).
+                let (array, base) = match &mut self.frames {
+                    Some(frames) => (frames.unpack(data).ok().and_then(event_array), 0),
+                    None => (event_array(data), content_at + 22),
+                };
                 match array {
                     Some((width, height, start, n)) => {
                         self.size.get_or_insert((width, height));
                         if n > 0 {
-                            self.pending = Some((content_at + 22 + start, n, 0));
+                            self.pending = Some((base + start, n, 0));
                         }
                     }
                     None => self.stats.unknown_words += 1,
@@ -305,7 +321,8 @@ impl<R: Read> McapReader<R> {
             self.stats.unknown_words += 1;
             return;
         };
-        let cap = size.min((records.len() as u64).saturating_mul(MAX_RATIO) + (1 << 16));
+        // Past its declared size's own check: a larger output is a decompression bomb.
+        let cap = size.min(unpack::cap(records.len() as u64));
         let unpacked = match compression {
             b"" => {
                 self.chunk.extend_from_slice(records);
@@ -341,9 +358,147 @@ impl<R: Read> EventSource for McapReader<R> {
                 continue;
             };
             let take = (n - next).min(max_events - out.len());
-            crate::cdr::push_events(&self.chunk, start, next, take, &mut out);
+            let data = self.frames.as_ref().map_or(&self.chunk[..], Frames::out);
+            crate::cdr::push_events(data, start, next, take, &mut out);
             let next = next + take;
             self.pending = (next < n).then_some((start, n, next));
+        }
+        Ok(out)
+    }
+}
+
+/// A file of a ROS 2 bag, as `McapReader` reads it.
+type Source = Box<dyn Read + Send + Sync>;
+
+/// The chosen topic's events in the MCAP files of a ROS 2 bag, maybe split over several
+/// (rosbag2 writes each as a whole MCAP file, its schemas and channels included) and maybe
+/// compressed by rosbag2 (per message, or per file: a `NAME.mcap.zstd` is unpacked as it is
+/// read, MCAP needing no seeking), file after file in the given order, each through
+/// `McapReader` (its chunks bounded as in one file); a chunk of events continues into the
+/// next file, so only the last one is short. Errors name the file.
+pub struct McapFiles {
+    /// The files after the current one.
+    rest: VecDeque<PathBuf>,
+    path: PathBuf,
+    current: McapReader<Source>,
+    topic: Option<String>,
+    compression: Ros2Compression,
+    block: usize,
+    /// The counts of the files read through.
+    done: Stats,
+}
+
+impl std::fmt::Debug for McapFiles {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("McapFiles")
+            .field("path", &self.path)
+            .field("rest", &self.rest)
+            .field("stats", &self.stats())
+            .finish_non_exhaustive()
+    }
+}
+
+impl McapFiles {
+    /// A reader of `topic` (None: every event-array channel) in `paths` (compressed as
+    /// `compression` says), each through a read buffer of `block` bytes; the first file is
+    /// opened here (fails without the magic), each further one when the reading reaches it.
+    pub fn new(
+        paths: &[PathBuf],
+        topic: Option<&str>,
+        compression: Ros2Compression,
+        block: usize,
+    ) -> io::Result<Self> {
+        let mut rest: VecDeque<PathBuf> = paths.iter().cloned().collect();
+        let path = rest
+            .pop_front()
+            .ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, "no MCAP file to read"))?;
+        let current = Self::open(&path, topic, compression, block)?;
+        Ok(Self {
+            rest,
+            path,
+            current,
+            topic: topic.map(str::to_string),
+            compression,
+            block,
+            done: Stats::default(),
+        })
+    }
+
+    fn open(
+        path: &Path,
+        topic: Option<&str>,
+        compression: Ros2Compression,
+        block: usize,
+    ) -> io::Result<McapReader<Source>> {
+        let opened = || -> io::Result<McapReader<Source>> {
+            let file = File::open(path)?;
+            let src: Source = match compression {
+                Ros2Compression::File => {
+                    // Cut at the cap: a bomb reads as a truncated file, not a full disk or memory.
+                    let cap = unpack::cap(file.metadata()?.len());
+                    Box::new(zstd::stream::read::Decoder::new(file)?.take(cap))
+                }
+                _ => Box::new(file),
+            };
+            let mut reader = McapReader::new(src, topic, block)?;
+            if compression == Ros2Compression::Message {
+                reader.unpack_messages()?;
+            }
+            Ok(reader)
+        };
+        opened().map_err(|e| io::Error::new(e.kind(), format!("{}: {e}", path.display())))
+    }
+
+    /// Moves on to the next file (true), or finds none left (false).
+    fn next_file(&mut self) -> io::Result<bool> {
+        let Some(path) = self.rest.pop_front() else {
+            return Ok(false);
+        };
+        let next = Self::open(&path, self.topic.as_deref(), self.compression, self.block)?;
+        self.done += self.current.stats;
+        (self.current, self.path) = (next, path);
+        Ok(true)
+    }
+
+    fn named(&self, e: io::Error) -> io::Error {
+        io::Error::new(e.kind(), format!("{}: {e}", self.path.display()))
+    }
+
+    /// The (width, height) of the first event message, reading up to it (through files
+    /// without one); None when no file has a readable event message.
+    pub fn sensor_size(&mut self) -> io::Result<Option<(u32, u32)>> {
+        loop {
+            if let Some(size) = self.current.sensor_size().map_err(|e| self.named(e))? {
+                return Ok(Some(size));
+            }
+            if !self.next_file()? {
+                return Ok(None);
+            }
+        }
+    }
+}
+
+impl EventSource for McapFiles {
+    fn stats(&self) -> Stats {
+        let mut all = self.done;
+        all += self.current.stats;
+        all
+    }
+
+    fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
+        let max_events = max_events.max(1);
+        let mut out = self
+            .current
+            .next_chunk(max_events)
+            .map_err(|e| self.named(e))?;
+        // A short chunk is the end of the current file's events.
+        while out.len() < max_events && self.next_file()? {
+            let more =
+                (self.current.next_chunk(max_events - out.len())).map_err(|e| self.named(e))?;
+            out.x.extend(more.x);
+            out.y.extend(more.y);
+            out.t.extend(more.t);
+            out.p.extend(more.p);
         }
         Ok(out)
     }

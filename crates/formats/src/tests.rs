@@ -495,6 +495,15 @@ fn mcap_string(s: &[u8]) -> Vec<u8> {
 
 /// A CDR EventArray message on `channel`: events (x, y, sec, nanosec, polarity).
 fn mcap_message(channel: u16, events: &[(u16, u16, i32, u32, u8)]) -> Vec<u8> {
+    mcap_message_packed(channel, events, |cdr| cdr)
+}
+
+/// The same, its CDR bytes through `pack` (rosbag2's zstd per message).
+fn mcap_message_packed(
+    channel: u16,
+    events: &[(u16, u16, i32, u32, u8)],
+    pack: impl Fn(Vec<u8>) -> Vec<u8>,
+) -> Vec<u8> {
     let mut cdr = vec![0u8, 1, 0, 0]; // little-endian CDR
     cdr.extend(5i32.to_le_bytes()); // stamp
     cdr.extend(0u32.to_le_bytes());
@@ -517,7 +526,7 @@ fn mcap_message(channel: u16, events: &[(u16, u16, i32, u32, u8)]) -> Vec<u8> {
     }
     let mut content = channel.to_le_bytes().to_vec();
     content.extend([0u8; 20]); // sequence, log and publish times
-    content.extend(cdr);
+    content.extend(pack(cdr));
     mcap_record(0x05, &content)
 }
 
@@ -608,10 +617,11 @@ fn cdr_event_array(events: &[(u16, u16, i32, u32, u8)]) -> Vec<u8> {
 fn db3_all(
     paths: &[std::path::PathBuf],
     topic: &str,
+    compression: crate::Ros2Compression,
     chunk: usize,
     max_events: usize,
 ) -> std::io::Result<(Events, Stats)> {
-    let mut reader = crate::db3::Db3Reader::new(paths, topic, chunk)?;
+    let mut reader = crate::db3::Db3Reader::new(paths, topic, compression, chunk)?;
     let next = |n| {
         let c = reader.next_chunk(n)?;
         assert!(c.len() <= n);
@@ -621,33 +631,38 @@ fn db3_all(
     Ok((all, reader.stats()))
 }
 
+/// A .db3 file as rosbag2 lays it out: topics 1 ("/other") and 2 ("/dvs/events"), and the
+/// messages (topic id, timestamp, data) inserted in the given order.
+fn make_db3(path: &std::path::Path, messages: &[(i64, i64, Vec<u8>)]) -> std::path::PathBuf {
+    let _ = std::fs::remove_file(path);
+    let db = rusqlite::Connection::open(path).expect("a new database");
+    db.execute_batch(
+        "CREATE TABLE topics (id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
+           serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
+         CREATE TABLE messages (id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,
+           timestamp INTEGER NOT NULL, data BLOB NOT NULL);
+         CREATE INDEX timestamp_idx ON messages (timestamp ASC);
+         INSERT INTO topics VALUES (1, '/other', 'dvs_msgs/msg/EventArray', 'cdr', '');
+         INSERT INTO topics VALUES (2, '/dvs/events', 'dvs_msgs/msg/EventArray', 'cdr', '');",
+    )
+    .expect("the bag tables");
+    for (topic, stamp, data) in messages {
+        db.execute(
+            "INSERT INTO messages (topic_id, timestamp, data) VALUES (?1, ?2, ?3)",
+            rusqlite::params![topic, stamp, data],
+        )
+        .expect("a message");
+    }
+    path.to_path_buf()
+}
+
+const PLAIN: crate::Ros2Compression = crate::Ros2Compression::None;
+
 #[test]
 fn db3_reader_takes_a_topics_event_arrays_in_timestamp_order_across_files() {
     let dir = std::env::temp_dir().join(format!("evsplat-db3-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("a temp folder");
-    let make = |name: &str, messages: &[(i64, i64, Vec<u8>)]| {
-        let path = dir.join(name);
-        let _ = std::fs::remove_file(&path);
-        let db = rusqlite::Connection::open(&path).expect("a new database");
-        db.execute_batch(
-            "CREATE TABLE topics (id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
-               serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
-             CREATE TABLE messages (id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,
-               timestamp INTEGER NOT NULL, data BLOB NOT NULL);
-             CREATE INDEX timestamp_idx ON messages (timestamp ASC);
-             INSERT INTO topics VALUES (1, '/other', 'dvs_msgs/msg/EventArray', 'cdr', '');
-             INSERT INTO topics VALUES (2, '/dvs/events', 'dvs_msgs/msg/EventArray', 'cdr', '');",
-        )
-        .expect("the bag tables");
-        for (topic, stamp, data) in messages {
-            db.execute(
-                "INSERT INTO messages (topic_id, timestamp, data) VALUES (?1, ?2, ?3)",
-                rusqlite::params![topic, stamp, data],
-            )
-            .expect("a message");
-        }
-        path
-    };
+    let make = |name: &str, messages: &[(i64, i64, Vec<u8>)]| make_db3(&dir.join(name), messages);
     let a = cdr_event_array(&[(1, 2, 10, 5_999, 1), (3, 4, 10, 1_000_000, 0)]);
     let b = cdr_event_array(&[(5, 6, 11, 999_999_999, 1)]);
     let c = cdr_event_array(&[(7, 8, 12, 0, 0)]);
@@ -661,9 +676,9 @@ fn db3_reader_takes_a_topics_event_arrays_in_timestamp_order_across_files() {
     let second = make("second.db3", &[(2, 300, c)]);
     // The thread's chunks handed over whole, split, and gathered from several.
     let files = [first.clone(), second.clone()];
-    let (ev, stats) = db3_all(&files, "/dvs/events", 3, 3).expect("reads");
+    let (ev, stats) = db3_all(&files, "/dvs/events", PLAIN, 3, 3).expect("reads");
     for (chunk, max_events) in [(1, 1), (2, 3), (1 << 20, 2), (3, 1 << 20)] {
-        let other = db3_all(&files, "/dvs/events", chunk, max_events).expect("reads");
+        let other = db3_all(&files, "/dvs/events", PLAIN, chunk, max_events).expect("reads");
         assert!(
             other == (ev.clone(), stats),
             "chunk {chunk}, max {max_events} differ"
@@ -684,10 +699,240 @@ fn db3_reader_takes_a_topics_event_arrays_in_timestamp_order_across_files() {
     // Not a database: an error naming the file, when opened.
     let junk = dir.join("junk.db3");
     std::fs::write(&junk, [7u8; 4096]).expect("a file");
-    let err = db3_all(&[first, junk.clone()], "/dvs/events", 2, 2).expect_err("junk fails");
+    let err = db3_all(&[first, junk.clone()], "/dvs/events", PLAIN, 2, 2).expect_err("junk fails");
     assert!(
         err.to_string().contains(&junk.display().to_string()),
         "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// This process's temporary .db3 files (the unpacked copies of `NAME.db3.zstd` files).
+fn temp_db3s() -> Vec<std::path::PathBuf> {
+    let prefix = format!("evsplat-{}-", std::process::id());
+    let listed = std::fs::read_dir(std::env::temp_dir()).expect("the temp folder");
+    (listed.flatten())
+        .map(|e| e.path())
+        .filter(|p| {
+            (p.file_name().and_then(|n| n.to_str()))
+                .is_some_and(|n| n.starts_with(&prefix) && n.ends_with(".db3"))
+        })
+        .collect()
+}
+
+#[test]
+fn db3_reader_unpacks_zstd_messages_and_files_within_bounds_and_leaves_no_temp_file() {
+    use crate::Ros2Compression as Compression;
+    let dir = std::env::temp_dir().join(format!("evsplat-db3-zstd-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temp folder");
+    let a = cdr_event_array(&[(1, 2, 10, 5_999, 1), (3, 4, 10, 1_000_000, 0)]);
+    let b = cdr_event_array(&[(5, 6, 11, 999_999_999, 1)]);
+    let messages = [(2, 200, b), (1, 50, a.clone()), (2, 100, a)];
+    let plain = make_db3(&dir.join("plain.db3"), &messages);
+    let (want, _) =
+        db3_all(std::slice::from_ref(&plain), "/dvs/events", PLAIN, 2, 2).expect("reads");
+    assert_eq!(want.len(), 3);
+    // Streamed (no size in the frame) and in one call (the size declared, as rosbag2 writes).
+    let zstd = |data: &[u8]| zstd::stream::encode_all(data, 3).expect("zstd");
+    let sized = |data: &[u8]| zstd::bulk::compress(data, 3).expect("zstd");
+    // "message": each message's data a zstd frame, of both kinds.
+    let framed: Vec<_> = (messages.iter().enumerate())
+        .map(|(i, (topic, stamp, data))| {
+            let frame = if i % 2 == 0 { zstd(data) } else { sized(data) };
+            (*topic, *stamp, frame)
+        })
+        .collect();
+    let per_message = make_db3(&dir.join("message.db3"), &framed);
+    let read = |path: &std::path::PathBuf, how| {
+        db3_all(std::slice::from_ref(path), "/dvs/events", how, 2, 2)
+    };
+    assert_eq!(
+        read(&per_message, Compression::Message).expect("reads").0,
+        want
+    );
+    // "file": the whole .db3 one zstd stream, unpacked into a temporary file, then removed.
+    let whole = dir.join("plain.db3.zstd");
+    std::fs::write(&whole, zstd(&std::fs::read(&plain).expect("the .db3"))).expect("written");
+    let before = temp_db3s();
+    let files = [whole.clone(), whole.clone()];
+    let (twice, _) = db3_all(&files, "/dvs/events", Compression::File, 1, 1).expect("reads");
+    assert_eq!(rows(&twice), [rows(&want), rows(&want)].concat());
+    // A reader dropped after its first chunk: its thread stops and removes its copy too.
+    let mut early =
+        crate::db3::Db3Reader::new(&files, "/dvs/events", Compression::File, 1).expect("opens");
+    assert_eq!(early.next_chunk(1).expect("a chunk").len(), 1);
+    drop(early);
+    // A damaged frame, a decompression bomb (zeros: far more than 256 bytes per byte) and a
+    // cut file: one error naming the file (and the message), no temporary file left.
+    let mut bad = framed.clone();
+    bad[2].2[6] ^= 0xff;
+    let zeros = vec![0u8; 64 << 20];
+    let (bomb, sized_bomb) = ((2, 300, zstd(&zeros)), (2, 300, sized(&zeros)));
+    for (name, messages, what) in [
+        ("damaged.db3", bad, "message 1 of /dvs/events: zstd"),
+        (
+            "bomb.db3",
+            vec![bomb],
+            "more than 256 bytes per compressed byte",
+        ),
+        (
+            "sized.db3",
+            vec![sized_bomb],
+            "more than 256 bytes per compressed byte",
+        ),
+    ] {
+        let path = make_db3(&dir.join(name), &messages);
+        let err = read(&path, Compression::Message).expect_err("fails");
+        let msg = err.to_string();
+        assert!(
+            msg.starts_with(&path.display().to_string()) && msg.contains(what),
+            "{msg}"
+        );
+    }
+    let data = std::fs::read(&whole).expect("the .zstd");
+    let cut = dir.join("cut.db3.zstd");
+    std::fs::write(&cut, &data[..data.len() / 2]).expect("written");
+    let err = read(&cut, Compression::File).expect_err("a cut file fails");
+    assert!(
+        err.to_string().starts_with(&cut.display().to_string()),
+        "{err}"
+    );
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while temp_db3s() != before && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert_eq!(temp_db3s(), before, "a temporary .db3 left behind");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A CDR event: x, y, sec, nanosec, polarity.
+type CdrEvent = (u16, u16, i32, u32, u8);
+
+/// An MCAP file of top-level records: the event-array schema, `channel` on "/events", and a
+/// message of each event list there, its CDR bytes through `pack`.
+fn mcap_file(
+    channel: u16,
+    messages: &[&[CdrEvent]],
+    pack: impl Fn(Vec<u8>) -> Vec<u8> + Copy,
+) -> Vec<u8> {
+    let mut schema = 7u16.to_le_bytes().to_vec();
+    schema.extend(mcap_string(b"dvs_msgs/msg/EventArray"));
+    let mut chan = channel.to_le_bytes().to_vec();
+    chan.extend(7u16.to_le_bytes());
+    chan.extend(mcap_string(b"/events"));
+    let mut data = crate::mcap::MAGIC.to_vec();
+    data.extend(mcap_record(0x03, &schema));
+    data.extend(mcap_record(0x04, &chan));
+    for events in messages {
+        data.extend(mcap_message_packed(channel, events, pack));
+    }
+    data
+}
+
+#[test]
+fn split_mcap_files_read_one_after_another_in_full_chunks() {
+    let dir = std::env::temp_dir().join(format!("evsplat-mcap-split-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temp folder");
+    let first: &[CdrEvent] = &[(1, 2, 10, 0, 1), (3, 4, 10, 5_000, 0)];
+    let second: &[CdrEvent] = &[(5, 6, 11, 0, 1)];
+    let third: &[CdrEvent] = &[(7, 8, 12, 0, 0), (9, 9, 12, 1_000, 1)];
+    // Each file its own channel ids (rosbag2 writes every split file whole); the first ends
+    // in a cut record, counted in the stats.
+    let mut a = mcap_file(3, &[first, second], |cdr| cdr);
+    a.extend(&mcap_message(3, third)[..10]);
+    let paths = [dir.join("bag_0.mcap"), dir.join("bag_1.mcap")];
+    std::fs::write(&paths[0], &a).expect("written");
+    std::fs::write(&paths[1], mcap_file(1, &[third], |cdr| cdr)).expect("written");
+    let read = |paths: &[std::path::PathBuf], n: usize| {
+        let mut reader =
+            crate::mcap::McapFiles::new(paths, Some("/events"), crate::Ros2Compression::None, 7)?;
+        let size = reader.sensor_size()?;
+        let mut chunks = Vec::new();
+        loop {
+            let c = reader.next_chunk(n)?;
+            if c.is_empty() {
+                return Ok::<_, std::io::Error>((chunks, size, reader.stats()));
+            }
+            chunks.push(c);
+        }
+    };
+    let (chunks, size, stats) = read(&paths, 2).expect("reads");
+    assert_eq!(size, Some((320, 240)));
+    assert_eq!(stats.truncated_bytes, 10);
+    let lens: Vec<_> = chunks.iter().map(Events::len).collect();
+    assert_eq!(
+        lens,
+        [2, 2, 1],
+        "only the last chunk short, across the files"
+    );
+    let all: Vec<_> = chunks.iter().flat_map(rows).collect();
+    assert_eq!(
+        all,
+        [
+            (1, 2, 10_000_000, 1),
+            (3, 4, 10_000_005, 0),
+            (5, 6, 11_000_000, 1),
+            (7, 8, 12_000_000, 0),
+            (9, 9, 12_000_001, 1)
+        ]
+    );
+    // A listed file that is not MCAP: an error naming it, once the reading reaches it.
+    let junk = dir.join("bag_2.mcap");
+    std::fs::write(&junk, b"not an MCAP file").expect("written");
+    let err = read(&[paths[0].clone(), junk.clone()], 100).expect_err("fails");
+    assert!(
+        err.to_string().starts_with(&junk.display().to_string()),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn mcap_files_compressed_per_message_or_per_file_read_as_plain_ones() {
+    use crate::Ros2Compression as Compression;
+    let dir = std::env::temp_dir().join(format!("evsplat-mcap-zstd-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temp folder");
+    let messages: [&[CdrEvent]; 2] = [
+        &[(1, 2, 10, 0, 1), (3, 4, 10, 5_000, 0)],
+        &[(5, 6, 11, 0, 1)],
+    ];
+    let read = |path: &std::path::Path, compression| {
+        let paths = [path.to_path_buf()];
+        let mut reader = crate::mcap::McapFiles::new(&paths, Some("/events"), compression, 7)?;
+        let all = drain(|n| reader.next_chunk(n), 2)?;
+        Ok::<_, std::io::Error>((rows(&all), reader.stats()))
+    };
+    let plain = dir.join("plain.mcap");
+    std::fs::write(&plain, mcap_file(3, &messages, |cdr| cdr)).expect("written");
+    let (want, stats) = read(&plain, Compression::None).expect("reads");
+    assert_eq!((want.len(), stats), (3, Stats::default()));
+    // "message": each message's data a zstd frame (rosbag2 declares its size).
+    let sized = |cdr: Vec<u8>| zstd::bulk::compress(&cdr, 3).expect("zstd");
+    let per_message = dir.join("message.mcap");
+    std::fs::write(&per_message, mcap_file(3, &messages, sized)).expect("written");
+    assert_eq!(
+        read(&per_message, Compression::Message).expect("reads"),
+        (want.clone(), stats)
+    );
+    // A frame that does not unpack: that message counted, the others read.
+    let broken = |cdr: Vec<u8>| {
+        if cdr.len() > 50 {
+            sized(cdr)[..20].to_vec()
+        } else {
+            sized(cdr)
+        }
+    };
+    let damaged = dir.join("damaged.mcap");
+    std::fs::write(&damaged, mcap_file(3, &messages, broken)).expect("written");
+    let (rest, stats) = read(&damaged, Compression::Message).expect("reads");
+    assert_eq!((rest.as_slice(), stats.unknown_words), (&want[2..], 1));
+    // "file": the whole file one zstd stream, unpacked as it is read.
+    let whole = dir.join("plain.mcap.zstd");
+    let packed = zstd::stream::encode_all(&std::fs::read(&plain).expect("read")[..], 3);
+    std::fs::write(&whole, packed.expect("zstd")).expect("written");
+    assert_eq!(
+        read(&whole, Compression::File).expect("reads"),
+        (want, Stats::default())
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -14,9 +14,9 @@ use crate::events::{event_arrays, EventArrays};
 use evsplat_formats::aedat4::{self, AedatReader, Compression};
 use evsplat_formats::blosc::{Compressor, Filtered};
 use evsplat_formats::db3::{db3_topics, Db3Reader};
-use evsplat_formats::mcap::{mcap_channels, McapReader};
+use evsplat_formats::mcap::{mcap_channels, McapFiles};
 use evsplat_formats::rosbag::{bag_connections, BagReader};
-use evsplat_formats::{ChunkReader, Encoding, EventSource};
+use evsplat_formats::{ChunkReader, Encoding, EventSource, Ros2Compression};
 
 /// `source`'s next chunk of at most `max_events` events as numpy arrays (empty at its end),
 /// read and decoded with the GIL released.
@@ -195,20 +195,37 @@ impl Aedat4EventDecoder {
     }
 }
 
-/// The event arrays of an MCAP file's `topic` (None: every event-array channel), read through
-/// a buffer of `block` bytes.
+/// metadata.yaml's `compression_mode` of a ROS 2 bag ("none", "message" or "file").
+fn ros2_compression(mode: &str) -> PyResult<Ros2Compression> {
+    Ros2Compression::from_mode(mode).ok_or_else(|| {
+        value_err(format!(
+            "compression {mode:?} is unknown; use none, message or file"
+        ))
+    })
+}
+
+/// The event arrays of a ROS 2 MCAP bag's `topic` (None: every event-array channel), from
+/// its files (`paths`, read one after another: a split bag; `compression`: metadata.yaml's
+/// `compression_mode` of zstd, "none", "message" or "file"), each through a buffer of `block`
+/// bytes.
 #[pyclass(module = "evsplat._core")]
 struct McapEventDecoder {
-    inner: McapReader<File>,
+    inner: McapFiles,
 }
 
 #[pymethods]
 impl McapEventDecoder {
     #[new]
-    #[pyo3(signature = (path, topic, block))]
-    fn new(path: std::path::PathBuf, topic: Option<&str>, block: usize) -> PyResult<Self> {
-        let file = File::open(&path).map_err(PyOSError::new_err)?;
-        let inner = McapReader::new(file, topic, block).map_err(PyOSError::new_err)?;
+    #[pyo3(signature = (paths, topic, block, compression = "none"))]
+    fn new(
+        paths: Vec<std::path::PathBuf>,
+        topic: Option<&str>,
+        block: usize,
+        compression: &str,
+    ) -> PyResult<Self> {
+        let compression = ros2_compression(compression)?;
+        let inner =
+            McapFiles::new(&paths, topic, compression, block).map_err(PyOSError::new_err)?;
         Ok(Self { inner })
     }
 
@@ -227,7 +244,7 @@ impl McapEventDecoder {
         next_chunk_of(py, &mut self.inner, max_events)
     }
 
-    /// (0, records not readable as what their op says, bytes of a last record the file ends
+    /// (0, records not readable as what their op says, bytes of a last record a file ends
     /// in): final once `next_chunk` came back empty.
     fn dropped(&self) -> (u64, u64, u64) {
         dropped_of(&self.inner)
@@ -252,8 +269,9 @@ fn py_mcap_channels(
 }
 
 /// The event arrays of a ROS 2 SQLite bag's `topic`, in timestamp order, from its .db3
-/// files (`paths`, read in that order: a split bag), decoded by a thread in chunks of `chunk`
-/// events.
+/// files (`paths`, read in that order: a split bag; `compression`: metadata.yaml's
+/// `compression_mode` of zstd, "none", "message" or "file"), decoded by a thread in chunks of
+/// `chunk` events.
 #[pyclass(module = "evsplat._core")]
 struct Db3EventDecoder {
     inner: Db3Reader,
@@ -262,8 +280,16 @@ struct Db3EventDecoder {
 #[pymethods]
 impl Db3EventDecoder {
     #[new]
-    fn new(paths: Vec<std::path::PathBuf>, topic: &str, chunk: usize) -> PyResult<Self> {
-        let inner = Db3Reader::new(&paths, topic, chunk).map_err(PyOSError::new_err)?;
+    #[pyo3(signature = (paths, topic, chunk, compression = "none"))]
+    fn new(
+        paths: Vec<std::path::PathBuf>,
+        topic: &str,
+        chunk: usize,
+        compression: &str,
+    ) -> PyResult<Self> {
+        let compression = ros2_compression(compression)?;
+        let inner =
+            Db3Reader::new(&paths, topic, compression, chunk).map_err(PyOSError::new_err)?;
         Ok(Self { inner })
     }
 

@@ -1,17 +1,20 @@
 """`evsplat bench decode`: the recording decoders (Prophesee EVT 2.0, EVT 3.0, DAT; ROS 1 bags,
-uncompressed and LZ4; ROS 2 MCAP, uncompressed and Zstd; AEDAT 4, LZ4) against the disk and the
-reference decoders, on a recording generated for the run (deleted after it).
+uncompressed and LZ4; ROS 2 MCAP, uncompressed, Zstd chunks, split over two files and zstd per
+message or per file; ROS 2 SQLite bags, uncompressed and zstd per message or per file; AEDAT 4,
+LZ4) against the disk and the reference decoders, on a recording generated for the run (deleted
+after it).
 
 Per format, all in one run on the same file: the disk's sequential read speed (once with the
 file's pages dropped from the page cache by ``posix_fadvise(DONTNEED)`` after an ``fsync``:
 "cold", though a VM's host may still cache it; once warm), the project's Rust decoder
 (``_core.EventFileDecoder``, ``_core.BagEventDecoder``, ``_core.McapEventDecoder``,
-``_core.Aedat4EventDecoder``; warm and cold) and the reference decoder (``evt3`` for EVT 3.0,
-``expelliarmus`` for EVT 2.0 and DAT, ``aedat`` for AEDAT 4, for bags ``rosbags``' reader with
-the byte views evsplat used before its Rust readers: rosbags' deserialiser, one Python object
-per event, is far too slow for these sizes), warm; with ``--convert``, ``evsplat convert`` end
-to end with and without compression and the SHA-256 of the file it computes alongside. Each
-decoder's events are summed (count, x, y, t, p) and compared with the generator's.
+``_core.Db3EventDecoder``, ``_core.Aedat4EventDecoder``; warm and cold, its opening included)
+and the reference decoder (``evt3`` for EVT 3.0, ``expelliarmus`` for EVT 2.0 and DAT,
+``aedat`` for AEDAT 4, for bags ``rosbags``' reader with the byte views evsplat used before its
+Rust readers: rosbags' deserialiser, one Python object per event, is far too slow for these
+sizes), warm; with ``--convert``, ``evsplat convert`` end to end with and without compression
+and the SHA-256 of the file it computes alongside. Each decoder's events are summed (count, x,
+y, t, p) and compared with the generator's.
 """
 
 from __future__ import annotations
@@ -21,12 +24,14 @@ import json
 import mmap
 import os
 import re
+import shutil
 import struct
 import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +43,10 @@ HELP = (
     "the field's decoders vs the disk's read speed"
 )
 
-FORMATS = ("evt3", "evt2", "dat", "bag", "bag-lz4", "mcap", "mcap-zstd", "db3", "aedat4")
+FORMATS = (
+    "evt3", "evt2", "dat", "bag", "bag-lz4", "mcap", "mcap-zstd", "mcap-split", "mcap-message",
+    "mcap-file", "db3", "db3-message", "db3-file", "aedat4",
+)  # fmt: skip
 #: The field's decoder each format is compared with.
 REFERENCES = {
     "evt3": "evt3",
@@ -48,7 +56,12 @@ REFERENCES = {
     "bag-lz4": "rosbags",
     "mcap": "rosbags",
     "mcap-zstd": "rosbags",
+    "mcap-split": "rosbags",
+    "mcap-message": "rosbags",
+    "mcap-file": "rosbags",
     "db3": "rosbags",
+    "db3-message": "rosbags",
+    "db3-file": "rosbags",
     "aedat4": "aedat",
 }
 #: Events per AEDAT 4 packet of a generated file.
@@ -145,13 +158,16 @@ def read_all(path: Path, direct: bool = False) -> None:
         buf.close()
 
 
-def drain(chunks: Iterator[Chunk], sums: Sums) -> tuple[float, float]:
-    """Sums every chunk; returns the wall and CPU seconds spent producing them (the sums,
-    the check, not counted)."""
-    wall = cpu = 0.0
+def drain(chunks: Callable[[], Iterator[Chunk]], sums: Sums) -> tuple[float, float]:
+    """Opens the reader (``chunks()``: a .db3 reader reads up to its first chunk there, and
+    unpacks a compressed file) and sums every chunk; returns the wall and CPU seconds spent
+    opening and producing them (the sums, the check, not counted)."""
+    w0, c0 = time.perf_counter(), time.process_time()
+    it = chunks()
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     while True:
         w0, c0 = time.perf_counter(), time.process_time()
-        chunk = next(chunks, None)
+        chunk = next(it, None)
         wall, cpu = wall + time.perf_counter() - w0, cpu + time.process_time() - c0
         if chunk is None:
             return wall, cpu
@@ -195,26 +211,41 @@ def write_bag(path: Path, chunks: Iterator[Chunk], width: int, height: int, lz4:
     return path.stat().st_size
 
 
-def write_mcap(
-    path: Path, chunks: Iterator[Chunk], width: int, height: int, zstd: bool, sqlite: bool = False
-) -> int:
-    """A ROS 2 bag in MCAP (or, with ``sqlite``, SQLite) written by rosbags into ``path``'s
-    folder (``path`` is its .mcap or .db3 file): one dvs_msgs/EventArray topic, messages of
-    ``BAG_MESSAGE_EVENTS`` serialised in CDR here with numpy, MCAP chunks of 1 MiB,
-    uncompressed or Zstd. Returns the file's size."""
+def write_ros2(
+    folder: Path,
+    chunks: Iterator[Chunk],
+    width: int,
+    height: int,
+    storage: str = "mcap",
+    compression: str = "none",
+    split_at: int | None = None,
+) -> list[Path]:
+    """A ROS 2 bag in ``folder``, in MCAP or SQLite (``storage`` "sqlite3"), written by
+    rosbags: one dvs_msgs/EventArray topic, messages of ``BAG_MESSAGE_EVENTS`` serialised in
+    CDR here with numpy, MCAP chunks of 1 MiB; ``compression`` "storage" (MCAP's Zstd chunks),
+    "message" or "file" (rosbag2's zstd of each message or file) or "none". ``split_at``: the
+    messages from that event on go into a second file (rosbags' Writer does not split: a
+    second bag, its file moved into ``folder`` and listed in its metadata.yaml, as rosbag2
+    lists a split bag's files). Returns the bag's files, as its metadata lists them."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
     from evsplat.data.formats import rosbag
 
     store = rosbag.typestore()
-    plugin = StoragePlugin.SQLITE3 if sqlite else StoragePlugin.MCAP
-    writer = Writer(path.parent, version=9, storage_plugin=plugin)
-    if zstd:
-        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
     kind = "dvs_msgs/msg/EventArray"
-    with writer:
-        conn = writer.add_connection("/dvs/events", kind, typestore=store)
+
+    def writer(path: Path, stack: ExitStack) -> tuple[Writer, object]:
+        w = Writer(path, version=9, storage_plugin=StoragePlugin[storage.upper()])
+        if compression != "none":
+            w.set_compression(CompressionMode[compression.upper()], CompressionFormat.ZSTD)
+        stack.enter_context(w)
+        return w, w.add_connection("/dvs/events", kind, typestore=store)
+
+    bags = [folder] if split_at is None else [folder, folder.with_name(f"{folder.name}-part")]
+    done = 0
+    with ExitStack() as stack:
+        writers = [writer(b, stack) for b in bags]
         for x, y, t, p in chunks:
             for i in range(0, len(t), BAG_MESSAGE_EVENTS):
                 sl = slice(i, i + BAG_MESSAGE_EVENTS)
@@ -233,8 +264,19 @@ def write_mcap(
                     "<4siII4sIII", b"\x00\x01\x00\x00", stamp // 10**6, stamp % 10**6 * 1000,
                     4, b"cam\x00", height, width, len(tt),
                 )  # fmt: skip
-                writer.write(conn, stamp * 1000, head + b"".join(parts))
-    return path.stat().st_size
+                w, conn = writers[split_at is not None and done >= split_at]
+                w.write(conn, stamp * 1000, head + b"".join(parts))
+                done += len(tt)
+    if split_at is not None:
+        meta = folder / "metadata.yaml"
+        (first,) = rosbag.ros2_files(folder, storage).files
+        (second,) = rosbag.ros2_files(bags[1], storage).files
+        moved = second.rename(folder / f"{first.stem}_1{first.suffix}")
+        bags[1].joinpath("metadata.yaml").unlink()
+        bags[1].rmdir()
+        text = meta.read_text()
+        meta.write_text(text.replace(f"- {first.name}", f"- {first.name}\n  - {moved.name}", 1))
+    return rosbag.ros2_files(folder, storage).files
 
 
 def write_aedat4(path: Path, chunks: Iterator[Chunk], width: int, height: int) -> int:
@@ -329,7 +371,7 @@ def timed_decode(
         if before is not None:
             before()
         sums = Sums()
-        runs.append((*drain(chunks(), sums), sums))
+        runs.append((*drain(chunks, sums), sums))
     return min(r[0] for r in runs), min(r[1] for r in runs), runs[-1][2]
 
 
@@ -350,8 +392,6 @@ def convert_once(path: Path, out: Path, codec: str) -> tuple[float, float]:
 def measure_format(args: argparse.Namespace, encoding: str, folder: Path) -> list[dict]:
     suffix = {"dat": "dat", "bag": "bag", "bag-lz4": "bag", "aedat4": "aedat4"}.get(encoding, "raw")
     path = folder / f"bench.{suffix}"
-    if encoding.startswith(("mcap", "db3")):  # a ROS 2 bag is a folder: its one file is timed
-        path = folder / encoding / f"{encoding}.{encoding.split('-')[0]}"
     want = Sums()
 
     def chunks() -> Iterator[Chunk]:
@@ -360,15 +400,24 @@ def measure_format(args: argparse.Namespace, encoding: str, folder: Path) -> lis
             yield c
 
     w0 = time.perf_counter()
-    if encoding == "aedat4":
-        size = write_aedat4(path, chunks(), 1280, 720)
-    elif encoding.startswith(("mcap", "db3")):
-        size = write_mcap(path, chunks(), 1280, 720, encoding == "mcap-zstd", encoding == "db3")
+    if encoding.startswith(("mcap", "db3")):  # a ROS 2 bag is a folder: its files are timed
+        path = folder / encoding
+        storage = "mcap" if encoding.startswith("mcap") else "sqlite3"
+        compression = {"zstd": "storage", "message": "message", "file": "file"}
+        mode = compression.get(encoding.partition("-")[2], "none")
+        split_at = args.events // 2 if encoding == "mcap-split" else None
+        files = write_ros2(path, chunks(), 1280, 720, storage, mode, split_at)
+    elif encoding == "aedat4":
+        files = [path]
+        write_aedat4(path, chunks(), 1280, 720)
     elif encoding.startswith("bag"):
-        size = write_bag(path, chunks(), 1280, 720, lz4=encoding == "bag-lz4")
+        files = [path]
+        write_bag(path, chunks(), 1280, 720, lz4=encoding == "bag-lz4")
     else:
-        size = prophesee_writer.write_recording(path, encoding, 1280, 720, chunks())
+        files = [path]
+        prophesee_writer.write_recording(path, encoding, 1280, 720, chunks())
     gen_s = time.perf_counter() - w0
+    size = sum(f.stat().st_size for f in files)
     n = int(want.values[0])
     rows = []
 
@@ -386,10 +435,19 @@ def measure_format(args: argparse.Namespace, encoding: str, folder: Path) -> lis
         )
 
     row("generate + write (numpy)", gen_s, gen_s)
-    r, cold = args.repeat, (lambda: drop_cache(path))
-    row("disk read, O_DIRECT", *timed(lambda: read_all(path, direct=True), r))
-    row("disk read, cold", *timed(lambda: read_all(path), r, cold))
-    row("disk read, warm", *timed(lambda: read_all(path), r))
+    r = args.repeat
+
+    def cold() -> None:
+        for f in files:
+            drop_cache(f)
+
+    def read(direct: bool = False) -> None:
+        for f in files:
+            read_all(f, direct)
+
+    row("disk read, O_DIRECT", *timed(lambda: read(direct=True), r))
+    row("disk read, cold", *timed(read, r, cold))
+    row("disk read, warm", *timed(read, r))
     wall, cpu, got = timed_decode(lambda: rust_chunks(path), r)
     row("rust decoder, warm", wall, cpu, got == want)
     reference = REFERENCES[encoding]
@@ -408,7 +466,10 @@ def measure_format(args: argparse.Namespace, encoding: str, folder: Path) -> lis
             conversion, process = convert_once(path, folder / f"bench-{codec}.h5", codec)
             row(f"convert --compression {codec}", conversion, float("nan"))
             row("  the whole process", process, float("nan"))
-    path.unlink()
+    if path.is_dir():
+        shutil.rmtree(path)
+    else:
+        path.unlink()
     return rows
 
 
@@ -433,9 +494,10 @@ def run(args: argparse.Namespace) -> int:
     print(table(rows))
     print(
         "O_DIRECT: past the page cache (the device); cold: the file's cached pages dropped first "
-        "(a VM's host may still cache them); warm: in the page cache. 'x disk': wall time against "
-        "the O_DIRECT read of the same file in this run. Decoder rows time the decoding only; "
-        "'same': count and sums of x, y, t, p equal to the generated events. convert runs once, "
+        "(a VM's host may still cache them); warm: in the page cache (a bag's files: all of them). "
+        "'x disk': wall time against the O_DIRECT read of the same file in this run. Decoder rows "
+        "time the reader's opening and decoding, not the checks; 'same': count and sums of x, y, "
+        "t, p equal to the generated events. convert runs once, "
         "in a fresh process: its own time as it prints it, then the whole process's."
     )
     return 0
@@ -443,7 +505,7 @@ def run(args: argparse.Namespace) -> int:
 
 def table(rows: list[dict]) -> str:
     head = (
-        f"{'format':<6} {'what':<28} {'wall s':>8} {'cpu s':>8} {'M ev/s':>8} {'MB/s':>8} "
+        f"{'format':<11} {'what':<28} {'wall s':>8} {'cpu s':>8} {'M ev/s':>8} {'MB/s':>8} "
         f"{'M ev/s/cpu':>10} {'x disk':>7} same"
     )
     lines = [head, "-" * len(head)]
@@ -457,7 +519,7 @@ def table(rows: list[dict]) -> str:
         cpu = f"{r['cpu_s']:>8.3f}" if r["cpu_s"] == r["cpu_s"] else f"{'-':>8}"
         per_cpu = r["events"] / max(r["cpu_s"], 1e-9) / 1e6 if r["cpu_s"] == r["cpu_s"] else None
         lines.append(
-            f"{r['format']:<6} {r['what']:<28} {r['wall_s']:>8.3f} {cpu} "
+            f"{r['format']:<11} {r['what']:<28} {r['wall_s']:>8.3f} {cpu} "
             f"{r['events'] / r['wall_s'] / 1e6:>8.1f} {r['bytes'] / r['wall_s'] / 1e6:>8.0f} "
             f"{'-' if per_cpu is None else f'{per_cpu:.1f}':>10} {disk / r['wall_s']:>7.2f} {same}"
         )

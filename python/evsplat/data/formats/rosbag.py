@@ -2,17 +2,20 @@
 ``prophesee_event_msgs/EventArray`` from prophesee_ros_driver) and ``geometry_msgs/PoseStamped``
 poses.
 
-The events of a ROS 1 bag (.bag), of a ROS 2 bag stored as one MCAP file and of a ROS 2
-SQLite bag (one or several .db3 files, uncompressed) are decoded by the project's Rust readers
-(crates/formats, ``rosbag``, ``mcap`` and ``db3``), in bounded chunks of events. The first two
-read records in file order, chunks uncompressed or compressed (bags: LZ4, bzip2; MCAP: Zstd,
-LZ4), with no need for the index or summary, so a bag whose recording was cut off reads up to
-its last complete message or chunk; the .db3 reader queries SQLite for the topic's messages in
-timestamp order. MCAP bags split over several files, compressed .db3 bags and every bag's
-poses go through ``rosbags`` (pure Python); its message definitions stored in the bag are
-used, and the two event types are also registered here, so ROS 2 bags recorded without
-definitions read too. The Rust readers were checked event by event against rosbags'
-deserialiser (tests/test_formats.py, tests/test_formats_samples.py)."""
+The events of every bag evsplat reads are decoded by the project's Rust readers (crates/formats,
+``rosbag``, ``mcap`` and ``db3``), in bounded chunks of events: a ROS 1 bag (.bag); a ROS 2 bag
+in MCAP or in SQLite (.db3), in one file or split over several that its metadata.yaml lists
+(read one after another), uncompressed or zstd-compressed by rosbag2 per message or per file
+(``NAME.mcap.zstd``, ``NAME.db3.zstd``). The .bag and MCAP readers read records in file order,
+chunks uncompressed or compressed (bags: LZ4, bzip2; MCAP: Zstd, LZ4), with no need for the
+index or summary, so a bag whose recording was cut off reads up to its last complete message
+or chunk (a compressed MCAP file is unpacked as it is read); the .db3 reader queries SQLite for
+the topic's messages in timestamp order (a compressed file unpacked first into a temporary
+.db3, removed after it). Poses go through ``rosbags`` (pure Python; a few thousand messages),
+whose reader is also `evsplat bench decode`'s reference for the events; its message
+definitions stored in the bag are used, and the two event types are also registered here, so
+ROS 2 bags recorded without definitions read too. The Rust readers were checked event by event
+against rosbags' deserialiser (tests/test_formats.py, tests/test_formats_samples.py)."""
 
 from __future__ import annotations
 
@@ -142,45 +145,73 @@ def is_ros1_bag(path: Path) -> bool:
     return path.suffix.lower() == ".bag" and path.is_file()
 
 
-def mcap_file(path: Path) -> Path | None:
-    """The one MCAP file of a ROS 2 bag (the file itself, or its folder's only .mcap), which
-    the Rust reader decodes; None for SQLite (.db3) bags and bags split over several files,
-    which rosbags reads."""
+#: The file suffix of each ROS 2 storage (metadata.yaml's ``storage_identifier``).
+STORAGE_SUFFIXES = {"sqlite3": ".db3", "mcap": ".mcap"}
+#: rosbag2's compression modes (``compression_mode``, format zstd) the Rust readers unpack.
+COMPRESSION_MODES = ("none", "message", "file")
+
+
+@dataclass(frozen=True)
+class BagFiles:
+    """A bag's files in reading order (a ROS 1 bag: its one file; a ROS 2 bag: its storage
+    files), how they are compressed (a ROS 2 bag's metadata.yaml ``compression_mode`` of zstd:
+    "none", "message": each message's data a zstd frame, "file": each file one zstd stream,
+    ``NAME.db3.zstd``) and its topics as its metadata lists them (none without metadata)."""
+
+    files: list[Path]
+    compression: str = "none"
+    topics: tuple[Connection, ...] = ()
+
+
+def _lone(path: Path, storage: str) -> BagFiles | None:
+    """A file of ``storage`` on its own, or a folder's only storage file, without metadata."""
+    suffix = STORAGE_SUFFIXES[storage]
     if path.is_file():
-        return path if path.suffix.lower() == ".mcap" else None
-    if not path.is_dir() or any(path.glob("*.db3")):
-        return None
-    files = sorted(path.glob("*.mcap"))
-    return files[0] if len(files) == 1 else None
+        return BagFiles([path]) if path.suffix.lower() == suffix else None
+    found = [f for kind in STORAGE_SUFFIXES.values() for f in sorted(path.glob(f"*{kind}"))]
+    return BagFiles(found) if len(found) == 1 and found[0].suffix.lower() == suffix else None
 
 
-def db3_files(path: Path) -> list[Path] | None:
-    """The .db3 files of a ROS 2 SQLite bag in reading order, which the Rust reader decodes:
-    those its metadata.yaml lists (for the bag folder or one of its files), or a lone .db3
-    file without one; None for other bags and for compressed ones (rosbags reads those and
-    reports a bag's broken metadata)."""
+def ros2_files(path: Path, storage: str) -> BagFiles | None:
+    """The files of a ROS 2 bag in ``storage`` ("sqlite3" or "mcap"), which the Rust readers
+    decode: those its metadata.yaml lists, for the bag folder or one of its files; without
+    metadata (or for a file it does not list), the file itself or a folder's only storage
+    file. None for other bags, for compression other than zstd and for metadata that cannot
+    be read or lists missing files (rosbags reports what is wrong)."""
     root = _bag_root(path)
     meta = root / "metadata.yaml"
     if not meta.is_file():
-        return [path] if path.is_file() and path.suffix.lower() == ".db3" else None
+        return _lone(path, storage)
     try:
         from ruamel.yaml import YAML  # rosbags' own YAML parser
 
         info = YAML(typ="safe").load(meta.read_text())["rosbag2_bagfile_information"]
-        if info.get("storage_identifier") != "sqlite3":
-            return None
-        if str(info.get("compression_mode") or "none").lower() != "none":
-            return None
         files = [root / Path(str(name)).name for name in info["relative_file_paths"]]
+        mode = str(info.get("compression_mode") or "none").lower()
+        zstd = str(info.get("compression_format") or "zstd").lower() == "zstd"
+        topics = tuple(
+            Connection(t["topic_metadata"]["name"], t["topic_metadata"]["type"])
+            for t in info.get("topics_with_message_count") or ()
+        )
+        storage_ok = info.get("storage_identifier") == storage
     except Exception:  # noqa: BLE001 - any unreadable metadata: rosbags says what is wrong
         return None
-    return files if files and all(f.is_file() for f in files) else None
+    if path.is_file() and path not in files:
+        return _lone(path, storage)
+    if not (storage_ok and mode in COMPRESSION_MODES and (zstd or mode == "none")):
+        return None
+    return BagFiles(files, mode, topics) if files and all(f.is_file() for f in files) else None
 
 
 #: What to do about a .db3 file SQLite cannot read.
 DB3_FIX = (
     "the .db3 file is not a ROS 2 SQLite bag, or it is truncated or damaged: recover what it "
     "holds with `sqlite3 BAG.db3 .recover | sqlite3 FIXED.db3`, or re-record"
+)
+#: What to do about a compressed bag that does not unpack.
+ZSTD_FIX = (
+    "the bag's zstd-compressed data is damaged or cut short (test a .zstd file with `zstd -t`): "
+    "copy the bag again from where it was recorded, or re-record"
 )
 
 
@@ -206,20 +237,26 @@ def _rust_source(
     return EventSource(path, int(width), int(height), chunks, "rosbag", "evsplat", dropped)
 
 
-def open_db3_bag(path: Path, files: list[Path], *, topic: str | None = None) -> EventSource:
-    """Opens the event topic of a ROS 2 SQLite bag (its ``files``, in order) with the Rust
-    reader; the sensor size comes from its first event message."""
+def open_db3_bag(path: Path, bag: BagFiles, *, topic: str | None = None) -> EventSource:
+    """Opens the event topic of a ROS 2 SQLite bag (its files, in order, plain or
+    zstd-compressed) with the Rust reader; the sensor size comes from its first event
+    message."""
+    fix = DB3_FIX if bag.compression == "none" else ZSTD_FIX
     try:
-        listed = [row for f in files for row in _core.db3_topics(f)]
-        connections = list(dict.fromkeys(Connection(t, m) for _, t, m in listed))
+        if bag.compression == "file":  # SQLite cannot list a compressed file's topics
+            connections = list(bag.topics)
+        else:
+            listed = [row for f in bag.files for row in _core.db3_topics(f)]
+            connections = list(dict.fromkeys(Connection(t, m) for _, t, m in listed))
         chosen = _pick(path, connections, topic, EVENT_TYPES, "event-array")[0].topic
-        decoder = _core.Db3EventDecoder([str(f) for f in files], chosen, CHUNK_EVENTS)
+        files = [str(f) for f in bag.files]
+        decoder = _core.Db3EventDecoder(files, chosen, CHUNK_EVENTS, bag.compression)
         size = decoder.sensor_size()
     except OSError as e:
         what = " ".join(str(e).split())
-        raise EvsplatError(f"{path}: cannot open the bag ({what}); {DB3_FIX}") from None
+        raise EvsplatError(f"{path}: cannot open the bag ({what}); {fix}") from None
     dropped = Dropped(words_are="messages not of the EventArray layout")
-    return _rust_source(path, chosen, decoder, size, dropped, DB3_FIX)
+    return _rust_source(path, chosen, decoder, size, dropped, fix)
 
 
 def _msgtype(ros1_type: str) -> str:
@@ -235,19 +272,29 @@ def _rust_fail(path: Path, e: OSError) -> EvsplatError:
     )
 
 
-def open_rust_bag(path: Path, file: Path, *, topic: str | None = None) -> EventSource:
-    """Opens the event topic of a ROS 1 bag or a ROS 2 MCAP ``file`` (of the bag ``path``)
-    with the Rust readers; the sensor size comes from its first event message."""
-    ros1 = file.suffix.lower() == ".bag"
+def open_rust_bag(path: Path, bag: BagFiles, *, topic: str | None = None) -> EventSource:
+    """Opens the event topic of a ROS 1 bag (one file) or a ROS 2 MCAP bag (its files, read
+    one after another, plain or zstd-compressed) with the Rust readers; the sensor size comes
+    from its first event message."""
+    ros1 = bag.files[0].suffix.lower() == ".bag"
     try:
-        listed = _core.bag_connections(file) if ros1 else _core.mcap_channels(file)
+        if ros1:
+            listed = _core.bag_connections(bag.files[0])
+        elif bag.compression == "file":  # a compressed file's channels: its metadata's topics
+            listed = [(0, c.topic, c.msgtype) for c in bag.topics]
+        else:
+            listed = [row for f in bag.files for row in _core.mcap_channels(f)]
     except OSError as e:
         raise _rust_fail(path, e) from None
-    connections = [Connection(t, _msgtype(m)) for _, t, m in listed]
+    connections = list(dict.fromkeys(Connection(t, _msgtype(m)) for _, t, m in listed))
     chosen = _pick(path, connections, topic, EVENT_TYPES, "event-array")[0].topic
-    block = max(1, min(BLOCK_BYTES, file.stat().st_size))
+    block = max(1, min(BLOCK_BYTES, max(f.stat().st_size for f in bag.files)))
     try:
-        decoder = (_core.BagEventDecoder if ros1 else _core.McapEventDecoder)(file, chosen, block)
+        if ros1:
+            decoder = _core.BagEventDecoder(bag.files[0], chosen, block)
+        else:
+            files = [str(f) for f in bag.files]
+            decoder = _core.McapEventDecoder(files, chosen, block, bag.compression)
         size = decoder.sensor_size()
     except OSError as e:
         raise _rust_fail(path, e) from None
@@ -256,28 +303,18 @@ def open_rust_bag(path: Path, file: Path, *, topic: str | None = None) -> EventS
 
 
 def open_bag(path: Path, *, topic: str | None = None) -> EventSource:
-    """Opens the event topic of a bag; the sensor size comes from its first message."""
+    """Opens the event topic of a bag; the sensor size comes from its first message. Every
+    bag evsplat reads decodes in Rust; for any other input rosbags says what is wrong."""
     if is_ros1_bag(path):
-        return open_rust_bag(path, path, topic=topic)
-    if (mcap := mcap_file(path)) is not None:
+        return open_rust_bag(path, BagFiles([path]), topic=topic)
+    if (mcap := ros2_files(path, "mcap")) is not None:
         return open_rust_bag(path, mcap, topic=topic)
-    if (db3 := db3_files(path)) is not None:
+    if (db3 := ros2_files(path, "sqlite3")) is not None:
         return open_db3_bag(path, db3, topic=topic)
-    reader = _open(path)
-    conns = _pick(path, reader.connections, topic, EVENT_TYPES, "event-array")
-    first = next(reader.messages(connections=conns), None)
-    if first is None:
-        reader.close()
-        raise EvsplatError(f"{path}: topic {conns[0].topic} has no messages")
-    msg = reader.deserialize(first[2], first[0].msgtype)
-    if not (msg.width > 0 and msg.height > 0):
-        reader.close()
-        raise EvsplatError(
-            f"{path}: topic {conns[0].topic} gives sensor size {msg.width}x{msg.height}; "
-            "the driver did not fill width/height: re-record or fix the messages"
-        )
-    return EventSource(
-        path, int(msg.width), int(msg.height), _event_chunks(reader, conns), "rosbag", "rosbags"
+    _open(path).close()  # rosbags' own error for what it cannot open
+    raise EvsplatError(
+        f"{path}: not a bag evsplat reads (a ROS 1 .bag, or a ROS 2 bag in MCAP or SQLite with "
+        "its metadata.yaml, uncompressed or zstd-compressed); pass the bag's folder or file"
     )
 
 
@@ -324,9 +361,8 @@ def cdr_event_records(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def _event_chunks(reader: AnyReader, conns) -> Iterator[Chunk]:
-    """The event chunks of a bag through rosbags: compressed ROS 2 SQLite bags and split MCAP
-    bags; ROS 1 bags, MCAP and .db3 files come here only as `evsplat bench decode`'s reference
-    (the path evsplat took before its Rust readers)."""
+    """The event chunks of a bag through rosbags: `evsplat bench decode`'s reference decoder
+    (the path evsplat took before its Rust readers), with byte views of the event messages."""
     try:
         for conn, _, raw in reader.messages(connections=conns):
             # rosbags builds one Python object per event; a view of the bytes is ~100x faster.
