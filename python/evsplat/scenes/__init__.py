@@ -49,7 +49,7 @@ class Scene:
     # The moving object whose path evaluation tracks: seconds -> object-to-world 4x4 or xyz.
     # None: the translation of the first moving primitive's pose (none if nothing moves).
     track: Callable[[float], np.ndarray] | None = None
-    samples: int = 1  # rays per pixel side; a pixel's colour is their mean (PIXEL_SAMPLES)
+    samples: int = PIXEL_SAMPLES  # rays per pixel side; a pixel's colour is their mean
     _renderer: _core.SceneRenderer = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
