@@ -12,7 +12,7 @@
 use std::io::{self, BufReader, Read};
 
 use crate::bytes::{i64_at, u16_at, u32_at};
-use crate::{unpack, EventSource, Events, Stats};
+use crate::{growing_chunk, unpack, EventSource, Events, Stats};
 
 /// The first line of every AEDAT 4 file.
 pub const MAGIC: &[u8] = b"#!AER-DAT4.0\r\n";
@@ -268,7 +268,7 @@ impl<R: Read> EventSource for AedatReader<R> {
 
     fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
         let max_events = max_events.max(1);
-        let mut out = Events::with_capacity(max_events.min(1 << 16));
+        let mut out = growing_chunk(max_events);
         while out.len() < max_events {
             let Some((at, left)) = self.pending.filter(|&(_, left)| left > 0) else {
                 if self.eof {

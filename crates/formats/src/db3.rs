@@ -31,7 +31,7 @@ use rusqlite::{Connection, OpenFlags};
 
 use crate::cdr::{event_array, push_events};
 use crate::unpack::{self, Frames};
-use crate::{EventSource, Events, Ros2Compression, Stats};
+use crate::{growing_chunk, EventSource, Events, Ros2Compression, Stats};
 
 /// A topic of a .db3 file: its id, name and message type (`pkg/msg/Name`).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -106,7 +106,7 @@ fn send_events(
     tx: &SyncSender<Sent>,
 ) {
     let mut batch = Batch {
-        events: Events::with_capacity(chunk.min(1 << 16)),
+        events: growing_chunk(chunk),
         size: None,
         unknown: 0,
     };

@@ -27,6 +27,16 @@ pub use reader::{ChunkReader, Encoding};
 
 pub use evsplat_events::Events;
 
+/// Room an events buffer starts with before it grows (by doubling): a chunk of a small or
+/// corrupt recording allocates little, whatever size was asked for.
+const FIRST_ROOM: usize = 1 << 16;
+
+/// An empty chunk that will take at most `max_events` events, with room for up to
+/// `FIRST_ROOM` of them.
+pub(crate) fn growing_chunk(max_events: usize) -> Events {
+    Events::with_capacity(max_events.min(FIRST_ROOM))
+}
+
 /// A recording's events, chunk by chunk: every format's reader (`ChunkReader` for the EVT and
 /// DAT words, `rosbag::BagReader`, `mcap::McapReader` and `mcap::McapFiles`, `db3::Db3Reader`,
 /// `aedat4::AedatReader`).

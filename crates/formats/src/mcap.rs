@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 
 use crate::bytes::{u16_at, u32_at, u64_at};
 use crate::unpack::{self, Frames};
-use crate::{EventSource, Events, Ros2Compression, Stats};
+use crate::{growing_chunk, EventSource, Events, Ros2Compression, Stats};
 
 /// The first (and last) 8 bytes of every MCAP file.
 pub const MAGIC: &[u8] = b"\x89MCAP0\r\n";
@@ -352,7 +352,7 @@ impl<R: Read> EventSource for McapReader<R> {
 
     fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
         let max_events = max_events.max(1);
-        let mut out = Events::with_capacity(max_events.min(1 << 16));
+        let mut out = growing_chunk(max_events);
         while out.len() < max_events && self.advance()? {
             let Some((start, n, next)) = self.pending else {
                 continue;

@@ -27,7 +27,7 @@ use std::collections::HashMap;
 use std::io::{self, BufReader, Read, Seek, SeekFrom};
 
 use crate::bytes::u32_at;
-use crate::{EventSource, Events, Stats};
+use crate::{growing_chunk, EventSource, Events, Stats};
 
 /// The first line of every ROS 1 bag this reader reads.
 pub const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
@@ -664,8 +664,7 @@ impl<R: Read> EventSource for BagReader<R> {
 
     fn next_chunk(&mut self, max_events: usize) -> io::Result<Events> {
         let max_events = max_events.max(1);
-        // Grown by doubling from a small start: a small bag allocates little.
-        let mut out = Events::with_capacity(max_events.min(1 << 16));
+        let mut out = growing_chunk(max_events);
         while out.len() < max_events && self.advance()? {
             let in_window = (self.chunk.len() - self.pos) / EVENT;
             if in_window == 0 {

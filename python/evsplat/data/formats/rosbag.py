@@ -20,7 +20,7 @@ against rosbags' deserialiser (tests/test_formats.py, tests/test_formats_samples
 from __future__ import annotations
 
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -162,6 +162,14 @@ class BagFiles:
     compression: str = "none"
     topics: tuple[Connection, ...] = ()
 
+    def connections(self, lister: Callable[[Path], list[tuple]]) -> list[Connection]:
+        """The bag's topics, first seen first: its metadata's for a file-compressed bag (its
+        storage cannot list them), else each file's (``lister``: (id, topic, type) rows)."""
+        if self.compression == "file":
+            return list(self.topics)
+        listed = (row for f in self.files for row in lister(f))
+        return list(dict.fromkeys(Connection(t, _msgtype(m)) for _, t, m in listed))
+
 
 def _lone(path: Path, storage: str) -> BagFiles | None:
     """A file of ``storage`` on its own, or a folder's only storage file, without metadata."""
@@ -243,11 +251,7 @@ def open_db3_bag(path: Path, bag: BagFiles, *, topic: str | None = None) -> Even
     message."""
     fix = DB3_FIX if bag.compression == "none" else ZSTD_FIX
     try:
-        if bag.compression == "file":  # SQLite cannot list a compressed file's topics
-            connections = list(bag.topics)
-        else:
-            listed = [row for f in bag.files for row in _core.db3_topics(f)]
-            connections = list(dict.fromkeys(Connection(t, m) for _, t, m in listed))
+        connections = bag.connections(_core.db3_topics)
         chosen = _pick(path, connections, topic, EVENT_TYPES, "event-array")[0].topic
         files = [str(f) for f in bag.files]
         decoder = _core.Db3EventDecoder(files, chosen, CHUNK_EVENTS, bag.compression)
@@ -278,15 +282,9 @@ def open_rust_bag(path: Path, bag: BagFiles, *, topic: str | None = None) -> Eve
     from its first event message."""
     ros1 = bag.files[0].suffix.lower() == ".bag"
     try:
-        if ros1:
-            listed = _core.bag_connections(bag.files[0])
-        elif bag.compression == "file":  # a compressed file's channels: its metadata's topics
-            listed = [(0, c.topic, c.msgtype) for c in bag.topics]
-        else:
-            listed = [row for f in bag.files for row in _core.mcap_channels(f)]
+        connections = bag.connections(_core.bag_connections if ros1 else _core.mcap_channels)
     except OSError as e:
         raise _rust_fail(path, e) from None
-    connections = list(dict.fromkeys(Connection(t, _msgtype(m)) for _, t, m in listed))
     chosen = _pick(path, connections, topic, EVENT_TYPES, "event-array")[0].topic
     block = max(1, min(BLOCK_BYTES, max(f.stat().st_size for f in bag.files)))
     try:
