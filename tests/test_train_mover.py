@@ -24,6 +24,7 @@ from evsplat.train.mover_path import (
     locate,
     prefer_ring,
     ring_scores,
+    smooth_track,
     unexplained,
 )
 from evsplat.train.spin import rotation
@@ -89,6 +90,30 @@ def test_connected_drops_lone_detections_and_keeps_a_moving_track():
     assert kept.tolist() == [True] * 4 + [False, False] + [True] * 3 + [False] + [True] * 2
     far = np.array([[10.0, 10.0], [70.0, 10.0]])
     assert not connected(far, np.ones(2, dtype=bool), step=5.0).any()
+
+
+def test_smooth_track_removes_a_flap_and_a_jump_and_keeps_a_line():
+    """An articulated mover's blobs: a curved body path plus a ±10 px swing at 4 windows a
+    period (the butterfly's wings, one beat per 8 windows) and one 30-px jump. The smoothed
+    path keeps within 2.5 px of the body's away from the ends (a one-sided window there sees
+    less than a period of the swing: within 10 px); a straight path passes unchanged (a local
+    line reproduces a line), and windows past the last found one stay finite."""
+    k = np.arange(48)
+    t = (k * 12_500).astype(np.int64)
+    body = np.stack([20.0 + 1.2 * k, 40.0 + 8.0 * np.sin(k / 15.0)], axis=1)
+    swing = np.stack([10.0 * np.sin(2 * np.pi * k / 8), np.zeros(48)], axis=1)
+    found = np.ones(48, dtype=bool)
+    blobs = body + swing
+    blobs[20] += [30.0, -5.0]
+    fit = smooth_track(t, blobs, found, sigma=0.07 * 600_000)
+    assert np.abs(blobs - body).max() >= 30.0
+    miss = np.hypot(*(fit - body).T)
+    assert miss[5:-5].max() < 2.5 and miss.max() < 10.0 and np.median(miss) < 1.0
+    line = np.stack([3.0 + 0.5 * k, 90.0 - 0.25 * k], axis=1)
+    found[30:] = False
+    fit = smooth_track(t, line, found, sigma=40_000.0)
+    np.testing.assert_allclose(fit[:30], line[:30], atol=1e-6)
+    assert np.isfinite(fit).all()
 
 
 def test_chain_circles_follows_the_path_through_either_fit_and_drops_stray_fits():

@@ -134,6 +134,9 @@ class MoverConfig:
     # Documented choices, measured on the tiny ball after the warm-up (docs/results.md).
     min_contrast: float = 1.4
     min_found: float = 0.25
+    # A mover that is not round follows its blobs' path smoothed over this fraction of the
+    # sequence (Gaussian sigma; 0 = off): see mover_path.smooth_track.
+    smooth: float = 0.07
     # The mover's depth: this quantile of the warm-up's rendered depth in each found window's
     # disc, median over the windows. Documented choice, measured on the tiny ball's warm-ups
     # (seeds 0-2: 2.93-2.98 m for a true 2.99; the median quantile gave 3.52-3.61).
@@ -155,9 +158,9 @@ class MoverConfig:
     # (the ball's windows: 8-11%).
     spin_min_gain: float = 0.05
     spin_steps: int = 40  # Adam steps refining the first window's estimate (half for later ones)
-    # The track prior (``mover.MoverTrack``): after the seeding, the mover's Gaussians' centre
-    # is pulled towards its found path, in mover radii squared, with this weight (0 = off), at
-    # times within `track_reach` (a fraction of the sequence) of a found window.
+    # The track prior (``mover.MoverTrack``): after the seeding, a round mover's Gaussians'
+    # centre is pulled towards its found path, in mover radii squared, with this weight
+    # (0 = off), at times within `track_reach` (a fraction of the sequence) of a found window.
     track_weight: float = 1.0
     track_reach: float = 0.03
 

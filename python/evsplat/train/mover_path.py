@@ -33,6 +33,8 @@ AGREE = 0.5
 # The circle agrees with the blob within this many blob radii: measured, on the ball in 81-89%
 # of the windows, on the butterfly 19%, on the duck none (docs/results.md).
 RING_AGREE = 0.75
+CONVERGED = 50  # mean-shift steps of a blob that is not round: converged by 30 (results.md)
+BIWEIGHT = 4.685  # smooth_track's outlier scale in robust sigmas (Tukey's biweight constant)
 
 
 @dataclass
@@ -136,7 +138,8 @@ def find_path(
     sequence) when the mover is round (``prefer_ring``):
     the blob's centre of energy is pulled off a round mover by its strongest seams and by the
     background's leftovers, and a mover cut by the border has its visible part's centre
-    (docs/results.md, session 15)."""
+    (docs/results.md, session 15). Otherwise the blobs' centres, their mean shift run to
+    convergence and the path smoothed in time (``smooth_track``, session 26)."""
     duration = t_end_us - t_start_us
     length = max(int(cfg.window * duration), 1)
     starts = np.linspace(t_start_us, t_end_us - length, cfg.windows).astype(np.int64)
@@ -153,7 +156,13 @@ def find_path(
     if is_round:
         uv, found = chain_circles(np.stack([ring_uv, border_uv], axis=1), seen, step)
     else:
+        # Not round: each blob's mean shift run to convergence. Its first steps stop on the
+        # strongest part (one wing of the butterfly, 12 px off its body); on the ball, whose
+        # circle is used instead, the longer run drifts into the background's leftovers.
+        uv = np.array([locate(e, CONVERGED)[0] for e in maps])
         found = connected(uv, seen, step)
+        if cfg.smooth > 0 and found.any():
+            uv = smooth_track(starts + length // 2, uv, found, cfg.smooth * duration)
     return MoverPath(
         times_us=starts + length // 2,
         uv=uv,
@@ -162,6 +171,37 @@ def find_path(
         found=found,
         round=is_round,
     )
+
+
+def smooth_track(
+    t: np.ndarray, uv: np.ndarray, found: np.ndarray, sigma: float, rounds: int = 3
+) -> np.ndarray:
+    """[K,2]: the ``found`` rows of ``uv`` [K,2] at times ``t`` [K] smoothed by a local linear
+    fit (Gaussian weights of ``sigma`` in time), evaluated at every ``t``, with ``rounds`` of
+    biweight reweighting so a lone jump does not bend the path. A blob is the centre of the
+    unexplained events, not of the mover: an articulated mover (the butterfly's flapping wings)
+    moves it by ±10 px a half-beat while the body moves by 2 (docs/results.md, session 26)."""
+    ts, ys = t[found].astype(np.float64), uv[found]
+    weight = np.ones(len(ts))
+    fit = uv.astype(np.float64).copy()
+    for r in range(rounds + 1):
+        dt = ts[None, :] - t.astype(np.float64)[:, None]  # [K,F]
+        w = np.exp(-0.5 * (dt / max(sigma, EPS)) ** 2) * weight[None, :]
+        s0, s1, s2 = w.sum(1), (w * dt).sum(1), (w * dt * dt).sum(1)
+        m0, m1 = w @ ys, (w * dt) @ ys  # [K,2]
+        det = s0 * s2 - s1 * s1
+        ok = det > EPS * np.maximum(s0 * s2, EPS)
+        # The local line's value at dt = 0; where the line is not determined, the weighted
+        # mean, and the blob itself where no found window weighs in.
+        line = (s2[:, None] * m0 - s1[:, None] * m1) / np.where(ok, det, 1.0)[:, None]
+        mean = np.where((s0 > EPS)[:, None], m0 / np.maximum(s0, EPS)[:, None], uv)
+        fit = np.where(ok[:, None], line, mean)
+        if r == rounds:
+            break
+        miss = np.hypot(*(ys - fit[found]).T)
+        scale = BIWEIGHT * max(1.4826 * float(np.median(miss)), 1.0)
+        weight = np.clip(1.0 - (miss / scale) ** 2, 0.0, None) ** 2
+    return fit
 
 
 def prefer_ring(

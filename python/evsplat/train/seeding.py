@@ -108,7 +108,10 @@ def seed_mover(
         cfg.seed,
     )
     track = None
-    if mc.track_weight > 0:
+    # Only a circle's path: a blob's centre is the centre of the unexplained events, which on
+    # the butterfly and the duck lies 4-13 px off the body, and holding the Gaussians there
+    # cost 2.1-2.8 dB on their masks (docs/results.md, session 26).
+    if mc.track_weight > 0 and path.round:
         reach = int(mc.track_reach * (data.t_end_us - data.t_start_us))
         track = MoverTrack(times, points, radius, reach)
     static = torch.ones(n, dtype=torch.bool)
