@@ -4,6 +4,7 @@ hand-recorded full-size sections when it regenerates docs/results.md."""
 from __future__ import annotations
 
 import argparse
+import json
 
 import pytest
 
@@ -102,6 +103,10 @@ def test_rerunning_one_table_keeps_the_others_as_measured(tmp_path, monkeypatch)
     assert "| L_e | 18.61 | 30.00 (12.00) |" in text
     assert "| L_e | 18.61 | 30.00 (12.00) |" not in first
     assert text.index(paper.TITLES["1"]) < text.index(paper.TITLES["3"]) < text.index("![time")
+    # results.json (and the figure drawn from it) holds both runs' cells, table 3's the new ones.
+    rows = json.loads((args.out / "results.json").read_text())["rows"]
+    assert len(rows) == 12 + 4  # table 1's cells, then table 3's (ball x1 full shared)
+    assert sorted(r["psnr"] for r in rows if r["variant"] == "e") == [30.0]
 
 
 def test_several_seeds_give_each_cell_its_mean_and_standard_deviation(tmp_path, monkeypatch):

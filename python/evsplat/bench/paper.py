@@ -195,6 +195,23 @@ def _seeds(text: str) -> list[int]:
     return seeds
 
 
+def _merged_rows(previous: Path, rows: list[dict]) -> list[dict]:
+    """``rows`` after the rows of ``previous`` (an earlier run's results.json, if any) that are
+    not the same cell (case, variant, seed and iterations) as one of them."""
+    if not previous.is_file():
+        return rows
+
+    def cell(r: dict) -> tuple:
+        return (r.get("case"), r.get("variant"), r.get("seed"), r.get("iterations"))
+
+    try:
+        old = json.loads(previous.read_text()).get("rows", [])
+    except (OSError, ValueError, AttributeError):
+        return rows  # an unreadable earlier file is replaced, not merged
+    now = {cell(r) for r in rows}
+    return [r for r in old if isinstance(r, dict) and cell(r) not in now] + rows
+
+
 def run(args: argparse.Namespace) -> int:
     tables = {int(t) for t in args.tables.split(",") if t}
     seeds = _seeds(args.seeds)
@@ -236,9 +253,13 @@ def run(args: argparse.Namespace) -> int:
     hosts = ", ".join(sorted({r.get("host", "?") for r in rows}))
     # Where the cells ran, which need not be this machine (a cluster's, a reused sweep's).
     adapters = ", ".join(sorted({r.get("adapter", "adapter not recorded") for r in rows}))
-    write_text_atomic(out / "results.json", json.dumps({**info, "rows": rows}, indent=2))
+    # The figure shows every table the doc holds: this run's cells and the earlier runs' kept in
+    # the same --out (a rerun of one table drew only that table's points before).
+    measured = _merged_rows(out / "results.json", rows)
+    write_text_atomic(out / "results.json", json.dumps({**info, "rows": measured}, indent=2))
     args.doc.parent.mkdir(parents=True, exist_ok=True)
-    plot_pareto(rows, args.doc.parent / "results_pareto.png", f"paper tables ({adapters})")
+    drawn_on = ", ".join(sorted({r.get("adapter", "adapter not recorded") for r in measured}))
+    plot_pareto(measured, args.doc.parent / "results_pareto.png", f"paper tables ({drawn_on})")
 
     size = "96x96 tiny variants, preset tiny" if tiny else "full size, preset default"
     iters = rows[0]["iterations"] if rows else "-"
