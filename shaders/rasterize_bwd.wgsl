@@ -86,9 +86,8 @@ fn main(
         if (!any(hit)) {
             continue;
         }
-        // 1 / (1 - alpha), once: the channels' terms below multiply by it (alpha <= ALPHA_MAX).
-        let inv = 1.0 / (1.0 - alpha);
-        t = select(t, t * inv, hit); // transmittance in front of this fragment
+        let one_minus = 1.0 - alpha;
+        t = select(t, t / one_minus, hit); // transmittance in front of this fragment
         let w = select(vec4<f32>(0.0), alpha * t, hit);
         var g_alpha = vec4<f32>(0.0);
         // This Gaussian's feature gradients summed over the group: each element written below
@@ -97,12 +96,12 @@ fn main(
         let fb = params.off_feat + g * D;
         for (var c = 0u; c < D; c = c + 1u) {
             let f = inputs[fb + c];
-            g_alpha = g_alpha + g_img[c] * (f * t - after[c] * inv);
+            g_alpha = g_alpha + g_img[c] * (f * t - after[c] / one_minus);
             g_feat[c] = group_sum(dot(g_img[c], w));
             after[c] = after[c] + f * w;
         }
-        g_alpha = g_alpha + g_z * (mo.w * t - after_z * inv);
-        g_alpha = g_alpha - g_tfinal * t_final * inv;
+        g_alpha = g_alpha + g_z * (mo.w * t - after_z / one_minus);
+        g_alpha = g_alpha - g_tfinal * t_final / one_minus;
         after_z = after_z + mo.w * w;
         // alpha = min(ALPHA_MAX, opacity * gauss): the clamp passes no gradient.
         let ga = select(vec4<f32>(0.0), g_alpha, hit & (raw <= vec4<f32>(ALPHA_MAX)));
