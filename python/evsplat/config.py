@@ -135,7 +135,8 @@ class MoverConfig:
     min_contrast: float = 1.4
     min_found: float = 0.25
     # A mover that is not round follows its blobs' path smoothed over this fraction of the
-    # sequence (Gaussian sigma; 0 = off): see mover_path.smooth_track.
+    # sequence (Gaussian sigma; 0 = off): see mover_path.smooth_track. Documented choice: on the
+    # butterfly 0.07 and 0.12 were within noise, and off cost 2.4 dB (docs/results.md).
     smooth: float = 0.07
     # The mover's depth: this quantile of the warm-up's rendered depth in each found window's
     # disc, median over the windows. Documented choice, measured on the tiny ball's warm-ups

@@ -181,9 +181,8 @@ def smooth_track(
     biweight reweighting so a lone jump does not bend the path. A blob is the centre of the
     unexplained events, not of the mover: an articulated mover (the butterfly's flapping wings)
     moves it by ±10 px a half-beat while the body moves by 2 (docs/results.md, session 26)."""
-    ts, ys = t[found].astype(np.float64), uv[found]
+    ts, ys = t[found].astype(np.float64), uv[found].astype(np.float64)
     weight = np.ones(len(ts))
-    fit = uv.astype(np.float64).copy()
     for r in range(rounds + 1):
         dt = ts[None, :] - t.astype(np.float64)[:, None]  # [K,F]
         w = np.exp(-0.5 * (dt / max(sigma, EPS)) ** 2) * weight[None, :]
