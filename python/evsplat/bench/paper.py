@@ -195,6 +195,12 @@ def _seeds(text: str) -> list[int]:
     return seeds
 
 
+def _adapters(rows: list[dict]) -> str:
+    """Where ``rows``' cells ran, which need not be this machine (a cluster's, a reused
+    sweep's)."""
+    return ", ".join(sorted({r.get("adapter", "adapter not recorded") for r in rows}))
+
+
 def _merged_rows(previous: Path, rows: list[dict]) -> list[dict]:
     """``rows`` after the rows of ``previous`` (an earlier run's results.json, if any) that are
     not the same cell (case, variant, seed and iterations) as one of them."""
@@ -251,15 +257,15 @@ def run(args: argparse.Namespace) -> int:
             results[table].append(done[(case.name, variant)])
     rows = sweep.rows
     hosts = ", ".join(sorted({r.get("host", "?") for r in rows}))
-    # Where the cells ran, which need not be this machine (a cluster's, a reused sweep's).
-    adapters = ", ".join(sorted({r.get("adapter", "adapter not recorded") for r in rows}))
+    adapters = _adapters(rows)
     # The figure shows every table the doc holds: this run's cells and the earlier runs' kept in
     # the same --out (a rerun of one table drew only that table's points before).
     measured = _merged_rows(out / "results.json", rows)
     write_text_atomic(out / "results.json", json.dumps({**info, "rows": measured}, indent=2))
     args.doc.parent.mkdir(parents=True, exist_ok=True)
-    drawn_on = ", ".join(sorted({r.get("adapter", "adapter not recorded") for r in measured}))
-    plot_pareto(measured, args.doc.parent / "results_pareto.png", f"paper tables ({drawn_on})")
+    plot_pareto(
+        measured, args.doc.parent / "results_pareto.png", f"paper tables ({_adapters(measured)})"
+    )
 
     size = "96x96 tiny variants, preset tiny" if tiny else "full size, preset default"
     iters = rows[0]["iterations"] if rows else "-"

@@ -33,6 +33,7 @@ AGREE = 0.5
 # The circle agrees with the blob within this many blob radii: measured, on the ball in 81-89%
 # of the windows, on the butterfly 19%, on the duck none (docs/results.md).
 RING_AGREE = 0.75
+LOCATE_STEPS = 8  # mean-shift steps of a blob (on the ball, more drift into the background)
 CONVERGED = 50  # mean-shift steps of a blob that is not round: converged by 30 (results.md)
 BIWEIGHT = 4.685  # smooth_track's outlier scale in robust sigmas (Tukey's biweight constant)
 
@@ -85,43 +86,81 @@ def unexplained(esi: Tensor, pred: Tensor, pool: int) -> Tensor:
     return smooth.abs().sum((0, 1))[: esi.shape[-2], : esi.shape[-1]]
 
 
-def locate(energy: Tensor, iterations: int = 8) -> tuple[np.ndarray, float, float]:
-    """(centre [2] (x, y) in pixel coordinates, radius px, contrast) of the main blob of
-    ``energy [H,W]``: mean shift from its strongest region, with a radius that grows or shrinks
-    to hold the blob's energy (the radius of gyration of a disc's mass is r/√2, of a ring r).
-    Contrast is the mean (capped) energy inside the disc over the image's mean."""
-    h, w = energy.shape
-    e = energy.double().clamp_min(0.0)
+@dataclass
+class _Blob:
+    """A mean shift in progress on one energy map (``locate``): its centre (x, y) and radius in
+    pixels, and the map's median and high quantile (the weights' floor and cap)."""
+
+    cx: float
+    cy: float
+    radius: float
+    floor: float
+    cap: float
+
+
+def _blob_start(e: Tensor) -> _Blob:
+    """The mean shift's start on ``e`` [H,W] (float64, >= 0): its strongest region."""
+    h, w = e.shape
     side = max(3, (min(h, w) // 8) | 1)
     coarse = F.avg_pool2d(e[None, None], side, stride=1, padding=side // 2)[0, 0][:h, :w]
     k = int(torch.argmax(coarse))
-    ys, xs = torch.meshgrid(
-        torch.arange(h, dtype=torch.float64) + 0.5,
-        torch.arange(w, dtype=torch.float64) + 0.5,
-        indexing="ij",
-    )
-    cx, cy = k % w + 0.5, k // w + 0.5
-    radius = float(side)
     # Energy above the image's median, capped at a high quantile so a mover's few strongest
     # edges (a seam of saturated colours) do not pull the centre off its outline.
     floor, cap = (
         float(q) for q in torch.quantile(e.float().reshape(-1), torch.tensor([0.5, CAP_QUANTILE]))
     )
-    weight = (e - floor).clamp(0.0, max(cap - floor, EPS))
+    return _Blob(k % w + 0.5, k // w + 0.5, float(side), floor, cap)
+
+
+def _blob_weight(e: Tensor, b: _Blob) -> Tensor:
+    return (e - b.floor).clamp(0.0, max(b.cap - b.floor, EPS))
+
+
+def _pixel_centres(h: int, w: int) -> tuple[Tensor, Tensor]:
+    ys, xs = torch.meshgrid(
+        torch.arange(h, dtype=torch.float64) + 0.5,
+        torch.arange(w, dtype=torch.float64) + 0.5,
+        indexing="ij",
+    )
+    return xs, ys
+
+
+def _shift(e: Tensor, b: _Blob, iterations: int) -> None:
+    """``iterations`` more mean-shift steps of ``b`` on ``e``, the radius following the
+    energy's radius of gyration."""
+    h, w = e.shape
+    xs, ys = _pixel_centres(h, w)
+    weight = _blob_weight(e, b)
     for _ in range(iterations):
-        d2 = (xs - cx) ** 2 + (ys - cy) ** 2
-        inside = weight * (d2 <= (1.5 * radius) ** 2)
+        d2 = (xs - b.cx) ** 2 + (ys - b.cy) ** 2
+        inside = weight * (d2 <= (1.5 * b.radius) ** 2)
         total = float(inside.sum())
         if total <= EPS:
             break
-        cx = float((inside * xs).sum()) / total
-        cy = float((inside * ys).sum()) / total
+        b.cx = float((inside * xs).sum()) / total
+        b.cy = float((inside * ys).sum()) / total
         gyration = math.sqrt(float((inside * d2).sum()) / total)
-        radius = min(max(1.2 * gyration, 2.0), 0.5 * min(h, w))
-    d2 = (xs - cx) ** 2 + (ys - cy) ** 2
-    disc = d2 <= radius**2
+        b.radius = min(max(1.2 * gyration, 2.0), 0.5 * min(h, w))
+
+
+def _blob_found(e: Tensor, b: _Blob) -> tuple[np.ndarray, float, float]:
+    """``locate``'s answer for ``b`` on ``e``: centre, radius and contrast."""
+    xs, ys = _pixel_centres(*e.shape)
+    weight = _blob_weight(e, b)
+    disc = (xs - b.cx) ** 2 + (ys - b.cy) ** 2 <= b.radius**2
     contrast = float(weight[disc].mean()) / max(float(weight.mean()), EPS)
-    return np.array([cx, cy]), radius, contrast
+    return np.array([b.cx, b.cy]), b.radius, contrast
+
+
+def locate(energy: Tensor, iterations: int = LOCATE_STEPS) -> tuple[np.ndarray, float, float]:
+    """(centre [2] (x, y) in pixel coordinates, radius px, contrast) of the main blob of
+    ``energy [H,W]``: mean shift from its strongest region, with a radius that grows or shrinks
+    to hold the blob's energy (the radius of gyration of a disc's mass is r/√2, of a ring r).
+    Contrast is the mean (capped) energy inside the disc over the image's mean."""
+    e = energy.double().clamp_min(0.0)
+    b = _blob_start(e)
+    _shift(e, b, iterations)
+    return _blob_found(e, b)
 
 
 def find_path(
@@ -146,8 +185,13 @@ def find_path(
     maps = torch.stack([residual_of(int(t0), int(t0) + length) for t0 in starts])
     # What the static model misses at a pixel in most windows is the model's own error, not a
     # mover (a mover passes by): the per-pixel median over the windows is taken away.
-    maps = (maps - maps.median(dim=0).values).clamp_min(0.0)
-    blob_uv, sizes, contrast = (np.array(v) for v in zip(*(locate(e) for e in maps)))
+    maps = (maps - maps.median(dim=0).values).clamp_min(0.0).double()
+    blobs = [_blob_start(e) for e in maps]
+    for e, b in zip(maps, blobs):
+        _shift(e, b, LOCATE_STEPS)
+    blob_uv, sizes, contrast = (
+        np.array(v) for v in zip(*(_blob_found(e, b) for e, b in zip(maps, blobs)))
+    )
     seen = contrast >= cfg.min_contrast
     blob_radius = float(np.median(sizes[seen] if seen.any() else sizes))
     ring_uv, ring_radius, border_uv = fit_rings(maps, blob_radius, seen)
@@ -159,7 +203,9 @@ def find_path(
         # Not round: each blob's mean shift run to convergence. Its first steps stop on the
         # strongest part (one wing of the butterfly, 12 px off its body); on the ball, whose
         # circle is used instead, the longer run drifts into the background's leftovers.
-        uv = np.array([locate(e, CONVERGED)[0] for e in maps])
+        for e, b in zip(maps, blobs):
+            _shift(e, b, CONVERGED - LOCATE_STEPS)
+        uv = np.array([[b.cx, b.cy] for b in blobs])
         found = connected(uv, seen, step)
         if cfg.smooth > 0 and found.any():
             uv = smooth_track(starts + length // 2, uv, found, cfg.smooth * duration)
@@ -182,10 +228,11 @@ def smooth_track(
     unexplained events, not of the mover: an articulated mover (the butterfly's flapping wings)
     moves it by ±10 px a half-beat while the body moves by 2 (docs/results.md, session 26)."""
     ts, ys = t[found].astype(np.float64), uv[found].astype(np.float64)
+    dt = ts[None, :] - t.astype(np.float64)[:, None]  # [K,F]
+    kernel = np.exp(-0.5 * (dt / max(sigma, EPS)) ** 2)
     weight = np.ones(len(ts))
     for r in range(rounds + 1):
-        dt = ts[None, :] - t.astype(np.float64)[:, None]  # [K,F]
-        w = np.exp(-0.5 * (dt / max(sigma, EPS)) ** 2) * weight[None, :]
+        w = kernel * weight[None, :]
         s0, s1, s2 = w.sum(1), (w * dt).sum(1), (w * dt * dt).sum(1)
         m0, m1 = w @ ys, (w * dt) @ ys  # [K,2]
         det = s0 * s2 - s1 * s1
