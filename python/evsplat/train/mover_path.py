@@ -168,9 +168,13 @@ def find_path(
     t_start_us: int,
     t_end_us: int,
     cfg: MoverConfig,
+    converge: bool = True,
 ) -> MoverPath:
     """The mover's path from ``cfg.windows`` evenly spread windows of ``cfg.window`` of the
     sequence; ``residual_of(t0, t1)`` is the unexplained event energy [H,W] of [t0, t1).
+    ``converge``: a mover that is not round takes its blobs' converged centres (below); False
+    keeps their first steps' (raw event counts, where a longer run drifts into the
+    background's own events).
 
     Each window's blob (``locate``) says whether the mover is there (its contrast); its place
     and size come from the circle its outline draws (``fit_rings``, one radius for the whole
@@ -203,8 +207,9 @@ def find_path(
         # Not round: each blob's mean shift run to convergence. Its first steps stop on the
         # strongest part (one wing of the butterfly, 12 px off its body); on the ball, whose
         # circle is used instead, the longer run drifts into the background's leftovers.
-        for e, b in zip(maps, blobs):
-            _shift(e, b, CONVERGED - LOCATE_STEPS)
+        if converge:
+            for e, b in zip(maps, blobs):
+                _shift(e, b, CONVERGED - LOCATE_STEPS)
         uv = np.array([[b.cx, b.cy] for b in blobs])
         found = connected(uv, seen, step)
         if cfg.smooth > 0 and found.any():
