@@ -56,8 +56,9 @@ pub fn decode_all(
 /// the reader refuses exactly the inputs without the bag line; chunks are full but the last
 /// and hold at most twice `max_events` capacity; each record buffer holds at most twice the
 /// input or the window of unpacked bytes (the largest unpacked chunk up to
-/// `rosbag::MAX_WINDOW`: no allocation from a corrupt length or a chunk's declared size, and
-/// a decompression bomb is read through the window); at most one event per 13 unpacked
+/// `rosbag::MAX_WINDOW`: no allocation from a corrupt length or a chunk's declared size; a
+/// chunk declared past the unpack ratio is refused, a large one read through the window); at
+/// most one event per 13 unpacked
 /// bytes; `truncated_bytes` within the input;
 /// buffer and chunk sizes change nothing; a truncated copy decodes to a prefix; it all ends.
 pub fn decode_bag_checked(data: &[u8]) -> Option<(Events, Stats)> {

@@ -16,9 +16,11 @@
 //! x u16, y u16, ts sec u32, ts nsec u32, polarity u8.
 //!
 //! Memory is the read buffer, one chunk's compressed bytes and a window of its unpacked records
-//! of at most `MAX_WINDOW` bytes, whatever the bag's length or a chunk's declared `size`. A
+//! of at most `MAX_WINDOW` bytes, whatever the bag's length or a chunk's declared `size`; time
+//! is bounded by the compressed bytes, as a chunk declared to unpack to more than
+//! `unpack::MAX_RATIO` bytes per compressed byte (a decompression bomb) is refused undecoded. A
 //! compressed chunk that unpacks to at most `IN_MEMORY` bytes is unpacked whole; a larger one
-//! (a bomb, or a bag written with very large chunks) is unpacked twice: once to a sink, to know
+//! (a bag written with very large chunks) is unpacked twice: once to a sink, to know
 //! that it decodes (a compressed chunk is all or nothing), then through the window, its records
 //! parsed as they come out. The decompressors' own block buffers are sized by their stream
 //! headers: at most 12.1 MiB for LZ4 (4 MiB blocks, linked) and 3.6 MB for bzip2 (level 9).
@@ -27,7 +29,7 @@ use std::collections::HashMap;
 use std::io::{self, BufReader, Read, Seek, SeekFrom};
 
 use crate::bytes::u32_at;
-use crate::{growing_chunk, EventSource, Events, Stats};
+use crate::{growing_chunk, unpack, EventSource, Events, Stats};
 
 /// The first line of every ROS 1 bag this reader reads.
 pub const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
@@ -578,6 +580,14 @@ impl<R: Read> BagReader<R> {
         // A compressed chunk is all or nothing: a decoder's output from damaged input
         // depends on where its reads stop, so none of a cut one is kept.
         if cut {
+            return;
+        }
+        // A chunk declared to unpack to more than `unpack::MAX_RATIO` bytes per compressed
+        // byte is a decompression bomb: refused whole, before any decoding, so that the time
+        // a chunk takes is bounded by its compressed bytes (a bzip2 chunk of one repeated
+        // event unpacks ~7,000 times larger; event data compresses a few times at most).
+        if size > unpack::cap(self.raw.len() as u64) {
+            self.stats.unknown_words += 1;
             return;
         }
         let mut stream = Unpack::new(lz4, std::mem::take(&mut self.raw), size);

@@ -414,6 +414,27 @@ fn a_chunk_larger_than_the_reader_holds_streams_through_its_window() {
     assert_eq!(ev.len(), events.len());
 }
 
+#[test]
+fn a_bag_chunk_declared_past_the_unpack_ratio_is_refused_before_decoding() {
+    // 400,000 copies of one event (5.2 MB): bzip2 packs them into a few hundred bytes, a
+    // bomb made of valid events. Refused whole from its declared size, without decoding, so
+    // a chunk's time is bounded by its compressed bytes.
+    let mut records = connection(0, "/e", "dvs_msgs/EventArray");
+    records.extend(event_message(0, &vec![(3, 4, 1, 0, 1); 400_000]));
+    let data = packed_bag("bz2", &records, 0);
+    assert!(records.len() as u64 > crate::unpack::cap(data.len() as u64));
+    let (ev, stats) = decode_bag(&data, None);
+    assert_eq!((ev.len(), stats.unknown_words), (0, 1));
+    // Distinct events, packed a few times: read.
+    let events: Vec<_> = (0..20_000u32)
+        .map(|i| ((i % 640) as u16, (i / 640) as u16, 1, i * 37, (i % 2) as u8))
+        .collect();
+    let mut records = connection(0, "/e", "dvs_msgs/EventArray");
+    records.extend(event_message(0, &events));
+    let (ev, stats) = decode_bag(&packed_bag("bz2", &records, 0), None);
+    assert_eq!((ev.len(), stats), (events.len(), Stats::default()));
+}
+
 /// An AEDAT 4 event packet (size-prefixed flatbuffer, "EVTS") in its framing: stream id, size.
 fn aedat_packet(stream: i32, events: &[(i64, i16, i16, bool)]) -> Vec<u8> {
     let mut fb = Vec::new();
