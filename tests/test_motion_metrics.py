@@ -174,6 +174,35 @@ def test_a_minority_of_static_gaussians_left_on_the_object_does_not_drag_its_cen
     assert np.linalg.norm(offset) > 10.0
 
 
+def test_a_set_the_model_draws_from_the_wrong_depth_is_the_objects():
+    """Gaussians on the object's pixels at every time but 4.2 m deep (the object at 3.0-3.3,
+    the wall at 5): one camera cannot see a moving object's depth, and a model may misjudge it.
+    Against the GT depth alone they are not the object's; where the model's rendered depth says
+    it draws them there, they are, and the wall seen through the mask still is not. Their world
+    path is 1.4 times the object's, and the following metrics, which carry their 3-D offset from
+    the object over, say so (path ratio 1.4)."""
+    surface, wall = front_cap(100, seed=4), wall_points()
+
+    def deeper(t: int) -> np.ndarray:
+        eye = camera(t)[:3, 3]
+        points = centre(t) + surface
+        z = points[:, 2] - eye[2]  # the camera looks along +z, unrotated
+        return eye + (points - eye) * (4.2 / z)[:, None]
+
+    means = {t: np.concatenate([deeper(t), wall]) for t in TIMES}
+    peak = np.full(len(surface) + len(wall), 0.8)
+    renderer = StubRenderer(StubModel(peak, {t / 400_000: peak for t in TIMES}), means)
+    views = [view(t) for t in TIMES]
+    alone = track_object(renderer, views, RADIUS)
+    assert [p["n"] for p in alone["paths"]] == [0] * len(TIMES)
+    for v in views:
+        v.drawn_depth = np.where(v.mask, 4.2, WALL_Z).astype(np.float32)
+    drawn = track_object(renderer, views, RADIUS)
+    assert [p["n"] for p in drawn["paths"]] == [len(surface)] * len(TIMES)
+    assert 1.3 < drawn["path_ratio"] < 1.5
+    assert drawn["dx_px"]["other"]["n"] == len(wall)
+
+
 def test_a_reference_without_the_object_in_view_takes_no_part():
     surface = front_cap(50, seed=2)
     means = {t: centre(t) + surface for t in TIMES}

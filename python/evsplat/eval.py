@@ -97,8 +97,11 @@ def summarise(rows: list[dict]) -> dict:
     return out
 
 
-def tracking_views(data: Dataset) -> tuple[list[TrackView] | None, str | None]:
-    """The test frames as tracking views, or None and why tracking is not reported."""
+def tracking_views(
+    data: Dataset, drawn_depths: list[np.ndarray] | None = None
+) -> tuple[list[TrackView] | None, str | None]:
+    """The test frames as tracking views (with the model's rendered depth of each, when
+    given), or None and why tracking is not reported."""
     frames = data.test_frames
     if not frames or any(f.object_centre is None for f in frames):
         return None, "the dataset gives no object_centre per test frame (docs/dataset.md)"
@@ -111,8 +114,9 @@ def tracking_views(data: Dataset) -> tuple[list[TrackView] | None, str | None]:
             _mask2d(read_png(f.mask_path) > 0.5),
             read_exr(f.depth_path),
             f.object_centre,
+            None if drawn_depths is None else drawn_depths[k],
         )
-        for f in frames
+        for k, f in enumerate(frames)
     ]
     return views, None
 
@@ -139,7 +143,7 @@ def evaluate(renderer: Renderer, data: Dataset) -> dict:
         | score(to_display(seq_fit[i]), to_display(seq_flat[i]), to_display(g), m, lp)
         for i, (row, g, m) in enumerate(zip(rows, gts, masks))
     ]
-    views, why = tracking_views(data)
+    views, why = tracking_views(data, [fr["depth"] for fr in frames])
     radius = data.track.radius if data.track is not None else None
     return {
         "frames": rows,

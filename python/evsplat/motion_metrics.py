@@ -11,7 +11,12 @@ the Gaussians whose deformed centre at t_k
 - projects (GT pose and intrinsics of frame k) into a pixel of the GT moving-object mask,
 - lies in front of or at the object there: camera depth z <= GT depth at that pixel + the
   object's radius (test/track.json; ``DEPTH_TOLERANCE`` x GT depth when the radius is unknown),
-  which drops the background seen through the mask's pixels,
+  which drops the background seen through the mask's pixels; or in front of or at what the
+  model itself draws there (``TrackView.drawn_depth``, its rendered depth, + ``DEPTH_TOLERANCE``
+  of it), so that a mover drawn from the wrong depth counts (one moving camera cannot see a
+  mover's depth: `camo`'s seeded sphere sits at 4.1 m for a true 3.0, before a wall at 5; the
+  following error and path ratio below then carry that depth error, as its world path scales
+  with its depth, and the region error measures where it is drawn),
 - and has opacity >= ``OPACITY_MIN`` at t_k (time-local factor included: drawn at t_k).
 
 **Error.** That same set is followed over every test time t_j. Its centre c(t_j) is the
@@ -91,6 +96,7 @@ class TrackView:
     mask: np.ndarray  # [H,W] bool, moving-object pixels
     depth: np.ndarray  # [H,W] camera z of the first hit (0 = nothing)
     centre: np.ndarray  # [3] world position of the object
+    drawn_depth: np.ndarray | None = None  # [H,W] the model's rendered depth (0 = nothing)
 
 
 def to_camera(points: np.ndarray, c2w: np.ndarray) -> np.ndarray:
@@ -143,7 +149,10 @@ def object_set(
     rows, cols = np.where(inside, px[:, 1], 0), np.where(inside, px[:, 0], 0)
     gt_depth = view.depth[rows, cols]
     tolerance = radius if radius is not None else DEPTH_TOLERANCE * gt_depth
-    on_object = view.mask[rows, cols] & (gt_depth > 0) & (cam[:, 2] <= gt_depth + tolerance)
+    deepest = gt_depth + tolerance
+    if view.drawn_depth is not None:
+        deepest = np.maximum(deepest, (1 + DEPTH_TOLERANCE) * view.drawn_depth[rows, cols])
+    on_object = view.mask[rows, cols] & (gt_depth > 0) & (cam[:, 2] <= deepest)
     return inside & on_object & (opacity >= OPACITY_MIN)
 
 
