@@ -77,13 +77,18 @@ def interp_rows(q: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(q, t, values[:, k]) for k in range(values.shape[1])], axis=1)
 
 
+def pooled(energy: Tensor, pool: int) -> Tensor:
+    """[H,W]: ``energy`` averaged over ``pool`` px boxes (stride 1), then its magnitude; a
+    [C,H,W] input sums its channels."""
+    x = energy.double().reshape(-1, 1, *energy.shape[-2:])
+    smooth = F.avg_pool2d(x, pool, stride=1, padding=pool // 2, count_include_pad=False)
+    return smooth.abs().sum((0, 1))[: energy.shape[-2], : energy.shape[-1]]
+
+
 def unexplained(esi: Tensor, pred: Tensor, pool: int) -> Tensor:
     """[H,W] residual |ESI - predicted log change| of the static model, both first averaged over
-    ``pool`` px boxes (stride 1) so the ESI's steps of C average out. A [C,H,W] input sums its
-    channels."""
-    diff = (esi - pred).double().reshape(-1, 1, *esi.shape[-2:])
-    smooth = F.avg_pool2d(diff, pool, stride=1, padding=pool // 2, count_include_pad=False)
-    return smooth.abs().sum((0, 1))[: esi.shape[-2], : esi.shape[-1]]
+    ``pool`` px boxes (stride 1) so the ESI's steps of C average out (``pooled``)."""
+    return pooled(esi - pred, pool)
 
 
 @dataclass
