@@ -22,8 +22,15 @@ struct SortPass {
 
 const MAX_DIGITS: u32 = 256u; // of 8 bits
 var<workgroup> local_hist: array<atomic<u32>, MAX_DIGITS>;
+// Each block element's digit (MAX_DIGITS: none), then also its rank among its walker's run of
+// the same digit in the upper 16 bits (scatter).
 var<workgroup> block_digits: array<u32, SORT_BLOCK>;
-var<workgroup> block_ranks: array<u32, SORT_BLOCK>;
+// Stable ranks come from WALKERS serial walks over consecutive runs of the block: walker w counts
+// the digits of its run in walk_counts[digit * WALKERS + w], which a scan over walkers then turns
+// into each run's offset within its digit.
+const WALKERS: u32 = 8u;
+const RUN: u32 = SORT_BLOCK / WALKERS;
+var<workgroup> walk_counts: array<u32, MAX_DIGITS * WALKERS>;
 
 fn live_count() -> u32 {
     if (pass_info.which == 0u) {
@@ -102,18 +109,32 @@ fn scatter(
         }
         block_digits[j] = d;
     }
+    for (var k = lid; k < MAX_DIGITS * WALKERS; k = k + SORT_THREADS) {
+        walk_counts[k] = 0u;
+    }
     workgroupBarrier();
-    // Stable ranks within the block: one serial walk of its digits (cheap next to a parallel
-    // scan of the digit counters, which spills registers on CPU and GPU alike; a parallel count
-    // over digits packed eight to a word was slower on lavapipe).
-    if (lid == 0u) {
-        var counts: array<u32, MAX_DIGITS>; // zeroed once, before the walk
-        for (var j = 0u; j < SORT_BLOCK; j = j + 1u) {
+    // Stable ranks within each walker's run: a serial walk per walker, the walkers side by side
+    // (one SIMD batch on lavapipe; a single walker over the whole block cost 8x the time).
+    if (lid < WALKERS) {
+        for (var r = 0u; r < RUN; r = r + 1u) {
+            let j = lid * RUN + r;
             let dj = block_digits[j];
             if (dj < MAX_DIGITS) {
-                block_ranks[j] = counts[dj];
-                counts[dj] = counts[dj] + 1u;
+                let c = dj * WALKERS + lid;
+                let rank = walk_counts[c];
+                block_digits[j] = dj | (rank << 16u);
+                walk_counts[c] = rank + 1u;
             }
+        }
+    }
+    workgroupBarrier();
+    // Each digit's runs in walker order: exclusive offsets of the runs within the digit.
+    for (var dg = lid; dg < digits(); dg = dg + SORT_THREADS) {
+        var sum = 0u;
+        for (var w = 0u; w < WALKERS; w = w + 1u) {
+            let c = walk_counts[dg * WALKERS + w];
+            walk_counts[dg * WALKERS + w] = sum;
+            sum = sum + c;
         }
     }
     workgroupBarrier();
@@ -122,7 +143,9 @@ fn scatter(
         let j = k * SORT_THREADS + lid;
         let i = block * SORT_BLOCK + j;
         if (i < live_count()) {
-            let dst = hist[block_digits[j] * nb + block] + block_ranks[j];
+            let dj = block_digits[j] & 0xffffu;
+            let rank = block_digits[j] >> 16u;
+            let dst = hist[dj * nb + block] + walk_counts[dj * WALKERS + j / RUN] + rank;
             keys_out[dst] = keys_in[i];
             vals_out[dst] = vals_in[i];
         }
