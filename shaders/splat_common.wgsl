@@ -67,13 +67,16 @@ const CULLED_KEY: u32 = 0xffffffffu;
 const SORT_BLOCK: u32 = 1024u;
 const SORT_THREADS: u32 = 256u;
 const SORT_KEYS: u32 = SORT_BLOCK / SORT_THREADS;
-// Compositing: a TILE x TILE/4 workgroup covers a tile, each invocation four consecutive pixels of
-// one column as the lanes of vec4s: every Gaussian loaded from the tile list serves four pixels,
-// the per-pixel state is vectors, not arrays indexed by pixel, and neighbouring invocations (run
-// together as SIMD lanes on a CPU, a warp on a GPU) cover a compact block, so a splat that misses
-// the block is skipped by all of them at once.
+// Compositing: a workgroup of TILE invocations covers a tile, each invocation one column of it as
+// two quads of four consecutive pixels, the lanes of vec4s: every Gaussian loaded from the tile
+// list serves eight pixels, the per-pixel state is vectors, not arrays indexed by pixel, and the
+// invocations (run together as SIMD lanes on a CPU, a warp on a GPU) cover the tile, so a splat
+// that misses it is skipped by all of them at once. On lavapipe a tile is then one subgroup (its
+// 8 SIMD lanes), so the backward pass sums each Gaussian's gradients across lanes and adds them
+// with atomics once per tile, not once per half tile (docs/benchmarks.md, session 28); on a GPU
+// with 32-wide subgroups the workgroup fills a quarter of one.
 
-// An invocation's four pixels in its tile: one column, four consecutive rows (the vec4 lanes).
+// Four pixels of a tile: one column, four consecutive rows (the vec4 lanes).
 struct Lanes {
     tile: u32, // the tile's index in the band
     px: u32, // the column
@@ -83,11 +86,12 @@ struct Lanes {
     centre_y: vec4<f32>,
 }
 
-fn pixel_lanes(wid: vec3<u32>, lid: vec3<u32>) -> Lanes {
+// The pixels of column `col`, rows 4 quad .. 4 quad + 3, of tile `wid`.
+fn pixel_lanes(wid: vec3<u32>, col: u32, quad: u32) -> Lanes {
     var l: Lanes;
     l.tile = wid.x + wid.y * params.tiles_x;
-    l.px = wid.x * TILE + lid.x;
-    l.py = vec4<u32>(wid.y * TILE + 4u * lid.y) + vec4<u32>(0u, 1u, 2u, 3u);
+    l.px = wid.x * TILE + col;
+    l.py = vec4<u32>(wid.y * TILE + 4u * quad) + vec4<u32>(0u, 1u, 2u, 3u);
     l.inside = (l.py < vec4<u32>(params.height)) & vec4<bool>(l.px < params.width);
     l.centre_x = f32(l.px) + 0.5;
     l.centre_y = vec4<f32>(l.py + params.band_ty0 * TILE) + 0.5;

@@ -32,6 +32,8 @@ from evsplat.train.loop import Trainer
 
 HORIZON_US = 60_000
 ITERATIONS = 200
+# Training seeds of the test (even: two children at a time).
+SEEDS = 12
 
 
 def _back_project(scene, t_us: int, K: np.ndarray, moving: bool):
@@ -130,10 +132,12 @@ def oracle_errors(data_dir: str, run_dir: str, seed: int = 0) -> tuple[float, li
 def test_training_moves_oracle_gaussians_along_the_true_path(tiny_scene, tmp_path):
     # Child processes with one lavapipe thread each: the backward's float atomics then add in a
     # fixed order and each run is reproducible (with several threads a loaded machine saw the
-    # error end at 9.4-10.9 px against 3.0-5.1 px in quiet runs). Four training seeds, two at a
-    # time: one run is one trajectory, and a trajectory can throw or stall the ball (seed 2
-    # stalls at 10.0 px; a backward whose reciprocal was less exact halved the error in one
-    # seed of four: docs/results.md, session 26).
+    # error end at 9.4-10.9 px against 3.0-5.1 px in quiet runs). The training is chaotic at this
+    # rate: one run is one trajectory, and about a quarter of them throw or stall the ball, which
+    # seed does so moving with the order in which the backward pass adds its float sums
+    # (docs/results.md, session 28: three builds that differ only in that order, 24 seeds each,
+    # halve the error in 14-18 seeds; with four seeds each passed or failed by that order). So the
+    # bar is on twelve seeds, two at a time: their median error and how many fall.
     code = (
         "import json, sys; sys.path.insert(0, sys.argv[1]); "
         "from test_train_oracle_motion import oracle_errors; "
@@ -142,7 +146,7 @@ def test_training_moves_oracle_gaussians_along_the_true_path(tiny_scene, tmp_pat
     env = {**os.environ, "LP_NUM_THREADS": "1", "EVSPLAT_QUIET": "1"}
     here, data = str(Path(__file__).parent), str(tiny_scene("ball"))
     results = []
-    for pair in ((0, 1), (2, 3)):
+    for pair in zip(range(0, SEEDS, 2), range(1, SEEDS, 2)):
         children = [
             subprocess.Popen(
                 [sys.executable, "-c", code, here, data, str(tmp_path / f"run{s}"), str(s)],
@@ -159,10 +163,11 @@ def test_training_moves_oracle_gaussians_along_the_true_path(tiny_scene, tmp_pat
             results.append(json.loads(out.strip().splitlines()[-1]))
     # The MLP's rate barely decays (above), so the error jitters between checkpoints (1-9 px):
     # the median over the second half's checkpoints is each run's statistic. Measured: 15.0 px
-    # before; 3.0 / 2.4 / 10.0 / 4.6 px after (seeds 0-3).
+    # before; after, over seeds 0-11, a median of 3.2 / 3.5 / 5.5 px with 12 / 11 / 10 seeds
+    # below 15.0 (the three builds above), over seeds 12-23 4.3 / 8.0 / 3.2 px with 11 / 11 / 10.
     before = [b for b, _ in results]
     after = [float(np.median(late)) for _, late in results]
     assert min(before) > 10.0
     report = f"tracking error {before[0]:.2f} -> {[round(a, 2) for a in after]} px"
-    assert all(a < b for a, b in zip(after, before)), report
-    assert sum(a < 0.5 * b for a, b in zip(after, before)) >= 3, report
+    assert float(np.median(after)) < 0.6 * before[0], report
+    assert sum(a < b for a, b in zip(after, before)) >= 9, report
