@@ -98,7 +98,7 @@ fn quad_step(
     let power = splat_powers(co, dx, dy);
     let near = (vec4<u32>(k) < (*q).last) & (power >= vec4<f32>(POWER_CUT));
     if (!any(near)) {
-        return false; // beyond 3 sigma of all four pixels: no exp, no feature loads
+        return false; // beyond 3 sigma of the quad's four pixels: no exp, no feature loads
     }
     let gauss = exp(power);
     let raw = mo.z * gauss;

@@ -72,7 +72,7 @@ fn quad_blend(q: ptr<function, Quad>, walked: u32, g: u32, mo: vec4<f32>, co: ve
         (*q).n_closed = (*q).n_closed + select(vec4<u32>(0u), vec4<u32>(1u), closed);
     }
     if (!any(near)) {
-        return; // beyond 3 sigma of all four pixels: no exp, no feature loads
+        return; // beyond 3 sigma of the quad's four pixels: no exp, no feature loads
     }
     let alpha = min(vec4<f32>(ALPHA_MAX), mo.z * exp(power));
     let hit = near & (alpha >= vec4<f32>(ALPHA_MIN));

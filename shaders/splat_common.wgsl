@@ -37,8 +37,8 @@ struct Params {
     _pad2: u32,
 }
 
-// Tile side in pixels: the compositing passes run one workgroup of TILE x TILE/4 invocations per
-// tile. 8x8 rather than 16x16: the lists are shorter, so each pixel evaluates about half as many
+// Tile side in pixels: the compositing passes run one workgroup of TILE x TILE/8 invocations per
+// tile (see Lanes). 8x8 rather than 16x16: the lists are shorter, so each pixel evaluates about half as many
 // Gaussians (docs/benchmarks.md, session 20), for twice the tile keys to sort.
 const TILE: u32 = 8u;
 // Feature channels: the compositing passes use `D`, which the host declares per pipeline
