@@ -287,6 +287,21 @@ def ring_scores(energy: Tensor, radius: float, border: bool = False) -> tuple[Te
     strong seam, the sum large ones collecting background); a circle with less than
     ``RING_COVER`` of its ring inside the image scores 0. ``border``: the square root of the
     visible length instead, and ``BORDER_COVER`` (see there)."""
+    return _best_circles(_ring_sums(energy, radius), border)
+
+
+@dataclass(frozen=True)
+class _RingSums:
+    """Every circle's ring sums of one radius: of the energy [N,H',W'], of the image's inside
+    (``cover``, [1,H',W']), the full ring's length and the centres' offset ``pad``."""
+
+    total: Tensor
+    cover: Tensor
+    length: float
+    pad: int
+
+
+def _ring_sums(energy: Tensor, radius: float) -> _RingSums:
     n, h, w = energy.shape
     pad = int(math.ceil(radius)) + 2
     side = 2 * pad + 1
@@ -303,19 +318,23 @@ def ring_scores(energy: Tensor, radius: float, border: bool = False) -> tuple[Te
         # out[side + pad + y] sums the ring around image row y (pad: the kernel's centre).
         return out[:, side : side + h + 2 * pad, side : side + w + 2 * pad]
 
-    total = convolve(energy.double())
     cover = convolve(torch.ones(1, h, w, dtype=torch.float64))
-    length = float(ring.sum())
+    return _RingSums(convolve(energy.double()), cover, float(ring.sum()), pad)
+
+
+def _best_circles(sums: _RingSums, border: bool) -> tuple[Tensor, np.ndarray]:
+    """``ring_scores``' best score and centre per window, from its ring sums."""
+    total, cover, length = sums.total, sums.cover, sums.length
     least, scale = RING_COVER, math.sqrt(length)
     if border:
         least, scale = BORDER_COVER, cover.clamp_min(0.0).sqrt()
     score = torch.where(
         cover >= least * length, total / cover.clamp_min(EPS) * scale, torch.zeros_like(total)
     )
-    best, k = score.reshape(n, -1).max(dim=1)
+    best, k = score.reshape(len(total), -1).max(dim=1)
     cols = score.shape[-1]
     k = k.numpy()
-    centre = np.stack([k % cols - pad + 0.5, k // cols - pad + 0.5], axis=1)
+    centre = np.stack([k % cols - sums.pad + 0.5, k // cols - sums.pad + 0.5], axis=1)
     return best, centre
 
 
@@ -326,18 +345,20 @@ def fit_rings(
     ``maps`` [N,H,W], each capped at its ``RING_CAP`` quantile (a seam's few brightest pixels
     would outweigh the outline): the radius best over the windows ``seen`` (median of each
     one's best, radii from 0.3 to 1.5 x the blobs' ``blob_radius``), then each window's best
-    centre at that radius, and its best by the border fit (``ring_scores(border=True)``)."""
+    centre at that radius, and its best by the border fit (``ring_scores(border=True)``).
+    Only the windows seen are searched over radii (each window's scores are its own)."""
     h, w = maps.shape[-2:]
     flat = maps.reshape(len(maps), -1).float()
     cap = torch.quantile(flat, RING_CAP, dim=1).to(maps.dtype)[:, None, None]
     maps = torch.minimum(maps, cap)
     hi = min(1.5 * blob_radius, 0.5 * max(h, w))
     radii = np.linspace(max(0.3 * blob_radius, 2.0), max(hi, 2.0), RING_RADII)
-    fits = [ring_scores(maps, float(r)) for r in radii]
-    scores = torch.stack([s for s, _ in fits], dim=1)  # [N,R]
     rows = seen if seen.any() else np.ones(len(maps), dtype=bool)
-    radius = float(np.median(radii[scores.argmax(dim=1).numpy()[rows]]))
-    return ring_scores(maps, radius)[1], radius, ring_scores(maps, radius, border=True)[1]
+    searched = maps[torch.from_numpy(rows)]
+    scores = torch.stack([ring_scores(searched, float(r))[0] for r in radii], dim=1)  # [S,R]
+    radius = float(np.median(radii[scores.argmax(dim=1).numpy()]))
+    sums = _ring_sums(maps, radius)
+    return _best_circles(sums, False)[1], radius, _best_circles(sums, True)[1]
 
 
 def chain_circles(
