@@ -107,14 +107,22 @@ def _blob_start(e: Tensor) -> _Blob:
     """The mean shift's start on ``e`` [H,W] (float64, >= 0): its strongest region."""
     h, w = e.shape
     side = max(3, (min(h, w) // 8) | 1)
-    coarse = F.avg_pool2d(e[None, None], side, stride=1, padding=side // 2)[0, 0][:h, :w]
-    k = int(torch.argmax(coarse))
+    k = int(torch.argmax(_box_sums(e, side)))
     # Energy above the image's median, capped at a high quantile so a mover's few strongest
     # edges (a seam of saturated colours) do not pull the centre off its outline.
     floor, cap = (
         float(q) for q in torch.quantile(e.float().reshape(-1), torch.tensor([0.5, CAP_QUANTILE]))
     )
     return _Blob(k % w + 0.5, k // w + 0.5, float(side), floor, cap)
+
+
+def _box_sums(e: Tensor, side: int) -> Tensor:
+    """[H,W]: the sum of ``e`` [H,W] over the ``side`` x ``side`` square (odd ``side``) around
+    each pixel, zero outside the image, from one summed-area table (a direct box filter cost
+    0.32 s a window at 400x400 with side 51: a fifth of the mover's seeding there)."""
+    r = side // 2
+    table = F.pad(e, (r + 1, r, r + 1, r)).cumsum(0).cumsum(1)
+    return table[side:, side:] - table[:-side, side:] - table[side:, :-side] + table[:-side, :-side]
 
 
 def _blob_weight(e: Tensor, b: _Blob) -> Tensor:
