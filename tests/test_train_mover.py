@@ -17,6 +17,7 @@ from evsplat.train.loop import Trainer
 from evsplat.train.mover import MoverTrack, fit_mlp_to_path, lift, near_path, place_on_mover
 from evsplat.train.mover_path import (
     MoverPath,
+    _box_sums,
     chain_circles,
     connected,
     find_path,
@@ -406,3 +407,20 @@ def test_no_mover_is_found_in_a_static_scene(tiny_scene, tmp_path):
     assert logged == {"mover_found": pytest.approx(logged["mover_found"])}
     assert logged["mover_found"] < trainer.cfg.mover.min_found
     assert trainer.renderer.static_mask is None  # nothing changed: the static check decides
+
+
+@pytest.mark.parametrize("shape, side", [((40, 52), 5), ((96, 96), 13), ((7, 9), 3)])
+def test_box_sums_match_a_direct_box_filter(shape, side):
+    # Oracle: the explicit sum over each pixel's side x side square, zero outside the image.
+    g = torch.Generator().manual_seed(side)
+    e = torch.rand(*shape, generator=g, dtype=torch.float64)
+    r = side // 2
+    padded = torch.nn.functional.pad(e, (r, r, r, r))
+    want = torch.stack(
+        [
+            torch.stack([padded[y : y + side, x : x + side].sum() for x in range(shape[1])])
+            for y in range(shape[0])
+        ]
+    )
+    # The table's running sums round relative to the whole image's sum, not each square's.
+    assert torch.allclose(_box_sums(e, side), want, rtol=0, atol=1e-13 * float(e.sum()))
