@@ -139,13 +139,13 @@ fn quad_step(
     return true;
 }
 
-@compute @workgroup_size(TILE, TILE / 8u)
+@compute @workgroup_size(TILE, TILE / (4u * QUADS))
 fn main(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(local_invocation_id) lid: vec3<u32>,
 ) {
-    var q0 = quad_init(pixel_lanes(wid, lid.x, 2u * lid.y));
-    var q1 = quad_init(pixel_lanes(wid, lid.x, 2u * lid.y + 1u));
+    var q0 = quad_init(pixel_lanes(wid, lid, 0u));
+    var q1 = quad_init(pixel_lanes(wid, lid, 1u));
     let range = ranges[q0.lanes.tile];
     let lasts = max(q0.last, q1.last);
     let n_walk = group_max(max(max(lasts.x, lasts.y), max(lasts.z, lasts.w)));

@@ -120,13 +120,13 @@ fn quad_write(q: Quad) {
     }
 }
 
-@compute @workgroup_size(TILE, TILE / 8u)
+@compute @workgroup_size(TILE, TILE / (4u * QUADS))
 fn main(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(local_invocation_id) lid: vec3<u32>,
 ) {
-    var q0 = quad_init(pixel_lanes(wid, lid.x, 2u * lid.y));
-    var q1 = quad_init(pixel_lanes(wid, lid.x, 2u * lid.y + 1u));
+    var q0 = quad_init(pixel_lanes(wid, lid, 0u));
+    var q1 = quad_init(pixel_lanes(wid, lid, 1u));
     let range = ranges[q0.lanes.tile];
     var walked = 0u;
     for (var idx = range.x; idx < range.y && any(q0.open | q1.open); idx = idx + 1u) {

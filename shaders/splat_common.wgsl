@@ -37,9 +37,10 @@ struct Params {
     _pad2: u32,
 }
 
-// Tile side in pixels: the compositing passes run one workgroup of TILE x TILE/8 invocations per
-// tile (see Lanes). 8x8 rather than 16x16: the lists are shorter, so each pixel evaluates about half as many
-// Gaussians (docs/benchmarks.md, session 20), for twice the tile keys to sort.
+// Tile side in pixels: the compositing passes run one workgroup of TILE x TILE / (4 QUADS)
+// invocations per tile (see Lanes). 8x8 rather than 16x16: the lists are shorter, so each
+// pixel evaluates about half as many Gaussians (docs/benchmarks.md, session 20), for twice the
+// tile keys to sort.
 const TILE: u32 = 8u;
 // Feature channels: the compositing passes use `D`, which the host declares per pipeline
 // (crates/raster/src/kernels.rs) as the render's channel count, 1 to MAX_D, so per-pixel channel
@@ -86,12 +87,17 @@ struct Lanes {
     centre_y: vec4<f32>,
 }
 
-// The pixels of column `col`, rows 4 quad .. 4 quad + 3, of tile `wid`.
-fn pixel_lanes(wid: vec3<u32>, col: u32, quad: u32) -> Lanes {
+// Quads per invocation (both compositing passes hold theirs by name, q0 and q1).
+const QUADS: u32 = 2u;
+
+// Quad `quad` (0 .. QUADS - 1) of invocation `lid`'s pixels in tile `wid`: column lid.x, rows
+// 4 (QUADS lid.y + quad) .. + 3.
+fn pixel_lanes(wid: vec3<u32>, lid: vec3<u32>, quad: u32) -> Lanes {
     var l: Lanes;
     l.tile = wid.x + wid.y * params.tiles_x;
-    l.px = wid.x * TILE + col;
-    l.py = vec4<u32>(wid.y * TILE + 4u * quad) + vec4<u32>(0u, 1u, 2u, 3u);
+    l.px = wid.x * TILE + lid.x;
+    let row = wid.y * TILE + 4u * (QUADS * lid.y + quad);
+    l.py = vec4<u32>(row) + vec4<u32>(0u, 1u, 2u, 3u);
     l.inside = (l.py < vec4<u32>(params.height)) & vec4<bool>(l.px < params.width);
     l.centre_x = f32(l.px) + 0.5;
     l.centre_y = vec4<f32>(l.py + params.band_ty0 * TILE) + 0.5;

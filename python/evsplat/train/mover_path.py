@@ -310,19 +310,20 @@ class _RingSums:
 
 
 def _ring_sums(energy: Tensor, radius: float) -> _RingSums:
-    n, h, w = energy.shape
+    h, w = energy.shape[-2:]
     pad = int(math.ceil(radius)) + 2
     side = 2 * pad + 1
     ys, xs = np.mgrid[0:side, 0:side] - pad
     ring = torch.from_numpy((np.abs(np.hypot(xs, ys) - radius) <= RING_WIDTH).astype(np.float64))
     size = (h + 2 * side, w + 2 * side)  # no wrap-around of the circular convolution
+    k = ring.new_zeros(size)
+    k[:side, :side] = ring
+    ring_hat = torch.fft.rfft2(k)  # shared by the energy's and the cover's convolutions
 
     def convolve(img: Tensor) -> Tensor:
         a = img.new_zeros(img.shape[0], *size)
         a[:, side : side + h, side : side + w] = img
-        k = ring.new_zeros(size)
-        k[:side, :side] = ring
-        out = torch.fft.irfft2(torch.fft.rfft2(a) * torch.fft.rfft2(k), s=size)
+        out = torch.fft.irfft2(torch.fft.rfft2(a) * ring_hat, s=size)
         # out[side + pad + y] sums the ring around image row y (pad: the kernel's centre).
         return out[:, side : side + h + 2 * pad, side : side + w + 2 * pad]
 

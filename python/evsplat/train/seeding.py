@@ -96,15 +96,14 @@ def seed_mover(
         # session 27: camo 67% against 31-46%; on every other built-in scene at most as often).
         # (Not computed where the residual leaves the counts no room to win: the windows'
         # reads and ring fits cost seconds at 400x400.)
-        by_counts = False
-        if seen(path, mc) + COUNTS_MARGIN < 1.0:
+        found, by_counts = seen(path, mc), False
+        if found + COUNTS_MARGIN < 1.0:
             counted = find_path(counts_of, data.t_start_us, data.t_end_us, mc, converge=False)
-            by_counts = seen(counted, mc) > seen(path, mc) + COUNTS_MARGIN
+            by_counts = seen(counted, mc) > found + COUNTS_MARGIN
             if by_counts:
-                path = counted
+                path, found = counted, seen(counted, mc)
     # Whether there is a mover: the windows that saw one (contrast); its path: the found
     # windows, fewer (mover_path.prefer_ring and mover_path.connected drop the fits that disagree).
-    found = seen(path, mc)
     if found < mc.min_found or not path.found.any():
         return Seeding({"mover_found": found}, seeded=False, track=None)
     # The reference: the clearest window well inside the image, with its own radius (the
