@@ -13,6 +13,7 @@ import torch
 
 from evsplat.config import MoverConfig, TrainConfig
 from evsplat.data.dataset import Dataset
+from evsplat.data.events import bayer_channel_map
 from evsplat.model.deform import DeformationMLP
 from evsplat.model.gaussians import GaussianModel
 from evsplat.train.mover import (
@@ -31,7 +32,7 @@ from evsplat.train.mover_path import (
     pooled,
     unexplained,
 )
-from evsplat.train.spin import SpinSettings, find_spin, integrate
+from evsplat.train.spin import SpinSettings, event_labels, find_spin, integrate
 from evsplat.train.views import Views
 
 FIT_GRID = 121  # times on which the MLP is fitted to the mover's path and turn
@@ -191,9 +192,12 @@ def mover_spin(
     if len(centres) == 0:
         return None, {"spin_windows": 0.0}
 
-    def events_in(t0: int, t1: int) -> tuple[np.ndarray, np.ndarray]:
+    channel = bayer_channel_map(data.bayer, data.width, data.height)
+
+    def events_in(t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ev = data.events.read(t0, t1, most=SPIN_WINDOW_EVENTS)
-        return np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5, ev.t
+        uv = np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5
+        return uv, ev.t, event_labels(channel[ev.y, ev.x], ev.p)
 
     settings = SpinSettings(
         mc.spin_rim,

@@ -5,10 +5,16 @@ true place, its texture held still or averaged over time scores no better than a
 the ball's mask (docs/results.md, session 16). Its path says nothing about the turning, but the
 events inside its disc do. Each event is back-projected onto the mover's sphere (centre and
 radius from the found path), the surface points are turned back to the window's middle time by
-a candidate angular velocity, and the velocity that makes the warped events' image sharpest
+a candidate angular velocity, and the velocity that makes the warped events' images sharpest
 (largest variance) is the spin (Gallego and Scaramuzza, "Accurate angular velocity estimation
 with an event camera", RA-L 2017; Gallego et al., "A unifying contrast maximization framework",
 CVPR 2018). Angular velocities are in world coordinates, radians per second.
+
+The events make one image per colour channel of the sensor's Bayer filter and polarity, and
+their variances add up: a multi-colour texture's edges differ per channel, and the two signs of
+one edge land side by side, so in a single image they blur each other (given `camo`'s true
+path, its sphere of colour noise passes the gain test in 17 of 20 windows instead of none;
+docs/results.md, session 29).
 """
 
 from __future__ import annotations
@@ -48,8 +54,15 @@ class SpinWindow:
     time_us: int  # the window's middle: warped events land at this time
     offsets: Tensor  # [N,3] surface points relative to the mover's centre (world, metres)
     dt: Tensor  # [N] seconds from ``time_us``
+    labels: Tensor  # [N] int64: which image an event goes to (``event_labels``)
     c2w: np.ndarray  # [4,4] camera at ``time_us``
     centre: np.ndarray  # [3] the mover's centre at ``time_us``
+
+
+def event_labels(channel: np.ndarray, polarity: np.ndarray) -> np.ndarray:
+    """Each event's image in ``contrast``: its pixel's colour channel (0-2; 0 for a mono sensor)
+    and its polarity (+1 or -1)."""
+    return channel.astype(np.int64) * 2 + (polarity > 0)
 
 
 def rotation(omega: Tensor) -> Tensor:
@@ -85,9 +98,11 @@ def sphere_hits(
 
 
 def contrast(window: SpinWindow, omega: Tensor, K: np.ndarray, size: tuple[int, int]) -> Tensor:
-    """Variance ``[B]`` of the image of the window's events warped to its middle time by each
-    angular velocity ``omega`` [B,3] (blurred by ``BLUR_PX``); differentiable in ``omega``."""
+    """Variance ``[B]`` of the images of the window's events (one per label, variances summed)
+    warped to its middle time by each angular velocity ``omega`` [B,3] (blurred by
+    ``BLUR_PX``); differentiable in ``omega``."""
     w, h = size
+    groups = int(window.labels.max()) + 1 if len(window.labels) else 1
     dtype = omega.dtype
     turn = rotation(-omega[:, None, :] * window.dt.to(dtype)[None, :, None])  # [B,N,3,3]
     points = torch.einsum("bnij,nj->bni", turn, window.offsets.to(dtype))
@@ -96,21 +111,22 @@ def contrast(window: SpinWindow, omega: Tensor, K: np.ndarray, size: tuple[int, 
     z = cam[..., 2].clamp_min(EPS)
     u = K[0, 0] * cam[..., 0] / z + K[0, 2] - 0.5  # pixel centres at integers
     v = K[1, 1] * cam[..., 1] / z + K[1, 2] - 0.5
-    image = torch.zeros(omega.shape[0], h * w, dtype=dtype)
+    image = torch.zeros(omega.shape[0], groups * h * w, dtype=dtype)
+    base = window.labels[None, :] * (h * w)
     u0, v0 = u.floor(), v.floor()
     for du in (0.0, 1.0):
         for dv in (0.0, 1.0):
             uu, vv = u0 + du, v0 + dv
             weight = (1.0 - (u - uu).abs()) * (1.0 - (v - vv).abs())
             inside = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
-            index = (vv.clamp(0, h - 1) * w + uu.clamp(0, w - 1)).long()
+            index = base + (vv.clamp(0, h - 1) * w + uu.clamp(0, w - 1)).long()
             image.scatter_add_(1, index, weight * inside)
     kernel = BLUR_KERNEL.to(dtype)
     radius = len(kernel) // 2
     image = image.view(-1, 1, h, w)
     image = torch.nn.functional.conv2d(image, kernel.view(1, 1, 1, -1), padding=(0, radius))
     image = torch.nn.functional.conv2d(image, kernel.view(1, 1, -1, 1), padding=(radius, 0))
-    return image.flatten(1).var(dim=1)
+    return image.view(omega.shape[0], groups, h * w).var(dim=2).sum(dim=1)
 
 
 def estimate_spin(
@@ -133,6 +149,7 @@ def estimate_spin(
             window.time_us,
             window.offsets[:GRID_EVENTS],
             window.dt[:GRID_EVENTS],
+            window.labels[:GRID_EVENTS],
             window.c2w,
             window.centre,
         )
@@ -179,7 +196,7 @@ def integrate(
 
 
 def find_spin(
-    events_in: Callable[[int, int], tuple[np.ndarray, np.ndarray]],
+    events_in: Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]],
     centre_at: Callable[[np.ndarray], np.ndarray],
     pose_at: Callable[[np.ndarray], np.ndarray],
     radius: float,
@@ -191,14 +208,14 @@ def find_spin(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Angular velocities [T,3] at ``times_us`` and each window's contrast gain [T] (NaN where
     too few events fell on the mover):
-    each window [t - half, t + half) of events (``events_in`` gives pixel centres [N,2] and
-    times [N]) on the mover's sphere, started from the last found window's estimate. A window
-    with too few events on the mover or too little contrast gain keeps the last estimate
-    (the mover out of view, or cut by the image's border)."""
+    each window [t - half, t + half) of events (``events_in`` gives pixel centres [N,2], times
+    [N] and ``event_labels`` [N]) on the mover's sphere, started from the last found window's
+    estimate. A window with too few events on the mover or too little contrast gain keeps the
+    last estimate (the mover out of view, or cut by the image's border)."""
     rng = np.random.default_rng(cfg.seed)
     out, gains, previous = np.zeros((len(times_us), 3)), np.full(len(times_us), np.nan), None
     for k, t in enumerate(times_us):
-        uv, t_ev = events_in(int(t) - half_window_us, int(t) + half_window_us)
+        uv, t_ev, labels = events_in(int(t) - half_window_us, int(t) + half_window_us)
         offsets, keep = sphere_hits(uv, pose_at(t_ev), K, centre_at(t_ev), radius, cfg.rim)
         if len(offsets) < MIN_EVENTS:
             out[k] = previous if previous is not None else 0.0
@@ -208,6 +225,7 @@ def find_spin(
             int(t),
             torch.from_numpy(offsets[pick]),
             torch.from_numpy((t_ev[keep][pick] - t) * 1e-6),
+            torch.from_numpy(labels[keep][pick]),
             pose_at(np.array([t]))[0],
             centre_at(np.array([t]))[0],
         )
