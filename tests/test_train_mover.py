@@ -390,15 +390,20 @@ def test_seeded_gaussians_follow_the_balls_true_path(tiny_scene, tmp_path):
 def test_a_camouflaged_sphere_is_found_by_its_event_counts(tiny_scene, tmp_path):
     """`camo`: the sphere wears the wall's dense noise. Its events of both signs cancel in the
     ESI and the warm-up's static model leaves no residual there, so the seeding follows the
-    windows' event counts; the seeded Gaussians then stay on the sphere's true path."""
+    windows' event counts; the seeded Gaussians then stay on the sphere's true path, and its
+    spin is found from its events."""
     trainer = _warmed_up(tiny_scene("camo"), tmp_path / "run")
     logged = trainer.seed_mover()
     assert logged["mover_by_counts"] == 1.0
-    errors, span, _ = _seeded_path_errors(trainer)
     # Measured: median 3.1 px while the sphere's centre travels 69 px; the residual's path put
     # them a median 11.4 px off, up to 38 px (docs/results.md, session 27).
+    errors, span, _ = _seeded_path_errors(trainer)
     assert span > 60.0
     assert float(np.median(errors)) < 6.0, errors
+    # The simulator turns the sphere by rot_z(6 t) rot_x(4 t): |omega| = sqrt(52) rad/s at all
+    # times. Measured: 7.4-7.6 rad/s from 11 windows (docs/results.md, session 29).
+    assert logged["spin_windows"] >= 5
+    assert abs(logged["spin_rate"] - math.sqrt(52.0)) < 0.15 * math.sqrt(52.0), logged
 
 
 def test_no_mover_is_found_in_a_static_scene(tiny_scene, tmp_path):
