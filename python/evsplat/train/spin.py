@@ -10,11 +10,11 @@ a candidate angular velocity, and the velocity that makes the warped events' ima
 with an event camera", RA-L 2017; Gallego et al., "A unifying contrast maximization framework",
 CVPR 2018). Angular velocities are in world coordinates, radians per second.
 
-The events make one image per colour channel of the sensor's Bayer filter and polarity, and
-their variances add up: a multi-colour texture's edges differ per channel, and the two signs of
-one edge land side by side, so in a single image they blur each other (given `camo`'s true
-path, its sphere of colour noise passes the gain test in 17 of 20 windows instead of none;
-docs/results.md, session 29).
+Each event carries a label, and each label's events make their own image, the variances
+summed. Labelled by colour channel of the sensor's Bayer filter and polarity (``event_labels``):
+a multi-colour texture's edges differ per channel, and the two signs of one edge land side by
+side, so in a single image they blur each other (given `camo`'s true path, its sphere of colour
+noise passes the gain test in 17 of 20 windows instead of none; docs/results.md, session 29).
 """
 
 from __future__ import annotations
