@@ -12,8 +12,6 @@ import numpy as np
 import torch
 
 from evsplat.config import MoverConfig, TrainConfig
-from evsplat.data.dataset import Dataset
-from evsplat.data.events import bayer_channel_map
 from evsplat.model.deform import DeformationMLP
 from evsplat.model.gaussians import GaussianModel
 from evsplat.train.mover import (
@@ -100,9 +98,10 @@ def seed_mover(
         found, by_counts = seen(path, mc), False
         if found + COUNTS_MARGIN < 1.0:
             counted = find_path(counts_of, data.t_start_us, data.t_end_us, mc, converge=False)
-            by_counts = seen(counted, mc) > found + COUNTS_MARGIN
+            counted_found = seen(counted, mc)
+            by_counts = counted_found > found + COUNTS_MARGIN
             if by_counts:
-                path, found = counted, seen(counted, mc)
+                path, found = counted, counted_found
     # Whether there is a mover: the windows that saw one (contrast); its path: the found
     # windows, fewer (mover_path.prefer_ring and mover_path.connected drop the fits that disagree).
     if found < mc.min_found or not path.found.any():
@@ -129,7 +128,7 @@ def seed_mover(
     # The fit follows the path on a grid of times (the spin needs more than the windows).
     grid = np.linspace(data.t_start_us, data.t_end_us, FIT_GRID).astype(np.int64)
     t_ref = int(path.times_us[k])
-    turns, spin = mover_spin(data, cfg, path, by_counts, times, points, radius, t_ref, grid)
+    turns, spin = mover_spin(views, cfg, path, by_counts, times, points, radius, t_ref, grid)
     t_norm = torch.tensor([renderer.time(int(t)) for t in grid], dtype=torch.float32)
     offsets = torch.from_numpy((interp_rows(grid, times, points) - ref).astype(np.float32))
     rms = fit_mlp_to_path(
@@ -166,7 +165,7 @@ def seed_mover(
 
 
 def mover_spin(
-    data: Dataset,
+    views: Views,
     cfg: TrainConfig,
     path: MoverPath,
     by_counts: bool,
@@ -187,7 +186,7 @@ def mover_spin(
     16.46 +- 0.22 dB against 15.46 +- 0.05 over three seeds, session 29), and its outline does
     not stand out from a wall of the same texture, so ``path.round`` cannot say whether it is
     a disc. Numbers for the log."""
-    mc = cfg.mover
+    mc, data = cfg.mover, views.data
     if not mc.spin or not (path.round or by_counts):
         return None, {}
     duration = data.t_end_us - data.t_start_us
@@ -204,14 +203,15 @@ def mover_spin(
     # 20 windows found instead of none); one image for a round mover, whose broad segments it
     # sharpens (the ball: 14 of 14 windows either way), where six sparser images once found
     # 12.9 rad/s for a true 10.3 and cost a run 2.9 dB on its mask (docs/results.md, session 29).
-    channel = bayer_channel_map(data.bayer, data.width, data.height)
+    cmap = None if views.channel_map is None else views.channel_map.numpy()
 
     def events_in(t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ev = data.events.read(t0, t1, most=SPIN_WINDOW_EVENTS)
         uv = np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5
-        if not by_counts:
-            return uv, ev.t, np.zeros(len(ev), dtype=np.int64)
-        return uv, ev.t, event_labels(channel[ev.y, ev.x], ev.p)
+        labels = np.zeros(len(ev), dtype=np.int64)
+        if by_counts:
+            labels = event_labels(labels if cmap is None else cmap[ev.y, ev.x], ev.p)
+        return uv, ev.t, labels
 
     settings = SpinSettings(
         mc.spin_rim,
