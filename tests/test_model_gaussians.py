@@ -14,6 +14,7 @@ from evsplat.model.gaussians import (
     SH_C0,
     T_LOG_SCALE_RANGE,
     GaussianModel,
+    color_activation,
     eval_sh,
     quat_to_rotmat,
 )
@@ -30,7 +31,8 @@ def test_random_init_places_means_inside_bounds_with_spacing_scale_opacity_and_g
     spacing = (2.0 * 0.5 * 4.0 / 4000) ** (1 / 3)
     assert torch.allclose(m.scales(), torch.full((4000, 3), spacing), rtol=1e-5)
     assert torch.allclose(m.opacities(), torch.full((4000,), 0.1), atol=1e-6)
-    assert torch.allclose(m.colors(), torch.full((4000, 3), 0.5))
+    # Grey: the softplus of 0.5 is within 1e-3 of it.
+    assert torch.allclose(m.colors(), torch.full((4000, 3), 0.5), atol=1e-3)
     assert torch.equal(m.rotations(), torch.tensor([1.0, 0, 0, 0]).repeat(4000, 1))
 
 
@@ -92,9 +94,33 @@ def test_colors_of_degree_one_follow_the_3dgs_sh_formula_seen_from_the_camera():
     x, y, z = d[:, :1], d[:, 1:2], d[:, 2:]
     expected = c0 * sh[:, 0] - c1 * y * sh[:, 1] + c1 * z * sh[:, 2] - c1 * x * sh[:, 3] + 0.5
     got = m.colors(torch.tensor(cam, dtype=torch.float32))
-    np.testing.assert_allclose(got.detach().numpy(), np.maximum(expected, 0), atol=1e-6)
+
+    def softplus(x):  # beta 10, as COLOR_BETA
+        return np.logaddexp(0.0, 10.0 * x) / 10.0
+
+    np.testing.assert_allclose(got.detach().numpy(), softplus(expected), atol=1e-6)
     # No camera centre: the view-independent DC band only.
-    np.testing.assert_allclose(m.colors().detach().numpy(), np.maximum(c0 * sh[:, 0] + 0.5, 0))
+    np.testing.assert_allclose(
+        m.colors().detach().numpy(), softplus(c0 * sh[:, 0] + 0.5), rtol=1e-6, atol=1e-7
+    )
+
+
+def test_a_colour_channel_pushed_below_zero_learns_again():
+    # 3DGS's max(x, 0) passes no gradient below 0: a channel driven under it stays black. The
+    # softplus passes one, however small, and Adam's normalised steps act on it.
+    m = GaussianModel(1, 3)
+    with torch.no_grad():
+        m.sh[:, 0] = (torch.tensor([-1.0, 0.0, 1.0]) - 0.5) / SH_C0  # values -1, 0, 1
+    opt = torch.optim.Adam([m.sh], lr=0.05)
+    target = torch.full((1, 3), 0.5)
+    for _ in range(300):
+        opt.zero_grad()
+        ((m.colors() - target) ** 2).sum().backward()
+        opt.step()
+    assert torch.allclose(m.colors(), target, atol=0.02)
+    extreme = color_activation(torch.tensor([-1e30, -50.0, 0.0, 50.0, 1e30]))
+    assert bool(torch.isfinite(extreme).all() and (extreme >= 0).all())
+    assert float(extreme[3]) == pytest.approx(50.0)
 
 
 def test_sh_basis_up_to_degree_three_is_orthonormal_on_the_sphere():

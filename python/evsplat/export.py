@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from evsplat.data.atomic import write_atomic
+from evsplat.model.gaussians import SH_C0, color_activation
 from evsplat.render import Renderer
 
 
@@ -20,7 +21,10 @@ def gaussian_arrays(renderer: Renderer, t_us: float) -> dict[str, np.ndarray]:
     """Means, log-scales, unit quaternions, opacity logits and SH [N,K,3] at ``t_us``."""
     with torch.no_grad():
         means, rotations, scales = renderer.gaussians_at(t_us)
-        sh = renderer.model.sh.detach()
+        sh = renderer.model.sh.detach().clone()
+        # Viewers draw max(SH + 0.5, 0); the band-0 term written is the one whose colour that
+        # gives is evsplat's (exact for degree 0, the default; higher bands as they are).
+        sh[:, 0] = (color_activation(SH_C0 * sh[:, 0] + 0.5) - 0.5) / SH_C0
         if sh.shape[-1] == 1:
             sh = sh.expand(-1, -1, 3)
         opacity = renderer.model.opacities(renderer.time(t_us)).clamp(1e-6, 1 - 1e-6)

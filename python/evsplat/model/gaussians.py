@@ -17,6 +17,11 @@ PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh", "t_mean",
 T_LOG_SCALE_RANGE = (math.log(0.02), math.log(20.0))
 SCALE_MIN, SCALE_MAX = 1e-6, 1e3  # guard: keeps exp(log_scale) and its inverse finite
 QUAT_EPS = 1e-12  # below this norm a quaternion carries no rotation and becomes the identity
+# Colour is softplus(SH + 0.5) with this sharpness, not 3DGS's max(SH + 0.5, 0): the clamp passes
+# no gradient below 0, so a channel pushed under it once stays black for the rest of the run
+# (after the demo's run 36% of the static Gaussians had a dead channel, after `camo`'s 88%).
+# Within 0.005 of the clamp above 0.3 (documented choice; docs/results.md, session 30).
+COLOR_BETA = 10.0
 
 # Real spherical-harmonic constants (as in 3DGS), bands 0..3.
 SH_C0 = 0.28209479177387814
@@ -30,6 +35,12 @@ SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.37317633
 def scale_activation(log_scales: Tensor) -> Tensor:
     """exp(log_scales) clamped to [SCALE_MIN, SCALE_MAX] (clamped in log space: no overflow)."""
     return torch.exp(log_scales.clamp(math.log(SCALE_MIN), math.log(SCALE_MAX)))
+
+
+def color_activation(x: Tensor) -> Tensor:
+    """Non-negative colour of SH value + 0.5: a sharp softplus (``COLOR_BETA``), finite for
+    any input and with a gradient everywhere."""
+    return torch.nn.functional.softplus(x, beta=COLOR_BETA)
 
 
 def time_width(t_log_scale: Tensor) -> Tensor:
@@ -199,7 +210,8 @@ class GaussianModel(nn.Module):
         return normalize_quats(self.quats)
 
     def colors(self, camera_center: Tensor | None = None) -> Tensor:
-        """Colour [N,C] seen from ``camera_center`` [3]: SH + 0.5 (3DGS offset), clamped >= 0.
+        """Colour [N,C] seen from ``camera_center`` [3]: SH + 0.5 (3DGS offset) through
+        ``color_activation``.
 
         Degree 0, or no camera centre given, uses the view-independent DC band only.
         """
@@ -210,7 +222,7 @@ class GaussianModel(nn.Module):
             d = self.means.detach() - camera_center.to(self.means.dtype).reshape(1, 3)
             dirs = d / torch.sqrt((d * d).sum(-1, keepdim=True).clamp_min(1e-12))
             value = eval_sh(self.sh, dirs)
-        return (value + 0.5).clamp_min(0.0)
+        return color_activation(value + 0.5)
 
     def param_groups(self, cfg: ModelConfig, scene_extent: float = 1.0) -> list[dict]:
         """Adam parameter groups with 3DGS learning rates; the means' rate scales with the
