@@ -1,9 +1,10 @@
-"""RunState is the checkpoint: a saved state loads back equal, version 1 checkpoints are upgraded,
+"""RunState is the checkpoint: a saved state loads back equal, versions 1 and 2 are upgraded,
 unknown versions are refused in one line, and a trainer restored from a checkpoint is the trainer
 that saved it (every iteration seeds its own generators, so it then continues identically)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from evsplat.data.dataset import load_dataset
 from evsplat.data.simulator import simulate_dataset
 from evsplat.errors import EvsplatError
 from evsplat.model.deform import DeformationMLP
-from evsplat.model.gaussians import GaussianModel
+from evsplat.model.gaussians import GaussianModel, clamped_to_softplus
 from evsplat.render import Renderer
 from evsplat.run_state import VERSION, Camera, Poses, RunState
 from evsplat.train.loop import Trainer
@@ -88,6 +89,25 @@ def _assert_same(a: object, b: object, where: str = "state") -> None:
         assert a == b, where
 
 
+def _as_version_2(s: RunState) -> dict:
+    """``s`` as version 2 saved it (its fields at the top level)."""
+    return {
+        "format": "evsplat-checkpoint",
+        "version": 2,
+        **{f: getattr(s, f) for f in s.__dataclass_fields__},
+        "config": s.config.to_dict(),
+        "camera": vars(s.camera),
+        "poses": vars(s.poses),
+    }
+
+
+def _clamp_colours_upgraded(s: RunState) -> RunState:
+    """``s`` after the upgrade to version 3: its band-0 SH rewritten for the softplus."""
+    sh = s.gaussians["sh"].clone()
+    sh[:, 0] = clamped_to_softplus(sh[:, 0])
+    return dataclasses.replace(s, gaussians=s.gaussians | {"sh": sh})
+
+
 def _as_version_1(s: RunState) -> dict:
     """``s`` in the layout that version 1's ``Trainer.state`` wrote."""
     return {
@@ -120,7 +140,7 @@ def _as_version_1(s: RunState) -> dict:
 def test_run_state_saves_and_loads_back_equal(tmp_path):
     state = _state()
     path = state.save(tmp_path, keep=2)
-    assert path.name == "ckpt_0000012.pt" and VERSION == 2
+    assert path.name == "ckpt_0000012.pt" and VERSION == 3
     _assert_same(RunState.load(path), state)
     _assert_same(RunState.load(tmp_path), state)  # a run folder: its newest checkpoint
 
@@ -130,8 +150,21 @@ def test_version_1_checkpoint_is_upgraded_to_the_same_state(tmp_path, mlp_active
     state = _state(mlp_active)
     torch.save(_as_version_1(state), tmp_path / "v1.pt")
     loaded = RunState.load(tmp_path / "v1.pt")
-    _assert_same(loaded, state)
+    _assert_same(loaded, _clamp_colours_upgraded(state))
     assert (Renderer.from_state(loaded).mlp is None) is not mlp_active
+
+
+def test_version_2_checkpoint_renders_the_colours_its_clamp_gave(tmp_path):
+    # Version 2 drew max(C0 dc + 0.5, 0) (3DGS); upgraded, the softplus gives those colours.
+    state = _state()
+    dc = torch.linspace(-4.0, 4.0, 18, dtype=torch.float32).reshape(6, 3)
+    state.gaussians["sh"][:, 0] = dc
+    torch.save(_as_version_2(state), tmp_path / "v2.pt")
+    loaded = RunState.load(tmp_path / "v2.pt")
+    colours = GaussianModel.from_checkpoint(loaded.gaussians).colors().detach().numpy()
+    clamp = np.maximum(0.28209479177387814 * dc.numpy() + 0.5, 0.0)
+    np.testing.assert_allclose(colours, clamp, atol=2e-6)
+    _assert_same(loaded, _clamp_colours_upgraded(state))
 
 
 def test_version_1_checkpoint_from_before_the_skips_gets_their_starting_values(tmp_path):

@@ -22,9 +22,11 @@ import torch
 from evsplat.checkpoint import Upgrades, load_checkpoint, run_checkpoint, save_checkpoint
 from evsplat.config import TrainConfig
 from evsplat.errors import EvsplatError
+from evsplat.model.gaussians import clamped_to_softplus
 
 # 2: the MLP saved once, with whether renders use it; counters beside the history; ``poses``.
-VERSION = 2
+# 3: colour through a softplus (``model.gaussians.color_activation``), not a clamp at 0.
+VERSION = 3
 
 
 @dataclass
@@ -130,4 +132,13 @@ def _v1_to_v2(v1: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-UPGRADES: Upgrades = {1: _v1_to_v2}
+def _v2_to_v3(v2: dict[str, Any]) -> dict[str, Any]:
+    """Version 2's colours were max(SH + 0.5, 0): band 0 is rewritten to give the same colours
+    through the softplus (exact for degree 0, the default; higher bands are kept as they are)."""
+    gaussians = dict(v2["gaussians"])
+    sh = torch.as_tensor(gaussians["sh"]).clone()
+    sh[:, 0] = clamped_to_softplus(sh[:, 0])
+    return v2 | {"gaussians": gaussians | {"sh": sh}}
+
+
+UPGRADES: Upgrades = {1: _v1_to_v2, 2: _v2_to_v3}

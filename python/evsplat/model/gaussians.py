@@ -43,6 +43,15 @@ def color_activation(x: Tensor) -> Tensor:
     return torch.nn.functional.softplus(x, beta=COLOR_BETA)
 
 
+def clamped_to_softplus(sh_dc: Tensor) -> Tensor:
+    """The band-0 SH ``[...,C]`` whose ``color_activation`` colour is the one 3DGS's
+    max(C0 dc + 0.5, 0) gives ``sh_dc``: models trained before the softplus render as trained.
+    Their black (a channel at or under 0) becomes 1e-6, which the softplus reaches."""
+    y = (SH_C0 * sh_dc + 0.5).clamp_min(1e-6)
+    x = y + torch.log(-torch.expm1(-COLOR_BETA * y)) / COLOR_BETA  # softplus^-1, stable
+    return (x - 0.5) / SH_C0
+
+
 def time_width(t_log_scale: Tensor) -> Tensor:
     """Time widths (normalised time) of time-local opacity: exp of the clamped log-widths."""
     return torch.exp(t_log_scale.clamp(*T_LOG_SCALE_RANGE))
