@@ -135,10 +135,9 @@ def _v1_to_v2(v1: dict[str, Any]) -> dict[str, Any]:
 def _v2_to_v3(v2: dict[str, Any]) -> dict[str, Any]:
     """Version 2's colours were max(SH + 0.5, 0): band 0 is rewritten to give the same colours
     through the softplus (exact for degree 0, the default; higher bands are kept as they are)."""
-    gaussians = dict(v2["gaussians"])
-    sh = torch.as_tensor(gaussians["sh"]).clone()
+    sh = torch.as_tensor(v2["gaussians"]["sh"]).clone()
     sh[:, 0] = clamped_to_softplus(sh[:, 0])
-    return v2 | {"gaussians": gaussians | {"sh": sh}}
+    return v2 | {"gaussians": v2["gaussians"] | {"sh": sh}}
 
 
 UPGRADES: Upgrades = {1: _v1_to_v2, 2: _v2_to_v3}
