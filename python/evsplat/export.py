@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from evsplat.data.atomic import write_atomic
-from evsplat.model.gaussians import SH_C0, color_activation
+from evsplat.model.gaussians import SH_C0
 from evsplat.render import Renderer
 
 
@@ -24,7 +24,7 @@ def gaussian_arrays(renderer: Renderer, t_us: float) -> dict[str, np.ndarray]:
         sh = renderer.model.sh.detach().clone()
         # Viewers draw max(SH + 0.5, 0); the band-0 term written is the one whose colour that
         # gives is evsplat's (exact for degree 0, the default; higher bands as they are).
-        sh[:, 0] = (color_activation(SH_C0 * sh[:, 0] + 0.5) - 0.5) / SH_C0
+        sh[:, 0] = (renderer.model.colors() - 0.5) / SH_C0
         if sh.shape[-1] == 1:
             sh = sh.expand(-1, -1, 3)
         opacity = renderer.model.opacities(renderer.time(t_us)).clamp(1e-6, 1 - 1e-6)

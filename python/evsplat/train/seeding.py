@@ -208,10 +208,10 @@ def mover_spin(
     def events_in(t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ev = data.events.read(t0, t1, most=SPIN_WINDOW_EVENTS)
         uv = np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5
-        labels = np.zeros(len(ev), dtype=np.int64)
-        if by_counts:
-            labels = event_labels(labels if cmap is None else cmap[ev.y, ev.x], ev.p)
-        return uv, ev.t, labels
+        if not by_counts:
+            return uv, ev.t, np.zeros(len(ev), dtype=np.int64)
+        channel = np.zeros(len(ev), dtype=np.int64) if cmap is None else cmap[ev.y, ev.x]
+        return uv, ev.t, event_labels(channel, ev.p)
 
     settings = SpinSettings(
         mc.spin_rim,
