@@ -70,7 +70,7 @@ def seed_mover(
     """After the warm-up: find a fast mover from the events the static model leaves
     unexplained (or their counts: above), re-place on it (at the time it is seen best) the
     Gaussians that smear it along its path and then the faintest, fit the MLP to carry them
-    along its path (turning them with its spin when it is round or found by its counts), and
+    along its path (turning them with the spin its events show), and
     mark every other Gaussian static (the background's gradients drowned the mover's in a
     shared MLP: docs/results.md, session 11). Nothing changes when no mover is found, except
     that the renderer draws the static model."""
@@ -177,17 +177,14 @@ def mover_spin(
 ) -> tuple[np.ndarray | None, dict[str, float]]:
     """The mover's turn from ``t_ref`` to each ``grid`` time [G,3,3], from the angular
     velocities its events show (``evsplat.train.spin``) in the windows where its disc is
-    inside the image; None when it is off, no window shows a spin, or the mover is neither
-    round nor found by its event counts (the events are back-projected onto a sphere: on the
-    duck that found 10 rad/s for a body turning less than 2, docs/results.md, session 16; on
-    the shaking clock, given its true path, 14 of 20 windows pass with errors of 4-5 rad/s,
-    session 29). A mover found by its counts wears a texture finer than its motion in a
-    window, which it can only be drawn with if its Gaussians turn with it (`camo`: mask
-    16.46 +- 0.22 dB against 15.46 +- 0.05 over three seeds, session 29), and its outline does
-    not stand out from a wall of the same texture, so ``path.round`` cannot say whether it is
-    a disc. Numbers for the log."""
+    inside the image; None when it is off or no window shows a spin. Every mover is treated as
+    a sphere, whatever its shape: a body that is no sphere gets a turn that the training then
+    reshapes. Measured over three seeds against turning only a round mover or one found by its
+    counts (docs/results.md, session 31): the duck's mask +1.0 dB, a textured sphere that the
+    static model's residual sees on a blob path (`camo` at a coarser lattice) +1.9, the
+    butterfly within its seeds' spread, the shaking clock 0.25 dB lower. Numbers for the log."""
     mc, data = cfg.mover, views.data
-    if not mc.spin or not (path.round or by_counts):
+    if not mc.spin:
         return None, {}
     duration = data.t_end_us - data.t_start_us
     half = max(int(mc.spin_window * duration) // 2, 1)
@@ -198,17 +195,18 @@ def mover_spin(
     if len(centres) == 0:
         return None, {"spin_windows": 0.0}
 
-    # One contrast image per colour channel and polarity for the counts' mover, whose fine
+    # One contrast image per colour channel and polarity for a mover that is not round, whose
     # texture one image of all its events does not sharpen (`camo`, given its true path: 17 of
     # 20 windows found instead of none); one image for a round mover, whose broad segments it
     # sharpens (the ball: 14 of 14 windows either way), where six sparser images once found
     # 12.9 rad/s for a true 10.3 and cost a run 2.9 dB on its mask (docs/results.md, session 29).
+    split = by_counts or not path.round
     cmap = None if views.channel_map is None else views.channel_map.numpy()
 
     def events_in(t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ev = data.events.read(t0, t1, most=SPIN_WINDOW_EVENTS)
         uv = np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5
-        if not by_counts:
+        if not split:
             return uv, ev.t, np.zeros(len(ev), dtype=np.int64)
         channel = np.zeros(len(ev), dtype=np.int64) if cmap is None else cmap[ev.y, ev.x]
         return uv, ev.t, event_labels(channel, ev.p)
