@@ -159,9 +159,9 @@ class MoverConfig:
     # (the ball's windows: 8-11%).
     spin_min_gain: float = 0.05
     # A mover neither round nor found by its counts is turned only when its windows' median gain
-    # reaches this: the duck (0.13-0.15 over three seeds) and a textured sphere on a blob path
-    # (0.18-0.22) do; the butterfly's flapping wings (0.045-0.070 over four seeds) do not, and
-    # turning its Gaussians cost its mask 0.6 dB (docs/results.md, session 31).
+    # reaches this: the duck (0.13-0.15 over three seeds), the clock (0.12-0.16) and a textured
+    # sphere on a blob path (0.18-0.22) do; the butterfly's flapping wings (0.045-0.070 over five
+    # seeds) do not, and turning its Gaussians cost its mask 0.8 dB (docs/results.md, session 31).
     spin_body_gain: float = 0.1
     spin_steps: int = 40  # Adam steps refining the first window's estimate (half for later ones)
     # The track prior (``mover.MoverTrack``): after the seeding, a round mover's Gaussians'

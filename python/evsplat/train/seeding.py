@@ -184,7 +184,7 @@ def mover_spin(
     turning only a round mover or one found by its counts (docs/results.md, session 31): the
     duck's mask +1.0 dB, a textured sphere that the static model's residual sees on a blob
     path (`camo` at a coarser lattice) +1.9, the shaking clock 0.25 dB lower; the butterfly,
-    whose windows sharpen least, 0.6 dB lower over four seeds, hence the gate. Numbers for
+    whose windows sharpen least, 0.8 dB lower over five seeds, hence the gate. Numbers for
     the log."""
     mc, data = cfg.mover, views.data
     if not mc.spin:
