@@ -10,7 +10,6 @@ import torch
 
 from evsplat.config import ModelConfig, MoverConfig, preset
 from evsplat.data.dataset import load_dataset
-from evsplat.data.events import bayer_channel_map
 from evsplat.model.deform import DeformationMLP, deformed
 from evsplat.model.gaussians import GaussianModel
 from evsplat.projection import project_points, viewmat
@@ -431,13 +430,12 @@ def test_a_sphere_whose_path_is_not_round_turns_with_its_spin_when_its_windows_s
         found=np.ones(len(times), dtype=bool),
         round=False,
     )
-    channel_map = torch.from_numpy(bayer_channel_map(data.bayer, data.width, data.height))
+    views = Views.of(data, None)  # mover_spin reads the events and the Bayer map, no render
     grid = np.linspace(data.t_start_us, data.t_end_us, 11).astype(np.int64)
     cfg = preset("tiny")
 
     def spin(body_gain: float) -> tuple[np.ndarray | None, dict[str, float]]:
         cfg.mover.spin_body_gain = body_gain
-        views = Views(data, None, channel_map)
         return mover_spin(views, cfg, path, False, times, centres, radius, int(times[24]), grid)
 
     turns, logged = spin(0.0)

@@ -204,6 +204,7 @@ def mover_spin(
     # sharpens (the ball: 14 of 14 windows either way), where six sparser images once found
     # 12.9 rad/s for a true 10.3 and cost a run 2.9 dB on its mask (docs/results.md, session 29).
     split = by_counts or not path.round
+    on_blobs = not (path.round or by_counts)  # the mover ``spin_body_gain`` gates
     cmap = None if views.channel_map is None else views.channel_map.numpy()
 
     def events_in(t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -237,7 +238,7 @@ def mover_spin(
     stats = {"spin_windows": float(used.sum()), "spin_gain": float(np.nanmedian(gains))}
     if not used.any():
         return None, stats
-    if not (path.round or by_counts) and stats["spin_gain"] < mc.spin_body_gain:
+    if on_blobs and stats["spin_gain"] < mc.spin_body_gain:
         return None, stats
     rate = np.linalg.norm(omegas[used], axis=1)
     stats["spin_rate"] = float(np.median(rate))
