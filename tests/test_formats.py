@@ -717,6 +717,17 @@ def test_compressed_ros2_bag_readers_match_rosbags_event_by_event(tmp_path, stor
     assert _temp_db3s() == before  # a .db3's unpacked copy is removed once read
     times, _ = rosbag.read_bag_poses(bag)  # poses: still rosbags
     np.testing.assert_array_equal(times, [tp for tp, _, _ in poses])
+    if mode == "file":
+        # The packed file given itself reads as its bag; moved out of it, its topics are
+        # nowhere to be found (its metadata.yaml lists them): one line saying so.
+        chunks = list(open_source(found.files[0]).chunks)
+        got = tuple(np.concatenate([c[i] for c in chunks]) for i in range(4))
+        _assert_same_events(got, (x, y, t, p))
+        alone = tmp_path / "alone" / found.files[0].name
+        alone.parent.mkdir()
+        alone.write_bytes(found.files[0].read_bytes())
+        with pytest.raises(EvsplatError, match="pass the bag's folder with its metadata.yaml"):
+            open_source(alone)
 
 
 def test_damaged_compressed_db3_is_one_line_naming_the_file_and_the_fix(tmp_path, capsys):

@@ -435,8 +435,10 @@ impl McapFiles {
             let src: Source = match compression {
                 Ros2Compression::File => {
                     // Cut at the cap: a bomb reads as a truncated file, not a full disk or memory.
+                    // A file cut short reads up to its last whole record, as a cut .mcap does.
                     let cap = unpack::cap(file.metadata()?.len());
-                    Box::new(zstd::stream::read::Decoder::new(file)?.take(cap))
+                    let decoder = zstd::stream::read::Decoder::new(file)?;
+                    Box::new(unpack::EndsWhereCut(decoder).take(cap))
                 }
                 _ => Box::new(file),
             };

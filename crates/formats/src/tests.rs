@@ -953,7 +953,53 @@ fn mcap_files_compressed_per_message_or_per_file_read_as_plain_ones() {
     std::fs::write(&whole, packed.expect("zstd")).expect("written");
     assert_eq!(
         read(&whole, Compression::File).expect("reads"),
-        (want, Stats::default())
+        (want.clone(), Stats::default())
+    );
+    // Cut short inside its zstd frame: read up to the last whole record, as a cut .mcap is,
+    // the record it ends in counted as truncated; the same cut of the plain file reads alike.
+    // (Flushed every 48 bytes: zstd unpacks whole blocks, so a cut inside the only block of a
+    // file this small would leave nothing.)
+    let plain_bytes = std::fs::read(&plain).expect("read");
+    let mut encoder = zstd::stream::write::Encoder::new(Vec::new(), 3).expect("zstd");
+    for piece in plain_bytes.chunks(48) {
+        std::io::Write::write_all(&mut encoder, piece).expect("packed");
+        std::io::Write::flush(&mut encoder).expect("a block");
+    }
+    let packed = encoder.finish().expect("zstd");
+    let mut lost = 0;
+    for keep in [packed.len() / 3, packed.len() * 2 / 3, packed.len() - 1] {
+        let cut = dir.join("cut.mcap.zstd");
+        std::fs::write(&cut, &packed[..keep]).expect("written");
+        let (got, stats) = read(&cut, Compression::File).expect("a cut file reads");
+        assert!(want.starts_with(&got), "{keep}: {got:?}");
+        // What the cut frame unpacks to is a prefix of the plain file: cut the plain file there.
+        let mut prefix = Vec::new();
+        let cut_reader = std::fs::File::open(&cut).expect("opened");
+        let mut dec = unpack_prefix(cut_reader);
+        std::io::Read::read_to_end(&mut dec, &mut prefix).expect("a prefix");
+        assert!(plain_bytes.starts_with(&prefix));
+        let cut_plain = dir.join("cut.mcap");
+        std::fs::write(&cut_plain, &prefix).expect("written");
+        let expected = read(&cut_plain, Compression::None).expect("reads");
+        lost += usize::from(got.len() < want.len() && stats.truncated_bytes > 0);
+        assert_eq!((got, stats), expected, "{keep}");
+    }
+    assert!(lost >= 2, "the cuts inside the data lose events and say so");
+    // A damaged frame is still an error, naming the file.
+    let mut damaged = packed.clone();
+    let middle = damaged.len() / 2;
+    damaged[middle..middle + 8].copy_from_slice(&[0xff; 8]);
+    let bad = dir.join("bad.mcap.zstd");
+    std::fs::write(&bad, &damaged).expect("written");
+    let err = read(&bad, Compression::File).expect_err("a damaged frame fails");
+    assert!(
+        err.to_string().starts_with(&bad.display().to_string()),
+        "{err}"
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// What a cut zstd file unpacks to before its cut.
+fn unpack_prefix(file: std::fs::File) -> impl std::io::Read {
+    crate::unpack::EndsWhereCut(zstd::stream::read::Decoder::new(file).expect("a decoder"))
 }

@@ -35,6 +35,21 @@ pub(crate) fn bounded<D: Read>(
     Ok(n)
 }
 
+/// A zstd stream read up to where its file was cut: zstd's "incomplete frame" at the end of
+/// the input ends the stream there instead of failing, so the container's reader keeps the
+/// records unpacked before the cut and counts the one it ends in (`Stats::truncated_bytes`),
+/// as it does for a cut uncompressed file. A damaged frame is still an error.
+pub(crate) struct EndsWhereCut<R>(pub(crate) R);
+
+impl<R: Read> Read for EndsWhereCut<R> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        match self.0.read(buf) {
+            Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => Ok(0),
+            other => other,
+        }
+    }
+}
+
 /// Unpacks the zstd frames of a message-compressed ROS 2 bag (rosbag2's `compression_mode`
 /// "message", .db3 or MCAP): one decompression context for all
 /// (a fresh one per message cost as much as unpacking a small message) and one buffer.

@@ -38,6 +38,8 @@ Chunk = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 #: Suffixes of the sensor formats handled here (a ROS 2 bag may also be its folder).
 SUFFIXES = (".aedat4", ".raw", ".dat", ".bag", ".mcap", ".db3")
+#: A ROS 2 storage file that rosbag2 compressed whole (its compression_mode "file").
+PACKED_SUFFIXES = (".mcap.zstd", ".db3.zstd")
 
 
 @dataclass
@@ -110,9 +112,14 @@ class EventSource:
 
 
 def is_sensor_format(path: str | os.PathLike) -> bool:
-    """True for a file with one of :data:`SUFFIXES` or a ROS 2 bag folder (metadata.yaml)."""
+    """True for a file with one of :data:`SUFFIXES`, a ROS 2 storage file packed whole
+    (``NAME.mcap.zstd``) or a ROS 2 bag folder (metadata.yaml)."""
     path = Path(path)
-    return path.suffix.lower() in SUFFIXES or (path / "metadata.yaml").is_file()
+    return (
+        path.suffix.lower() in SUFFIXES
+        or path.name.lower().endswith(PACKED_SUFFIXES)
+        or (path / "metadata.yaml").is_file()
+    )
 
 
 def open_source(path: str | os.PathLike, *, topic: str | None = None) -> EventSource:
@@ -136,7 +143,8 @@ def open_source(path: str | os.PathLike, *, topic: str | None = None) -> EventSo
         return prophesee.open_raw(path)
     if suffix == ".dat":
         return prophesee.open_dat(path)
-    raise EvsplatError(f"{path}: unknown recording type '{suffix}'; use {', '.join(SUFFIXES)}")
+    known = ", ".join(SUFFIXES + PACKED_SUFFIXES)
+    raise EvsplatError(f"{path}: unknown recording type '{suffix}'; use {known}")
 
 
 def read_source(source: EventSource) -> EventStream:
