@@ -185,7 +185,8 @@ class BagFiles:
 
 
 def _lone(path: Path, storage: str) -> BagFiles | None:
-    """A file of ``storage`` on its own, or a folder's only storage file, without metadata."""
+    """A file of ``storage`` on its own, or a folder's only storage file, without metadata
+    (a packed file, whose topics only the metadata lists, is an error saying so)."""
     suffix = STORAGE_SUFFIXES[storage]
     if path.is_file():
         if _packed(path) == suffix:  # its storage cannot list topics while packed
