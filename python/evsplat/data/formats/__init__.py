@@ -117,9 +117,16 @@ def is_sensor_format(path: str | os.PathLike) -> bool:
     path = Path(path)
     return (
         path.suffix.lower() in SUFFIXES
-        or path.name.lower().endswith(PACKED_SUFFIXES)
+        or packed_storage(path) is not None
         or (path / "metadata.yaml").is_file()
     )
+
+
+def packed_storage(path: Path) -> str | None:
+    """The storage suffix (``.mcap``, ``.db3``) of a ROS 2 file rosbag2 compressed whole
+    (``NAME.mcap.zstd``: compression_mode "file"), else None."""
+    name = path.name.lower()
+    return next((s.removesuffix(".zstd") for s in PACKED_SUFFIXES if name.endswith(s)), None)
 
 
 def open_source(path: str | os.PathLike, *, topic: str | None = None) -> EventSource:

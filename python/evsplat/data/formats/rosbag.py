@@ -33,11 +33,11 @@ from evsplat.data.formats import (
     BLOCK_BYTES,
     CHECK_FILE,
     CHUNK_EVENTS,
-    PACKED_SUFFIXES,
     Chunk,
     Dropped,
     EventSource,
     decoded_chunks,
+    packed_storage,
 )
 from evsplat.errors import EvsplatError
 
@@ -87,22 +87,15 @@ def is_bag(path: Path) -> bool:
     """A ROS 1 .bag, a ROS 2 storage file (maybe zstd-packed whole), or a ROS 2 bag folder."""
     return (
         path.suffix.lower() in BAG_SUFFIXES
-        or _packed(path) is not None
+        or packed_storage(path) is not None
         or (path / "metadata.yaml").is_file()
     )
 
 
-def _packed(path: Path) -> str | None:
-    """The storage suffix of a ROS 2 file rosbag2 compressed whole (``NAME.mcap.zstd``,
-    ``NAME.db3.zstd``: compression_mode "file"), else None."""
-    name = path.name.lower()
-    return next((s[: -len(".zstd")] for s in PACKED_SUFFIXES if name.endswith(s)), None)
-
-
 def _bag_root(path: Path) -> Path:
     # rosbags opens a ROS 2 bag by its folder (the one with metadata.yaml).
-    storage_file = path.suffix.lower() in (".mcap", ".db3") or _packed(path) is not None
-    return path.parent if storage_file else path
+    storage = path.suffix.lower() in STORAGE_SUFFIXES.values() or packed_storage(path) is not None
+    return path.parent if storage else path
 
 
 def _open(path: Path) -> AnyReader:
@@ -189,7 +182,7 @@ def _lone(path: Path, storage: str) -> BagFiles | None:
     (a packed file, whose topics only the metadata lists, is an error saying so)."""
     suffix = STORAGE_SUFFIXES[storage]
     if path.is_file():
-        if _packed(path) == suffix:  # its storage cannot list topics while packed
+        if packed_storage(path) == suffix:  # its storage cannot list topics while packed
             raise EvsplatError(
                 f"{path}: a ROS 2 file packed whole with zstd has its topics listed only in the "
                 "bag's metadata.yaml; pass the bag's folder with its metadata.yaml"
