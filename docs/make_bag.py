@@ -9,6 +9,7 @@ import sys
 from rosbags.rosbag1 import Writer
 
 from evsplat.data.dataset import load_dataset
+from evsplat.data.event_files import read_events
 from evsplat.data.formats.rosbag import typestore
 from evsplat.data.poses import matrix_to_quat, read_tum
 
@@ -27,7 +28,7 @@ def header(us: int, frame: str):
     return T["std_msgs/msg/Header"](seq=0, stamp=stamp(us), frame_id=frame)
 
 
-ev = data.events
+ev = read_events(data.events.path)  # a tiny dataset's events, whole
 with Writer(sys.argv[2]) as bag:
     conn = bag.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=store)
     for s in range(0, len(ev), EVENTS_PER_MESSAGE):
