@@ -105,7 +105,8 @@ class LossConfig:
     flow_window: float = 0.005  # eq. 13 Δτ, short window for L_ef; documented choice
     # Whether L_ef's gradient reaches the Gaussian flow (the MLP's motion): off, as in the
     # authors' code; on, it drove the ball's Gaussians off their path in the oracle test
-    # (docs/results.md, session 11). L_ef then trains appearance and depth.
+    # (docs/results.md, session 11) and left the full method level (session 33). L_ef then
+    # trains appearance and depth.
     flow_moves_gaussians: bool = False
     motion_window: float = 0.02  # §4.3 Δt split into m sub-windows for L_m; documented choice
     patch_n: int = 128  # §4.3 n sampled Gaussians; documented choice
