@@ -5,17 +5,16 @@
 """
 
 import sys
+from pathlib import Path
 
 from rosbags.rosbag1 import Writer
 
-from evsplat.data.dataset import load_dataset
 from evsplat.data.event_files import read_events
 from evsplat.data.formats.rosbag import typestore
 from evsplat.data.poses import matrix_to_quat, read_tum
 
 EVENTS_PER_MESSAGE = 5000  # about what rpg_dvs_ros publishes
 
-data = load_dataset(sys.argv[1])
 store = typestore(ros1=True)
 T = store.types
 
@@ -28,7 +27,7 @@ def header(us: int, frame: str):
     return T["std_msgs/msg/Header"](seq=0, stamp=stamp(us), frame_id=frame)
 
 
-ev = read_events(data.events.path)  # a tiny dataset's events, whole
+ev = read_events(Path(sys.argv[1]) / "events.h5")  # a tiny dataset's events, whole
 with Writer(sys.argv[2]) as bag:
     conn = bag.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=store)
     for s in range(0, len(ev), EVENTS_PER_MESSAGE):

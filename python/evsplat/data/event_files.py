@@ -72,7 +72,7 @@ def read_events(
     else:
         raise EvsplatError(
             f"{src}: unknown event file type '{suffix}'; use .h5/.hdf5, .npz, .txt, .csv or "
-            f"a recording ({', '.join(formats.SUFFIXES + formats.PACKED_SUFFIXES)})"
+            f"a recording ({', '.join(formats.KNOWN_SUFFIXES)})"
         )
     t = _to_microseconds(t, time_unit)
     w = width if width is not None else size.get("width")

@@ -40,6 +40,8 @@ Chunk = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 SUFFIXES = (".aedat4", ".raw", ".dat", ".bag", ".mcap", ".db3")
 #: A ROS 2 storage file that rosbag2 compressed whole (its compression_mode "file").
 PACKED_SUFFIXES = (".mcap.zstd", ".db3.zstd")
+#: Every recording name this package opens, for the messages that list them.
+KNOWN_SUFFIXES = SUFFIXES + PACKED_SUFFIXES
 
 
 @dataclass
@@ -115,11 +117,12 @@ def is_sensor_format(path: str | os.PathLike) -> bool:
     """True for a file with one of :data:`SUFFIXES`, a ROS 2 storage file packed whole
     (``NAME.mcap.zstd``) or a ROS 2 bag folder (metadata.yaml)."""
     path = Path(path)
-    return (
-        path.suffix.lower() in SUFFIXES
-        or packed_storage(path) is not None
-        or (path / "metadata.yaml").is_file()
-    )
+    return path.suffix.lower() in SUFFIXES or is_ros2_bag(path)
+
+
+def is_ros2_bag(path: Path) -> bool:
+    """A ROS 2 bag given by its folder (metadata.yaml) or by a storage file packed whole."""
+    return packed_storage(path) is not None or (path / "metadata.yaml").is_file()
 
 
 def packed_storage(path: Path) -> str | None:
@@ -150,7 +153,7 @@ def open_source(path: str | os.PathLike, *, topic: str | None = None) -> EventSo
         return prophesee.open_raw(path)
     if suffix == ".dat":
         return prophesee.open_dat(path)
-    known = ", ".join(SUFFIXES + PACKED_SUFFIXES)
+    known = ", ".join(KNOWN_SUFFIXES)
     raise EvsplatError(f"{path}: unknown recording type '{suffix}'; use {known}")
 
 

@@ -37,6 +37,7 @@ from evsplat.data.formats import (
     Dropped,
     EventSource,
     decoded_chunks,
+    is_ros2_bag,
     packed_storage,
 )
 from evsplat.errors import EvsplatError
@@ -85,11 +86,7 @@ def typestore(ros1: bool = False):
 
 def is_bag(path: Path) -> bool:
     """A ROS 1 .bag, a ROS 2 storage file (maybe zstd-packed whole), or a ROS 2 bag folder."""
-    return (
-        path.suffix.lower() in BAG_SUFFIXES
-        or packed_storage(path) is not None
-        or (path / "metadata.yaml").is_file()
-    )
+    return path.suffix.lower() in BAG_SUFFIXES or is_ros2_bag(path)
 
 
 def _bag_root(path: Path) -> Path:
