@@ -270,6 +270,7 @@ class TrainConfig:
     num_gaussians: int = 20_000  # initial random Gaussians (documented: no SfM/RGB available)
     background: float = 0.5  # grey background intensity where no Gaussian covers a pixel
     threads: int = 0  # torch intra-op threads (0 = torch's default)
+    device: str = "auto"  # auto | cpu | cuda: where torch trains (train/device.py)
     deform: bool = True  # False: a static scene, no deformation MLP at all (also a baseline)
     # Seconds from the recording's start (meta.json t_start_us) to train on; None = that end.
     time_range: tuple[float | None, float | None] | None = None
@@ -292,6 +293,7 @@ class TrainConfig:
             num_gaussians=d["num_gaussians"],
             background=d["background"],
             threads=d.get("threads", 0),
+            device=d.get("device", "auto"),
             deform=d.get("deform", True),
             time_range=tuple(d["time_range"]) if d.get("time_range") else None,
             schedule=ScheduleConfig(**d["schedule"]),

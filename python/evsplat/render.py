@@ -106,11 +106,13 @@ class Renderer:
         ``.result()`` gives its RenderOut. The trainer prepares its next render and reads its
         events while the device draws."""
         means, rotations, scales = gaussians if gaussians is not None else self.gaussians_at(t_us)
-        w2c = viewmat(c2w)
-        colors = self.model.colors(torch.from_numpy(np.asarray(c2w, np.float32)[:3, 3]))
+        w2c = viewmat(c2w, self.K.device)
+        device = self.K.device
+        centre = torch.from_numpy(np.asarray(c2w, np.float32)[:3, 3]).to(device)
+        colors = self.model.colors(centre)
         channels = colors.shape[1]
         features = colors if extra is None else torch.cat([colors, extra], dim=1)
-        background = torch.zeros(features.shape[1])
+        background = torch.zeros(features.shape[1], device=device)
         background[:channels] = self.background
         raster = rasterize_async(
             means,
