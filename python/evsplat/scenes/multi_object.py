@@ -69,7 +69,7 @@ def crossing() -> dict:
     return dict(
         description=(
             "a striped sphere passing in front of a checkered box as the two cross the view in "
-            "opposite directions (up to 4.2 m/s), a speckled card riding up and down in front of "
+            "opposite directions (up to 4.2 m/s), a mottled card riding up and down in front of "
             "both, in front of a tiled terracotta wall"
         ),
         primitives=prims,
@@ -134,14 +134,14 @@ def spinner() -> dict:
 
 
 def enter_leave() -> dict:
-    """A box in view at the start leaves through the right border (tiny: by 0.3 s, full: by
-    0.45 s) while a sphere enters through the left one (tiny: at 0.35 s, full: at 0.2 s)."""
+    """A box in view at the start leaves through the right border (tiny: by 0.46 s, full: by
+    0.68 s) while a sphere enters through the left one (tiny: at 0.35 s, full: at 0.2 s)."""
 
     def sphere_pose(t: float) -> np.ndarray:
         return trans(-2.6 + 4.5 * t, -0.35, 3.0) @ rot("z", 9.0 * t) @ rot("x", 4.0 * t)
 
     def box_pose(t: float) -> np.ndarray:
-        return trans(0.2 + 3.5 * t, 0.3, 3.4) @ rot("z", 3.0 * t) @ rot("y", 0.5)
+        return trans(-0.25 + 3.2 * t, 0.3, 3.4) @ rot("z", 3.0 * t) @ rot("y", 0.5)
 
     prims = room(
         [(0.55, 0.25, 0.2), (0.4, 0.18, 0.15), (0.65, 0.4, 0.3), (0.3, 0.15, 0.12)], seed=8
@@ -160,7 +160,7 @@ def enter_leave() -> dict:
     ]
     return dict(
         description=(
-            "a sky-blue checkered box leaving through the right border early on while a "
+            "a sky-blue checkered box crossing out through the right border while a "
             "black-and-orange sphere enters from the left mid-sequence (4.5 m/s), in front of a "
             "tiled brick-red wall"
         ),
