@@ -11,21 +11,10 @@ from evsplat.data.dataset import load_dataset
 from evsplat.data.images import read_png
 from evsplat.data.simulator import simulate_dataset
 from evsplat.scenes import get_scene
+from tests.test_eval import sphere_silhouette
 
 NEW = ["crossing", "tumble", "spinner", "enter_leave", "watch"]
 MEET_US = 300_000  # `crossing`: the sphere is in front of the box, both mid-view
-
-
-def sphere_silhouette(centre: np.ndarray, radius: float, c2w: np.ndarray, scene) -> np.ndarray:
-    """Bool [H,W]: the pixels whose ray through the pixel centre meets the sphere."""
-    cols, rows = np.meshgrid(np.arange(scene.width) + 0.5, np.arange(scene.height) + 0.5)
-    pix = np.stack([cols, rows, np.ones_like(cols)], axis=-1)
-    rays = pix @ np.linalg.inv(scene.K).T @ c2w[:3, :3].T
-    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-    to_centre = centre - c2w[:3, 3]
-    along = rays @ to_centre
-    miss = np.linalg.norm(to_centre[None, None] - along[..., None] * rays, axis=-1)
-    return (along > 0) & (miss < radius)
 
 
 def test_object_masks_partition_the_moving_mask_and_the_front_sphere_hides_the_box():
