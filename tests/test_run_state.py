@@ -18,6 +18,7 @@ from evsplat.data.simulator import simulate_dataset
 from evsplat.errors import EvsplatError
 from evsplat.model.deform import DeformationMLP
 from evsplat.model.gaussians import GaussianModel, clamped_to_softplus
+from evsplat.model.motion import ObjectMotion
 from evsplat.render import Renderer
 from evsplat.run_state import VERSION, Camera, Poses, RunState
 from evsplat.train.loop import Trainer
@@ -25,8 +26,20 @@ from evsplat.train.snapshot import snapshot
 from evsplat.train.stages import Stage
 
 
-def _state(mlp_active: bool = True) -> RunState:
-    """A small state with every field set (optimizer moments after one Adam step)."""
+def _objects() -> dict:
+    """Two objects' rigid paths over 3 knots and each of the 6 Gaussians' object."""
+    motion = ObjectMotion(
+        torch.tensor([[0.0, 0.0, 2.0], [1.0, 0.0, 3.0]]),
+        torch.tensor([0.2, 0.3]),
+        torch.linspace(0.0, 1.0, 18).reshape(2, 3, 3),
+        torch.linspace(-0.5, 0.5, 18).reshape(2, 3, 3),
+    )
+    return {"motion": motion.state(), "object_id": torch.tensor([-1, 0, 0, 1, -1, 1])}
+
+
+def _state(mlp_active: bool = True, objects: bool = False) -> RunState:
+    """A small state with every field set (optimizer moments after one Adam step); with two
+    objects' motion when ``objects``."""
     cfg = preset("tiny")
     cfg.model.mlp_width, cfg.model.mlp_depth, cfg.model.mlp_skip = 8, 3, 1
     torch.manual_seed(0)
@@ -53,12 +66,7 @@ def _state(mlp_active: bool = True) -> RunState:
         densifier={"grad_accum": torch.rand(6), "denom": torch.ones(6), "max_radii": torch.ones(6)},
         static_mask=torch.tensor([True, False] * 3),
         static_scene=False,
-        mover_track={
-            "times_us": [5_000],
-            "points": [[0.0, 0.1, 2.0]],
-            "radius": 0.2,
-            "reach_us": 9,
-        },
+        objects=_objects() if objects else None,
         early_stop={"best": 0.5, "since_best": 2, "stopped_at": None},
         skipped_nonfinite=1,
         skipped_empty=2,
@@ -91,10 +99,12 @@ def _assert_same(a: object, b: object, where: str = "state") -> None:
 
 def _as_version_2(s: RunState) -> dict:
     """``s`` as version 2 saved it (its fields at the top level)."""
+    fields = {f: getattr(s, f) for f in s.__dataclass_fields__ if f != "objects"}
     return {
         "format": "evsplat-checkpoint",
         "version": 2,
-        **{f: getattr(s, f) for f in s.__dataclass_fields__},
+        **fields,
+        "mover_track": None,
         "config": s.config.to_dict(),
         "camera": vars(s.camera),
         "poses": vars(s.poses),
@@ -123,7 +133,7 @@ def _as_version_1(s: RunState) -> dict:
         "densifier": s.densifier,
         "static_mask": s.static_mask,
         "static_scene": s.static_scene,
-        "mover_track": s.mover_track,
+        "mover_track": None,  # version 1-3's one mover's track prior
         "early_stop": s.early_stop,
         "camera": {**vars(s.camera), "K": s.camera.K.tolist()},
         "trajectory": {"times_us": s.poses.times_us, "c2w": s.poses.c2w},
@@ -137,12 +147,29 @@ def _as_version_1(s: RunState) -> dict:
     }
 
 
-def test_run_state_saves_and_loads_back_equal(tmp_path):
-    state = _state()
+@pytest.mark.parametrize("objects", [False, True])
+def test_run_state_saves_and_loads_back_equal(tmp_path, objects):
+    state = _state(objects=objects)
     path = state.save(tmp_path, keep=2)
-    assert path.name == "ckpt_0000012.pt" and VERSION == 3
+    assert path.name == "ckpt_0000012.pt" and VERSION == 4
     _assert_same(RunState.load(path), state)
     _assert_same(RunState.load(tmp_path), state)  # a run folder: its newest checkpoint
+
+
+def test_a_run_with_objects_renders_them_where_their_paths_carry_them(tmp_path):
+    state = _state(objects=True)
+    state.save(tmp_path, keep=2)
+    renderer = Renderer.from_state(RunState.load(tmp_path))
+    motion = ObjectMotion.from_state(state.objects["motion"])
+    ids = state.objects["object_id"]
+    model = GaussianModel.from_checkpoint(state.gaussians)
+    want = motion.apply(model.means, model.rotations(), ids, 0.25)[0]
+    renderer.mlp = None
+    got = renderer.gaussians_at(
+        renderer.t_start_us + 0.25 * (renderer.t_end_us - renderer.t_start_us)
+    )[0]
+    assert torch.allclose(got, want) and not torch.allclose(got[ids >= 0], model.means[ids >= 0])
+    assert torch.equal(got[ids < 0], model.means[ids < 0])
 
 
 @pytest.mark.parametrize("mlp_active", [True, False])
@@ -174,7 +201,7 @@ def test_version_1_checkpoint_from_before_the_skips_gets_their_starting_values(t
     torch.save(old, tmp_path / "v1.pt")
     loaded = RunState.load(tmp_path / "v1.pt")
     assert loaded.static_mask is None and loaded.static_scene is False
-    assert loaded.mover_track is None
+    assert loaded.objects is None
     assert loaded.early_stop == {"best": math.inf, "since_best": 0, "stopped_at": None}
 
 

@@ -164,8 +164,8 @@ def small_config(iterations: int) -> TrainConfig:
     cfg.schedule.iterations = iterations
     cfg.schedule.checkpoint_every = 1000
     cfg.skips = SkipConfig(static=False, early_stop=False)
-    # These tests drive the skips alone; the mover initialisation (which marks the background
-    # static after the warm-up) has its own tests in test_train_mover.py.
+    # These tests drive the skips alone; the objects' seeding (which marks the background
+    # static after the warm-up) has its own tests in test_motion_seed.py.
     cfg.mover.enabled = False
     return cfg
 

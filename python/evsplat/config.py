@@ -123,53 +123,53 @@ class LossConfig:
 
 @dataclass
 class MoverConfig:
-    """Event-based initialisation of a fast mover (``evsplat.train.mover``; not in the paper,
-    which starts from a point cloud that event data does not have)."""
+    """Finding the moving objects in the events and starting their motion after the warm-up
+    (``evsplat.motion``; not in the paper, which starts from a point cloud that event data does
+    not have). Values measured: docs/motion.md, "Tuning numbers"."""
 
     enabled: bool = True
-    windows: int = 48  # short windows spread over the sequence; documented choice
-    window: float = 0.015  # their length, a fraction of the sequence; documented choice
-    pool: int = 3  # px box that averages the ESI's quantisation before residuals
-    # A window locates the mover when the unexplained energy inside its disc is at least this
-    # many times the image's mean; the scene has a mover when `min_found` of the windows do.
-    # Documented choices, measured on the tiny ball after the warm-up (docs/results.md).
-    min_contrast: float = 1.4
-    min_found: float = 0.25
-    # A mover that is not round follows its blobs' path smoothed over this fraction of the
-    # sequence (Gaussian sigma; 0 = off): see mover_path.smooth_track. Documented choice: on the
-    # butterfly 0.07 and 0.12 were within noise, and off cost 2.4 dB (docs/results.md).
-    smooth: float = 0.07
-    # The mover's depth: this quantile of the warm-up's rendered depth in each found window's
-    # disc, median over the windows. Documented choice, measured on the tiny ball's warm-ups
-    # (seeds 0-2: 2.93-2.98 m for a true 2.99; the median quantile gave 3.52-3.61).
+    # Segmentation (``motion.segment``): short windows spread over the sequence, each a
+    # fraction of it long (9 ms of the tiny scenes' 0.6 s; documented choice).
+    windows: int = 48
+    window: float = 0.015
+    pool: int = 3  # px box that averages the ESI's steps of C before the residual
+    blur_px: float = 1.0  # spreads an object's edge events over its body (sigma, px)
+    # Hysteresis on the residual's own robust spread (MAD): regions above median + low sigmas
+    # that reach median + high sigmas somewhere. The still scene's model errors stay under it.
+    low: float = 3.0
+    high: float = 9.0
+    close_px: int = 2  # closing radius joining an object's pieces (px)
+    min_area_px: int = 12  # smaller regions are noise: under a 4x4 px square
+    join: float = 0.5  # regions within this many of the larger one's radii are one object
+    # Tracking (``motion.tracks``): a region joins a track within `gate` object radii (or
+    # steps at its speed) of its prediction; a track lives `coast` windows unseen (an object
+    # behind another); one seen in fewer than `min_windows` windows is noise; fragments are one
+    # object when their centres stay within `together` x their summed radii.
+    gate: float = 1.5
+    coast: int = 3
+    min_windows: int = 4
+    together: float = 1.0
+    # Placement: the object's depth is this quantile of the static model's rendered depth in its
+    # regions (its front surface), median over them. It gets `fraction` of the Gaussians, split
+    # by area, at least `min_gaussians` each, at `opacity` (it occludes what is behind it).
     depth_quantile: float = 0.25
-    fraction: float = 0.15  # of the Gaussians, re-placed on the mover; documented choice
-    opacity: float = 0.5  # their initial opacity: the mover occludes what is behind it
-    fit_steps: int = 400  # Adam steps fitting the MLP to the path (no rendering: ~1 s)
-    fit_lr: float = 5e-3  # documented choice
-    # The mover's spin by contrast maximisation on its events (``evsplat.train.spin``): windows
-    # of this fraction of the sequence (30 ms on the tiny scenes), where the mover's disc lies
-    # inside the image. Documented choices, measured on the tiny ball with its true path
-    # (docs/results.md, session 16: within 0.2-1 rad/s of the true 10.3 rad/s).
-    spin: bool = True
-    spin_window: float = 0.05
-    spin_rim: float = 0.85  # events on the disc within this many radii (outline events out)
-    spin_events: int = 2000  # events per window, a random subset
-    spin_max_rate: float = 15.0  # rad/s, the coarse grid's extent
-    # A window's estimate is used when it sharpens the warped events by this much over no spin
-    # (the ball's windows: 8-11%).
-    spin_min_gain: float = 0.05
-    # A mover neither round nor found by its counts is turned only when its windows' median gain
-    # reaches this: the duck (0.13-0.15 over three seeds), the clock (0.12-0.16) and a textured
-    # sphere on a blob path (0.18-0.22) do; the butterfly's flapping wings (0.045-0.070 over five
-    # seeds) do not, and turning its Gaussians cost its mask 0.8 dB (docs/results.md, session 31).
-    spin_body_gain: float = 0.1
-    spin_steps: int = 40  # Adam steps refining the first window's estimate (half for later ones)
-    # The track prior (``mover.MoverTrack``): after the seeding, a round mover's Gaussians'
-    # centre is pulled towards its found path, in mover radii squared, with this weight
-    # (0 = off), at times within `track_reach` (a fraction of the sequence) of a found window.
+    fraction: float = 0.15
+    min_gaussians: int = 64
+    opacity: float = 0.5
+    # In-plane turn (``motion.turn``): per sighting, on its events of a window this fraction of
+    # the sequence long; used where it sharpens them by `turn_min_gain`, from at least
+    # `turn_min_events` events, in at least `turn_min_windows` windows.
+    turn: bool = True
+    turn_window: float = 0.05
+    turn_min_gain: float = 0.05
+    turn_min_events: int = 50
+    turn_min_windows: int = 3
+    # The rigid paths (``model.motion``): knots over the sequence, their learning rates, and the
+    # track prior holding them near the events' paths (squared object radii; 0 = off).
+    knots: int = 61
+    path_lr: float = 1e-3
+    turn_lr: float = 1e-3
     track_weight: float = 1.0
-    track_reach: float = 0.03
 
 
 @dataclass

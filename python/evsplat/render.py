@@ -14,6 +14,7 @@ import torch
 
 from evsplat.model.deform import DeformationMLP, deformed
 from evsplat.model.gaussians import GaussianModel
+from evsplat.model.motion import ObjectMotion
 from evsplat.projection import viewmat
 from evsplat.raster import PendingRaster, rasterize_async
 from evsplat.run_state import RunState
@@ -67,6 +68,8 @@ class Renderer:
     t_end_us: int
     background: float = 0.5
     static_mask: torch.Tensor | None = None  # Gaussians that skip the MLP (classified static)
+    motion: ObjectMotion | None = None  # the moving objects' rigid paths (``evsplat.motion``)
+    object_id: torch.Tensor | None = None  # [N] long: each Gaussian's object, -1 the scene
 
     def time(self, t_us: float) -> float:
         """Normalised time in [0, 1] that the deformation MLP takes."""
@@ -76,7 +79,7 @@ class Renderer:
     def gaussians_at(self, t_us: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Deformed (means, rotations, scales) at time ``t_us``."""
         moving = None if self.static_mask is None else ~self.static_mask
-        return deformed(self.model, self.mlp, self.time(t_us), mask=moving)
+        return deformed(self.model, self.mlp, self.time(t_us), moving, self.motion, self.object_id)
 
     def render(
         self,
@@ -130,7 +133,7 @@ class Renderer:
         if state.mlp_active:
             mlp = DeformationMLP(state.config.model)
             mlp.load_state_dict(state.mlp)
-        cam, static = state.camera, state.static_mask
+        cam, static, objects = state.camera, state.static_mask, state.objects
         return cls(
             model=GaussianModel.from_checkpoint(state.gaussians),
             mlp=mlp,
@@ -141,6 +144,8 @@ class Renderer:
             t_end_us=cam.t_end_us,
             background=state.config.background,
             static_mask=None if static is None else torch.as_tensor(static, dtype=torch.bool),
+            motion=None if objects is None else ObjectMotion.from_state(objects["motion"]),
+            object_id=None if objects is None else torch.as_tensor(objects["object_id"]),
         )
 
     @classmethod

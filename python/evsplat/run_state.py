@@ -26,7 +26,8 @@ from evsplat.model.gaussians import clamped_to_softplus
 
 # 2: the MLP saved once, with whether renders use it; counters beside the history; ``poses``.
 # 3: colour through a softplus (``model.gaussians.color_activation``), not a clamp at 0.
-VERSION = 3
+# 4: the moving objects' rigid paths and each Gaussian's object (``model.motion``).
+VERSION = 4
 
 
 @dataclass
@@ -71,7 +72,8 @@ class RunState:
     densifier: dict[str, torch.Tensor]  # Densifier.state_dict: its gradient statistics
     static_mask: torch.Tensor | None  # [N] bool: skip the MLP; None before any classification
     static_scene: bool  # the static classification found the whole scene static
-    mover_track: dict[str, Any] | None  # MoverTrack.state_dict, once the mover was seeded
+    # The moving objects, once found: {"motion": ObjectMotion.state(), "object_id": [N] long}
+    objects: dict[str, Any] | None
     early_stop: dict[str, Any]  # Plateau.state_dict: the held-out loss's best and patience
     skipped_nonfinite: int = 0  # steps without an update: a non-finite loss or gradient
     skipped_empty: int = 0  # steps without an update: no events in the windows
@@ -140,4 +142,10 @@ def _v2_to_v3(v2: dict[str, Any]) -> dict[str, Any]:
     return v2 | {"gaussians": v2["gaussians"] | {"sh": sh}}
 
 
-UPGRADES: Upgrades = {1: _v1_to_v2, 2: _v2_to_v3}
+def _v3_to_v4(v3: dict[str, Any]) -> dict[str, Any]:
+    """Version 3 kept one mover's track prior (its motion lived in the MLP, which still loads);
+    version 4 keeps the objects' rigid paths."""
+    return {k: v for k, v in v3.items() if k != "mover_track"} | {"objects": None}
+
+
+UPGRADES: Upgrades = {1: _v1_to_v2, 2: _v2_to_v3, 3: _v3_to_v4}

@@ -7,6 +7,7 @@ from torch import Tensor, nn
 
 from evsplat.config import ModelConfig
 from evsplat.model.gaussians import GaussianModel, normalize_quats, scale_activation
+from evsplat.model.motion import ObjectMotion
 
 
 def positional_encoding(p: Tensor, frequencies: int) -> Tensor:
@@ -73,27 +74,35 @@ class DeformationMLP(nn.Module):
 
 
 def deformed(
-    model: GaussianModel, mlp: DeformationMLP | None, t: float, mask: Tensor | None = None
+    model: GaussianModel,
+    mlp: DeformationMLP | None,
+    t: float,
+    mask: Tensor | None = None,
+    motion: ObjectMotion | None = None,
+    object_id: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """(means [N,3], unit rotations [N,4], scales [N,3]) of the Gaussians at time ``t``.
 
-    ``mlp`` None gives the canonical Gaussians. ``mask`` [N] bool selects the Gaussians that are
-    deformed; the others stay canonical and skip the MLP (static Gaussians cost nothing).
+    The objects' rigid paths (``motion``, for the rows of ``object_id`` >= 0) move their
+    Gaussians first; the MLP then adds its residual. ``mlp`` None adds none. ``mask`` [N] bool
+    selects the Gaussians the MLP deforms; the others skip it (static Gaussians cost nothing).
     As in Deformable-3DGS the MLP sees the canonical means detached (the deformation does not
     move the canonical positions), Δq is added to the unit quaternion and re-normalised, and
     Δs is applied in log space so scales stay positive.
     """
+    means, rotations = model.means, model.rotations()
+    if motion is not None and object_id is not None:
+        means, rotations = motion.apply(means, rotations, object_id, t)
     if mlp is None:
-        return model.means, model.rotations(), model.scales()
-    means = model.means
+        return means, rotations, model.scales()
     if mask is None:
-        dx, dq, ds = mlp(means.detach(), t)
+        dx, dq, ds = mlp(model.means.detach(), t)
     else:
         idx = torch.nonzero(mask.reshape(-1), as_tuple=False).reshape(-1)
         n = means.shape[0]
-        sub = mlp(means.detach()[idx], t)
+        sub = mlp(model.means.detach()[idx], t)
         dx, dq, ds = (torch.zeros(n, d.shape[1], dtype=d.dtype).index_copy(0, idx, d) for d in sub)
-    rotations = normalize_quats(model.rotations() + dq)
+    rotations = normalize_quats(rotations + dq)
     return means + dx, rotations, scale_activation(model.log_scales + ds)
 
 
@@ -103,11 +112,15 @@ def deformed_means(
     t: float,
     rows: Tensor,
     static: Tensor | None = None,
+    motion: ObjectMotion | None = None,
+    object_id: Tensor | None = None,
 ) -> Tensor:
     """Deformed means ``[len(rows),3]`` of the Gaussians ``rows`` at time ``t``, as ``deformed``
-    places them: the ones marked in ``static`` [N] stay canonical and skip the MLP."""
+    places them: the objects' rigid paths, then the MLP for the rows not marked in ``static``."""
     means = model.means[rows]
+    if motion is not None and object_id is not None:
+        means = motion.apply(means, model.quats[rows], object_id[rows], t)[0]
     moving = torch.arange(rows.numel()) if static is None else torch.nonzero(~static[rows])
     moving = moving.reshape(-1)
-    dx = mlp(means.detach()[moving], t)[0]
+    dx = mlp(model.means[rows].detach()[moving], t)[0]
     return means.index_add(0, moving, dx)

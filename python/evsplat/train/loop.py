@@ -25,6 +25,8 @@ from evsplat.losses.event import event_loss
 from evsplat.losses.flow import gaussian_flow_features
 from evsplat.model.deform import DeformationMLP
 from evsplat.model.densify import Densifier
+from evsplat.model.motion import ObjectMotion
+from evsplat.motion.seed import seed_objects
 from evsplat.projection import viewmat
 from evsplat.render import Renderer
 from evsplat.run_state import RunState
@@ -32,17 +34,14 @@ from evsplat.train.coarse import coarse_due, half_renderer
 from evsplat.train.depth_prior import DepthPrior
 from evsplat.train.gradients import first_nonfinite_grad, grad_norms_due, mlp_grad_norms
 from evsplat.train.init import initial_gaussians, scene_extent
-from evsplat.train.mover import MoverTrack
 from evsplat.train.objective import (
     loss_weights,
     motion_events,
     motion_losses,
     refine_losses,
-    track_loss,
 )
 from evsplat.train.progress import Progress, StepResult, TrainStats
-from evsplat.train.schedule import decay_learning_rates
-from evsplat.train.seeding import seed_mover
+from evsplat.train.schedule import MOTION_GROUPS, decay_learning_rates
 from evsplat.train.skips import (
     follow_rows,
     holdout_loss,
@@ -79,7 +78,7 @@ class Trainer:
         self.model = initial_gaussians(data, cfg, self.channels, self.depth_range)
         self.mlp = DeformationMLP(cfg.model)
         self.optimizer = self.gaussians_adam()
-        self.mlp_optimizer = self._mlp_adam()
+        self.mlp_optimizer = self.mlp_adam()
         self.densifier = Densifier(cfg.densify, self.extent, cfg.schedule.iterations)
         self.renderer = Renderer(
             model=self.model,
@@ -97,7 +96,6 @@ class Trainer:
         self.progress = Progress(cfg, self.views)
         self.start_iteration = 0
         self.static_scene = False  # set when the static classification finds no motion
-        self.mover_track: MoverTrack | None = None  # set by the mover's seeding
 
     # ---- one iteration -------------------------------------------------------------------
 
@@ -113,9 +111,9 @@ class Trainer:
             if static_due(cfg.skips, iteration, cfg.schedule.iterations):
                 self._classify_static()  # may find the whole scene static
         seeded = {}
-        # Right after the warm-up (none: no static model to find a mover against).
+        # Right after the warm-up (none: no static model to find the objects against).
         if motion_stage and cfg.mover.enabled and iteration == cfg.schedule.warmup_end > 0:
-            seeded = self.seed_mover()
+            seeded = self.seed_objects()
         moving = motion_stage and not self.static_scene
         self.renderer.mlp = self.mlp if moving else None
         coarse = coarse_due(cfg, iteration, stage)
@@ -177,9 +175,8 @@ class Trainer:
                     rng,
                 )
             )
-            track = track_loss(self.mover_track, self.renderer, self.model, g1[0], t1)
-            if track is not None:
-                losses["tr"] = track
+            if self.renderer.motion is not None and cfg.mover.track_weight > 0:
+                losses["tr"] = self.renderer.motion.prior_loss()
         if stage is Stage.REFINE:
             # The refinement losses see the last window (pairs end with (views-2, views-1)).
             delta, mask = logs[-1] - logs[-2], windows[-1][1]
@@ -211,9 +208,11 @@ class Trainer:
         decay_learning_rates(self.optimizer, self.mlp_optimizer, cfg, self.extent, iteration)
         counts = self.densifier.step(self.model, self.optimizer, iteration)
         values.update({f"n_{k}": float(v) for k, v in counts.items()})
-        static = self.renderer.static_mask
+        static, objects = self.renderer.static_mask, self.renderer.object_id
+        if counts and objects is not None:  # clones, splits and prunes change the rows
+            self.renderer.object_id = follow_rows(objects, self.densifier.origin)
         if static is not None:
-            if counts:  # clones, splits and prunes change the rows the mask must follow
+            if counts:
                 self.renderer.static_mask = follow_rows(static, self.densifier.origin)
             values["static_gaussians"] = self.static_fraction()  # the background, after seeding
         if motion_stage:  # 1 once the scene-level check baked the MLP away
@@ -221,15 +220,18 @@ class Trainer:
         values["gaussians"] = float(self.model.means.shape[0])
         return StepResult(values, stage)
 
-    def seed_mover(self) -> dict[str, float]:
-        """After the warm-up: the mover's seeding (``seeding.seed_mover``); numbers for the log."""
-        seeding = seed_mover(
-            self.views, self.model, self.optimizer, self.mlp, self.cfg, self.depth_range
+    def seed_objects(self) -> dict[str, float]:
+        """After the warm-up: find the moving objects and start their motion
+        (``motion.seed.seed_objects``); the scene's Gaussians skip the MLP from then on.
+        Numbers for the log."""
+        found = seed_objects(
+            self.views, self.model, self.optimizer, self.cfg.mover, self.cfg.seed, self.depth_range
         )
-        if seeding.seeded:
-            self.mlp_optimizer = self._mlp_adam()  # the fit's moments are not training's
-            self.mover_track = seeding.track
-        return seeding.stats
+        if found.motion is not None:
+            self.renderer.motion, self.renderer.object_id = found.motion, found.object_id
+            self.renderer.static_mask = found.object_id < 0
+            self.mlp_optimizer = self.mlp_adam(found.motion)  # the paths train beside the MLP
+        return found.stats
 
     # Both optimizers take torch's multi-tensor ("foreach") Adam, which torch picks by default
     # only for GPU tensors: on the CPU it gives the same values bit for bit and halves the MLP
@@ -238,8 +240,18 @@ class Trainer:
         groups = self.model.param_groups(self.cfg.model, self.extent)
         return torch.optim.Adam(groups, eps=1e-15, foreach=True)
 
-    def _mlp_adam(self) -> torch.optim.Adam:
-        return torch.optim.Adam(self.mlp.parameters(), lr=self.cfg.model.mlp_lr, foreach=True)
+    def mlp_adam(self, motion: ObjectMotion | None = None) -> torch.optim.Adam:
+        """Adam on the MLP, and on the objects' rigid ``motion`` once they are found."""
+        groups = [{"params": list(self.mlp.parameters()), "lr": self.cfg.model.mlp_lr}]
+        mc = self.cfg.mover
+        if motion is not None:
+            lrs = (mc.path_lr, mc.turn_lr)
+            params = (motion.translations, motion.rotvecs)
+            groups += [
+                {"params": [p], "lr": lr, "name": name}
+                for name, p, lr in zip(MOTION_GROUPS, params, lrs)
+            ]
+        return torch.optim.Adam(groups, foreach=True)
 
     def _zero_grads(self) -> None:
         self.optimizer.zero_grad(set_to_none=True)

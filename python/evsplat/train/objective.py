@@ -1,6 +1,6 @@
 """The objective's terms beyond L_e, assembled per step by the training loop: the motion
 losses (L_ef, L_m; paper §4.2-4.3), the refinement losses (L_d, L_ne, L_sp; §4.4) and the
-mover's track prior (not in the paper; ``mover.MoverTrack``)."""
+objects' track prior (not in the paper; ``model.motion.ObjectMotion.prior_loss``)."""
 
 from __future__ import annotations
 
@@ -20,7 +20,6 @@ from evsplat.model.gaussians import GaussianModel
 from evsplat.projection import project_points, viewmat
 from evsplat.render import Renderer, RenderOut
 from evsplat.train.depth_prior import DepthPrior
-from evsplat.train.mover import MoverTrack
 from evsplat.train.views import Views
 
 
@@ -118,6 +117,8 @@ def motion_losses(
                     renderer.time(t_mid),
                     idx,
                     renderer.static_mask,
+                    renderer.motion,
+                    renderer.object_id,
                 )
                 centres.append(project_points(means, viewmat(views.pose(t_mid)), renderer.K))
             out["m"] = patch_motion_loss(events.frames, torch.stack(centres, dim=1), lc.patch_side)
@@ -148,19 +149,3 @@ def refine_losses(
             if bool(valid.any()):
                 out["d"] = silog(out1.depth, prior, valid)
     return out
-
-
-def track_loss(
-    track: MoverTrack | None,
-    renderer: Renderer,
-    model: GaussianModel,
-    means: torch.Tensor,
-    t_us: int,
-) -> torch.Tensor | None:
-    """The track prior on the mover's deformed ``means`` [N,3] (all rows) at ``t_us``."""
-    static = renderer.static_mask
-    if track is None or static is None:
-        return None
-    moving = ~static
-    opacities = model.opacities(renderer.time(t_us))[moving]
-    return track.loss(means[moving], opacities, t_us)

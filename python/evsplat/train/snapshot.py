@@ -7,8 +7,8 @@ from typing import TYPE_CHECKING
 
 from evsplat.errors import EvsplatError
 from evsplat.model.gaussians import GaussianModel
+from evsplat.model.motion import ObjectMotion
 from evsplat.run_state import Camera, Poses, RunState
-from evsplat.train.mover import MoverTrack
 
 if TYPE_CHECKING:
     from evsplat.train.loop import Trainer
@@ -39,7 +39,9 @@ def snapshot(trainer: Trainer, iteration: int) -> RunState:
         densifier=t.densifier.state_dict(),
         static_mask=t.renderer.static_mask,
         static_scene=t.static_scene,
-        mover_track=None if t.mover_track is None else t.mover_track.state_dict(),
+        objects=None
+        if t.renderer.motion is None
+        else {"motion": t.renderer.motion.state(), "object_id": t.renderer.object_id},
         early_stop=t.progress.plateau.state_dict(),
         skipped_nonfinite=stats.skipped_nonfinite,
         skipped_empty=stats.skipped_empty,
@@ -62,11 +64,14 @@ def restore(trainer: Trainer, state: RunState, path: Path) -> None:
     t.mlp.load_state_dict(state.mlp)
     t.optimizer = t.gaussians_adam()  # over the restored model's parameters
     t.optimizer.load_state_dict(state.optimizer)
+    objects = state.objects
+    t.renderer.motion = None if objects is None else ObjectMotion.from_state(objects["motion"])
+    t.renderer.object_id = None if objects is None else objects["object_id"]
+    t.mlp_optimizer = t.mlp_adam(t.renderer.motion)  # with the restored paths, if any
     t.mlp_optimizer.load_state_dict(state.mlp_optimizer)
     t.densifier.load_state_dict(state.densifier)
     t.renderer.static_mask = state.static_mask
     t.static_scene = state.static_scene
-    t.mover_track = None if state.mover_track is None else MoverTrack.from_state(state.mover_track)
     t.progress.plateau.load_state_dict(state.early_stop)
     stats = t.progress.stats
     stats.skipped_nonfinite = state.skipped_nonfinite

@@ -1,0 +1,124 @@
+"""Per-object rigid motion: each moving object carries its Gaussians by its own SE(3) path.
+
+A Gaussian given to object k (``object_id`` k >= 0) at canonical position x sits at
+``R_k(t) (x - c_k) + c_k + T_k(t)`` at normalised time t, turned by R_k(t) as well: ``c_k`` is the
+object's centre at its reference time, where R = I and T = 0. R_k and T_k are piecewise linear in
+time over knots shared by all objects (rotations as rotation vectors, turned into matrices by
+quaternions), and they are parameters: the paper's losses refine the path that the
+events' segmentation started (``evsplat.motion``). The deformation MLP adds what is not rigid on
+top (Shape of Motion's motion bases, one per object, plus a residual). Gaussians of the scene
+(id -1) are not moved here.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from evsplat.model.gaussians import quat_to_rotmat
+
+ANGLE_EPS = 1e-6  # below this angle (rad) the half-angle terms take their Taylor forms
+
+
+def rotvec_to_quat(v: Tensor) -> Tensor:
+    """Unit quaternions [...,4] (w, x, y, z) of rotation vectors [...,3] (finite gradients at
+    zero: sin(θ/2)/θ takes its Taylor form there)."""
+    theta2 = (v * v).sum(-1, keepdim=True)
+    small = theta2 < ANGLE_EPS**2
+    theta = torch.sqrt(torch.where(small, torch.ones_like(theta2), theta2))
+    w = torch.where(small, 1.0 - theta2 / 8.0, torch.cos(theta / 2))
+    k = torch.where(small, 0.5 - theta2 / 48.0, torch.sin(theta / 2) / theta)
+    return torch.cat([w, k * v], -1)
+
+
+def quat_multiply(a: Tensor, b: Tensor) -> Tensor:
+    """Hamilton products a ⊗ b of quaternions [...,4] (w, x, y, z)."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        -1,
+    )
+
+
+class ObjectMotion(nn.Module):
+    """K objects' rigid paths on G shared knots over normalised time [0, 1].
+
+    ``centres`` [K,3] (world, at each object's reference time) and ``radii`` [K] (world, the
+    track prior's length scale), ``translations`` [K,G,3] and ``rotvecs`` [K,G,3] (parameters),
+    and their starting values ``prior_*`` (buffers) that the track prior (``prior_loss``) holds
+    the refined path near.
+    """
+
+    def __init__(self, centres: Tensor, radii: Tensor, translations: Tensor, rotvecs: Tensor):
+        super().__init__()
+        k, g = translations.shape[:2]
+        if centres.shape != (k, 3) or radii.shape != (k,) or rotvecs.shape != (k, g, 3) or g < 2:
+            raise ValueError(
+                f"ObjectMotion: centres {tuple(centres.shape)}, radii {tuple(radii.shape)}, "
+                f"translations {tuple(translations.shape)}, rotvecs {tuple(rotvecs.shape)}; "
+                "need [K,3], [K], [K,G,3] and [K,G,3] with G >= 2"
+            )
+        self.register_buffer("centres", centres.float().clone())
+        self.register_buffer("radii", radii.float().clone())
+        self.translations = nn.Parameter(translations.float().clone())
+        self.rotvecs = nn.Parameter(rotvecs.float().clone())
+        self.register_buffer("prior_translations", translations.float().clone())
+        self.register_buffer("prior_rotvecs", rotvecs.float().clone())
+
+    @property
+    def num_objects(self) -> int:
+        return int(self.centres.shape[0])
+
+    @property
+    def knots(self) -> int:
+        return int(self.translations.shape[1])
+
+    def at(self, t: float) -> tuple[Tensor, Tensor]:
+        """(unit quaternions [K,4], translations [K,3]) at normalised time ``t`` (clamped to
+        [0, 1])."""
+        u = min(max(float(t), 0.0), 1.0) * (self.knots - 1)
+        i = min(int(u), self.knots - 2)
+        w = u - i
+        trans = (1.0 - w) * self.translations[:, i] + w * self.translations[:, i + 1]
+        rotvec = (1.0 - w) * self.rotvecs[:, i] + w * self.rotvecs[:, i + 1]
+        return rotvec_to_quat(rotvec), trans
+
+    def apply(
+        self, means: Tensor, quats: Tensor, object_id: Tensor, t: float
+    ) -> tuple[Tensor, Tensor]:
+        """(means [N,3], unit quaternions [N,4]) with each object's Gaussians moved rigidly to
+        ``t``; rows with ``object_id`` -1 are returned as they are."""
+        turn, trans = self.at(t)
+        rows = torch.nonzero(object_id >= 0).reshape(-1)
+        if rows.numel() == 0:
+            return means, quats
+        k = object_id[rows]
+        c = self.centres[k]
+        moved = torch.einsum("nij,nj->ni", quat_to_rotmat(turn)[k], means[rows] - c) + c + trans[k]
+        turned = quat_multiply(turn[k], quats[rows])
+        return means.index_copy(0, rows, moved), quats.index_copy(0, rows, turned)
+
+    def prior_loss(self) -> Tensor:
+        """Mean squared distance of the paths from their starting values, translations in
+        object radii and rotations in radians."""
+        off = (self.translations - self.prior_translations) / self.radii.clamp_min(1e-6)[
+            :, None, None
+        ]
+        turn = self.rotvecs - self.prior_rotvecs
+        return (off**2).sum(-1).mean() + (turn**2).sum(-1).mean()
+
+    def state(self) -> dict[str, Tensor]:
+        """Everything ``from_state`` needs, detached on the CPU."""
+        return {k: v.detach().cpu().clone() for k, v in self.state_dict().items()}
+
+    @classmethod
+    def from_state(cls, state: dict[str, Tensor]) -> ObjectMotion:
+        motion = cls(state["centres"], state["radii"], state["translations"], state["rotvecs"])
+        motion.load_state_dict(state)
+        return motion

@@ -1,0 +1,267 @@
+"""After the warm-up: find every moving object in the events and start its motion (not in the
+paper, which starts from a point cloud that event data does not have).
+
+A short pipeline of general steps, each in its own module:
+
+1. ``segment``: per short window, the events the static model leaves unexplained, split into
+   connected moving regions (any number, any shape);
+2. ``tracks``: the regions chained across windows into one track per object;
+3. ``turn``: each object's in-plane turn per window, by contrast maximisation on its own events;
+4. ``paths``: each track lifted to a world path at the static model's depth there;
+5. here: Gaussians placed on each object's shape as its events show it at its clearest window,
+   and an ``ObjectMotion`` that carries them rigidly along the path and turn. The deformation
+   MLP adds the non-rigid rest, and the paper's losses refine both.
+
+The scene's Gaussians skip the MLP afterwards (the background's gradients drowned a mover's in
+a shared MLP: docs/experiments/motion.md); nothing is seeded, and nothing changes, when no object
+is found.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from evsplat.config import MoverConfig
+from evsplat.model.densify import update_params
+from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
+from evsplat.model.motion import ObjectMotion
+from evsplat.motion.paths import WorldPath, lift, near_path, turn_angles
+from evsplat.motion.segment import Blob, SegmentSettings, regions, unexplained
+from evsplat.motion.tracks import Track, TrackSettings, chain
+from evsplat.motion.turn import WindowEvents, turn_rate
+from evsplat.train.views import Views
+
+#: Most events a turn window reads, evenly thinned past it (a 500 M-event recording's windows
+#: hold millions; the turn of one object needs a few thousand).
+TURN_WINDOW_EVENTS = 1_000_000
+OPAQUE = 0.5  # rendered alpha above which the static model's depth is read
+
+
+@dataclass
+class Seeded:
+    """What the seeding found: its numbers for the log, and the objects' motion and each
+    Gaussian's object (None when nothing moves)."""
+
+    stats: dict[str, float]
+    motion: ObjectMotion | None
+    object_id: torch.Tensor | None
+
+
+@dataclass
+class Sightings:
+    """The segmentation's output: per window, its middle time, regions, and the static model's
+    rendered depth and alpha at its end."""
+
+    times_us: np.ndarray  # [W]
+    blobs: list[list[Blob]]
+    depth: list[np.ndarray]
+    alpha: list[np.ndarray]
+
+
+@torch.no_grad()
+def sight(views: Views, mc: MoverConfig) -> Sightings:
+    """Segment ``mc.windows`` short windows spread over the sequence (the renderer must draw the
+    static model)."""
+    data, renderer = views.data, views.renderer
+    settings = SegmentSettings(
+        mc.pool, mc.blur_px, mc.low, mc.high, mc.close_px, mc.min_area_px, mc.join
+    )
+    span = data.t_end_us - data.t_start_us
+    half = max(int(mc.window * span) // 2, 1)
+    mids = np.linspace(data.t_start_us + half, data.t_end_us - half, mc.windows).astype(np.int64)
+    blobs, depth, alpha = [], [], []
+    for mid in mids:
+        t0, t1 = int(mid) - half, int(mid) + half
+        start = renderer.render(t0, views.pose(t0))
+        end = renderer.render(t1, views.pose(t1))
+        change = views.log_image(end) - views.log_image(start)
+        residual = unexplained(views.esi(t0, t1)[0], change, mc.pool)
+        blobs.append(regions(residual, int(mid), settings))
+        depth.append(end.depth.numpy())
+        alpha.append(end.alpha.numpy())
+    return Sightings(mids, blobs, depth, alpha)
+
+
+def object_depth(track: Track, sightings: Sightings, quantile: float) -> float | None:
+    """A near ``quantile`` of the static model's opaque rendered depth in each of the track's
+    regions, median over them; None where no region is drawn."""
+    found = []
+    for k, blob in track.blobs.items():
+        seen = blob.mask & (sightings.alpha[k] > OPAQUE) & (sightings.depth[k] > 0)
+        if seen.any():
+            found.append(float(np.quantile(sightings.depth[k][seen], quantile)))
+    return float(np.median(found)) if found else None
+
+
+def touches_border(mask: np.ndarray) -> bool:
+    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+
+
+def reference(track: Track) -> int:
+    """The window to place the object at: its clearest sighting clear of the image border
+    (a cut object looks smaller and off-centre), else its clearest."""
+    ks = sorted(track.blobs)
+    inside = [k for k in ks if not touches_border(track.blobs[k].mask)] or ks
+    return max(inside, key=lambda k: track.blobs[k].contrast)
+
+
+def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
+    """The object's in-plane turn rate (rad/s) at each sighting (``turn.turn_rate`` on the
+    events of a ``mc.turn_window`` window that its region holds once carried back by its image
+    velocity), NaN where the turn sharpens them by less than ``mc.turn_min_gain``."""
+    data = views.data
+    half_us = max(int(mc.turn_window * (data.t_end_us - data.t_start_us)) // 2, 1)
+    times, centres = track.times_us, track.centres
+    seconds = times.astype(np.float64) * 1e-6
+    velocity = np.gradient(centres, seconds, axis=0) if len(times) > 1 else np.zeros_like(centres)
+    out = np.full(len(times), np.nan)
+    for i, k in enumerate(sorted(track.blobs)):
+        mask = track.blobs[k].mask
+        h, w = mask.shape
+        ev = data.events.read(int(times[i]) - half_us, int(times[i]) + half_us, TURN_WINDOW_EVENTS)
+        dt = (ev.t - times[i]) * 1e-6
+        xy = np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5
+        back = np.floor(xy - velocity[i][None] * dt[:, None]).astype(np.int64)
+        inside = (back[:, 0] >= 0) & (back[:, 0] < w) & (back[:, 1] >= 0) & (back[:, 1] < h)
+        inside[inside] = mask[back[inside, 1], back[inside, 0]]
+        if inside.sum() < mc.turn_min_events:
+            continue
+        window = WindowEvents(xy[inside], dt[inside], ev.p[inside])
+        # At one radian per window an edge's events smear over the whole object: no faster.
+        top = 1.0 / max(2 * half_us * 1e-6, 1e-9)
+        rate, gain = turn_rate(window, track.blobs[k].centre, velocity[i], top, mask.shape)
+        if gain >= mc.turn_min_gain:
+            out[i] = rate
+    return out
+
+
+def place(
+    model: GaussianModel,
+    optimizer: torch.optim.Optimizer,
+    rows: torch.Tensor,
+    points: np.ndarray,
+    spacing: np.ndarray,
+    opacity: float,
+) -> None:
+    """Re-place the Gaussians ``rows`` at ``points`` [M,3]: isotropic at ``spacing`` [M],
+    identity rotation, grey, ``opacity``, shown at all times; their optimizer state starts
+    afresh."""
+    o = min(max(opacity, 1e-4), 1.0 - 1e-4)
+    values = {
+        "means": torch.from_numpy(points.astype(np.float32)),
+        "log_scales": torch.from_numpy(np.log(np.maximum(spacing, 1e-12)).astype(np.float32))[
+            :, None
+        ],
+        "quats": torch.tensor([1.0, 0.0, 0.0, 0.0]),
+        "opacity_logits": math.log(o / (1.0 - o)),
+        "sh": 0.0,
+        "t_mean": 0.5,
+        "t_log_scale": T_LOG_SCALE_RANGE[1],
+    }
+
+    def transform(name: str, old: torch.Tensor, is_state: bool) -> torch.Tensor:
+        new = old.clone()
+        new[rows] = 0.0 if is_state else values[name]
+        return new
+
+    update_params(model, optimizer, transform)
+
+
+def seed_objects(
+    views: Views,
+    model: GaussianModel,
+    optimizer: torch.optim.Optimizer,
+    mc: MoverConfig,
+    seed: int,
+    depth_range: tuple[float, float],
+) -> Seeded:
+    """Find the moving objects (``sight``, ``tracks.chain``) and start each one's motion: the
+    Gaussians that smear it along its path (the warm-up drew it there as a static smear), then
+    the faintest, re-placed on its shape at its reference window; its path and turn on the
+    knots of an ``ObjectMotion``. See the module's docstring."""
+    data = views.data
+    views.renderer.mlp = None  # the warm-up's static model
+    sightings = sight(views, mc)
+    settings = TrackSettings(mc.gate, mc.coast, mc.min_windows, mc.together)
+    tracks = chain(sightings.blobs, settings)
+    stats = {
+        "objects": float(len(tracks)),
+        "windows_with_motion": float(np.mean([len(b) > 0 for b in sightings.blobs])),
+    }
+    if not tracks:
+        return Seeded(stats, None, None)
+    rng = np.random.default_rng(seed)
+    n, focal = model.num_gaussians, float(data.K[0, 0])
+    means = model.means.detach().numpy().astype(np.float64)
+    free = np.ones(n, dtype=bool)
+    faintest = np.argsort(model.opacities().detach().numpy(), kind="stable")
+    areas = np.array([np.median([b.area for b in t.blobs.values()]) for t in tracks])
+    knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
+    object_id = np.full(n, -1, dtype=np.int64)
+    rows, points, spacing, centres, radii, translations, rotvecs = [], [], [], [], [], [], []
+    for k, track in enumerate(tracks):
+        depth = object_depth(track, sightings, mc.depth_quantile) or float(np.mean(depth_range))
+        ref = reference(track)
+        blob, t_ref = track.blobs[ref], int(track.blobs[ref].t_us)
+        radius = track.radius * depth / focal
+        ks = sorted(track.blobs)
+        poses = data.trajectory.pose(track.times_us.astype(np.float64))
+        path = WorldPath(
+            track.times_us,
+            lift(track.centres, np.full(len(ks), depth), poses, data.K),
+            touches_border(track.blobs[ks[0]].mask),
+            touches_border(track.blobs[ks[-1]].mask),
+        )
+        swept = np.flatnonzero(near_path(means, path.points, radius) & free)
+        share = max(int(mc.fraction * n * areas[k] / areas.sum()), mc.min_gaussians)
+        rest = faintest[free[faintest]]
+        rest = rest[~np.isin(rest, swept)][: max(share - len(swept), 0)]
+        pick = np.concatenate([swept, rest])
+        free[pick] = False
+        object_id[pick] = k
+        # On its shape: its reference region's pixels, from its front surface one radius deep.
+        ys, xs = np.nonzero(blob.mask)
+        j = rng.integers(len(xs), size=len(pick))
+        uv = np.stack([xs[j], ys[j]], 1) + rng.random((len(pick), 2))
+        pose_ref = data.trajectory.pose(float(t_ref))
+        placed = lift(uv, depth + radius * rng.random(len(pick)), pose_ref, data.K)
+        volume = blob.area * (depth / focal) ** 2 * radius
+        rows.append(pick)
+        points.append(placed)
+        spacing.append(np.full(len(pick), (volume / max(len(pick), 1)) ** (1 / 3)))
+        centres.append(placed.mean(0))
+        radii.append(radius)
+        translations.append(path.at(knots) - path.at(np.array([t_ref]))[0])
+        rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
+        used = np.isfinite(rates)
+        angles = np.zeros(len(knots))
+        if used.sum() >= mc.turn_min_windows:
+            angles = turn_angles(track.times_us[used], rates[used], knots, t_ref)
+        rotvecs.append(angles[:, None] * pose_ref[:3, 2][None])  # about the viewing axis
+        stats |= {
+            f"object{k}_windows": float(len(ks)),
+            f"object{k}_depth": depth,
+            f"object{k}_radius_px": track.radius,
+            f"object{k}_gaussians": float(len(pick)),
+            f"object{k}_turn_windows": float(used.sum()),
+            f"object{k}_turn_rate": float(np.nanmedian(rates)) if used.any() else 0.0,
+        }
+    place(
+        model,
+        optimizer,
+        torch.from_numpy(np.concatenate(rows)),
+        np.concatenate(points),
+        np.concatenate(spacing),
+        mc.opacity,
+    )
+    motion = ObjectMotion(
+        torch.from_numpy(np.stack(centres)),
+        torch.tensor(radii),
+        torch.from_numpy(np.stack(translations)),
+        torch.from_numpy(np.stack(rotvecs)),
+    )
+    return Seeded(stats, motion, torch.from_numpy(object_id))

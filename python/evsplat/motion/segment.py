@@ -1,0 +1,140 @@
+"""Motion segmentation from events: per short window, the pixels whose events the static model
+does not explain, split into connected moving regions (as many as there are; any shape).
+
+After the warm-up the static model draws what the camera's motion shows of the still scene, so
+its rendered log change over a window predicts the still scene's events. A moving object's
+events are left over: the residual |ESI - predicted change| (both box-averaged first, so the
+ESI's steps of C average out) stands out from the model's small errors elsewhere. The residual's
+own robust spread (median and MAD over the image) sets the threshold, so nothing here knows a
+scene's contrast, size or number of objects. The regions are closed (an object's events sit on
+its edges and texture) and labelled as connected components; each becomes a ``Blob``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch.nn.functional as F
+from scipy import ndimage
+from torch import Tensor
+
+EPS = 1e-12  # guards divisions by energies and spreads
+MAD_TO_SIGMA = 1.4826  # a normal distribution's sigma per median absolute deviation
+
+
+@dataclass
+class SegmentSettings:
+    """The segmentation's knobs; ``MoverConfig`` holds their values and their reasons."""
+
+    pool: int  # px box averaging the ESI's quantisation before the residual
+    blur_px: float  # Gaussian sigma spreading an object's edge events over its body
+    low: float  # a region: residual above median + low x robust sigma ...
+    high: float  # ... holding a pixel above median + high x robust sigma (hysteresis)
+    close_px: int  # closing radius joining an object's pieces into one region
+    min_area_px: int  # smaller regions are noise
+    join: float  # regions closer than this many of the larger one's radii are one object
+
+
+@dataclass
+class Blob:
+    """One moving region in one window."""
+
+    t_us: int  # the window's middle time
+    centre: np.ndarray  # [2] (x, y) px, residual-weighted
+    mask: np.ndarray  # [H,W] bool, the closed region
+    area: float  # px
+    contrast: float  # the region's peak residual above the median, in robust sigmas
+    axis: float  # principal axis angle (rad, mod pi) of the region's second moments
+    elongation: float  # 1 - minor/major axis ratio: 0 for a disc, near 1 for a stick
+
+    @property
+    def radius(self) -> float:
+        """The radius (px) of the disc of the region's area."""
+        return float(np.sqrt(self.area / np.pi))
+
+
+def pooled(energy: Tensor, pool: int) -> Tensor:
+    """[H,W]: ``energy`` averaged over ``pool`` px boxes (stride 1), then its magnitude; a
+    [C,H,W] input sums its channels' magnitudes."""
+    x = energy.double().reshape(-1, 1, *energy.shape[-2:])
+    smooth = F.avg_pool2d(x, pool, stride=1, padding=pool // 2, count_include_pad=False)
+    return smooth.abs().sum((0, 1))[: energy.shape[-2], : energy.shape[-1]]
+
+
+def unexplained(esi: Tensor, predicted: Tensor, pool: int) -> np.ndarray:
+    """[H,W] float64 residual |ESI - predicted log change| after ``pool`` px box averaging."""
+    return pooled(esi - predicted, pool).numpy()
+
+
+def robust_level(values: np.ndarray) -> tuple[float, float]:
+    """(median, robust sigma from the MAD) of ``values``."""
+    med = float(np.median(values))
+    return med, max(MAD_TO_SIGMA * float(np.median(np.abs(values - med))), EPS)
+
+
+def _disc(radius: int) -> np.ndarray:
+    r = np.arange(-radius, radius + 1)
+    return (r[:, None] ** 2 + r[None, :] ** 2) <= radius**2
+
+
+def regions(residual: np.ndarray, t_us: int, s: SegmentSettings) -> list[Blob]:
+    """The moving regions of one window's ``residual`` [H,W], largest first."""
+    energy = ndimage.gaussian_filter(residual, s.blur_px) if s.blur_px > 0 else residual
+    med, sigma = robust_level(energy)
+    hot = energy > med + s.low * sigma
+    if s.close_px > 0:
+        pad = s.close_px  # padded so regions touching the border are not eroded away
+        grown = np.pad(hot, pad, mode="edge")
+        grown = ndimage.binary_closing(grown, structure=_disc(s.close_px))
+        hot = ndimage.binary_fill_holes(grown)[pad:-pad, pad:-pad]
+    labels, count = ndimage.label(hot, structure=np.ones((3, 3), dtype=bool))
+    if count == 0:
+        return []
+    index = np.arange(1, count + 1)
+    peak = ndimage.maximum(energy, labels, index)
+    area = ndimage.sum(np.ones_like(energy), labels, index)
+    kept = [
+        (labels == k, float((top - med) / sigma))
+        for k, top, size in zip(index, peak, area)
+        if size >= s.min_area_px and top >= med + s.high * sigma
+    ]
+    blobs = [_blob(mask, energy * mask, t_us, c) for mask, c in _joined(kept, s.join)]
+    return sorted(blobs, key=lambda b: -b.area)
+
+
+def _joined(parts: list[tuple[np.ndarray, float]], join: float) -> list[tuple[np.ndarray, float]]:
+    """The pieces (mask, contrast) with those of one object united: a textured object's
+    events fall apart into pieces a few pixels apart when its texture is sparse, and two
+    pieces are one object when their gap is under ``join`` x the larger one's radius."""
+    parts = list(parts)
+    merged = True
+    while merged and len(parts) > 1:
+        merged = False
+        for i in range(len(parts)):
+            reach = ndimage.distance_transform_edt(~parts[i][0])
+            for j in range(i + 1, len(parts)):
+                large = max(parts[i][0].sum(), parts[j][0].sum())
+                if reach[parts[j][0]].min() <= join * np.sqrt(large / np.pi):
+                    union = (parts[i][0] | parts[j][0], max(parts[i][1], parts[j][1]))
+                    parts = [p for k, p in enumerate(parts) if k not in (i, j)] + [union]
+                    merged = True
+                    break
+            if merged:
+                break
+    return parts
+
+
+def _blob(mask: np.ndarray, weight: np.ndarray, t_us: int, contrast: float) -> Blob:
+    ys, xs = np.nonzero(mask)
+    w = weight[ys, xs]
+    w = w / max(float(w.sum()), EPS)
+    cx, cy = float((w * (xs + 0.5)).sum()), float((w * (ys + 0.5)).sum())
+    # The shape's moments are the region's own (unweighted): edges weigh more in the residual.
+    dx, dy = xs + 0.5 - xs.mean() - 0.5, ys + 0.5 - ys.mean() - 0.5
+    cov = np.array([[np.mean(dx * dx), np.mean(dx * dy)], [np.mean(dx * dy), np.mean(dy * dy)]])
+    evals, evecs = np.linalg.eigh(cov)
+    major = evecs[:, 1]
+    axis = float(np.arctan2(major[1], major[0]) % np.pi)
+    ratio = float(np.sqrt(max(evals[0], 0.0) / max(evals[1], EPS)))
+    return Blob(t_us, np.array([cx, cy]), mask, float(mask.sum()), contrast, axis, 1.0 - ratio)

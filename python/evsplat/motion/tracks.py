@@ -1,0 +1,183 @@
+"""Moving regions chained across windows into one track per object (K found, not given).
+
+Window by window, each live track predicts where its object is (constant velocity from its
+last two sightings) and the regions are assigned to the tracks by the Hungarian method on the
+distance from those predictions, gated by the object's size and speed. A region no track takes
+starts a track; a track no region takes coasts on its prediction, for a few windows, or for as
+long as that prediction lies inside another object's region (it passes behind that object or
+merges with it in the image), then ends. A track seen in too few
+windows was noise. Fragments of one object (two regions that move together in every window they
+share) are joined. Nothing here assumes a number, size or shape of objects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from evsplat.motion.segment import Blob
+
+UNASSIGNED = 1e9  # cost of a pair outside the gate
+
+
+@dataclass
+class TrackSettings:
+    """The tracker's knobs; ``MoverConfig`` holds their values and their reasons."""
+
+    gate: float  # a region joins a track within this many object radii of its prediction
+    coast: int  # windows a track lives on unseen and not hidden by another region
+    min_windows: int  # a track seen in fewer windows is noise
+    together: float  # fragments: centres within this many summed radii in most shared windows
+
+
+@dataclass
+class Track:
+    """One object's regions by window index, and the windows whose region it shared with
+    another object (merged in the image: its centre there is not this object's)."""
+
+    blobs: dict[int, Blob] = field(default_factory=dict)
+    shared: set[int] = field(default_factory=set)
+    missed: int = 0  # windows since the last sighting
+
+    @property
+    def windows(self) -> np.ndarray:
+        return np.array(sorted(self.blobs), dtype=np.int64)
+
+    @property
+    def times_us(self) -> np.ndarray:
+        return np.array([self.blobs[k].t_us for k in sorted(self.blobs)], dtype=np.int64)
+
+    @property
+    def centres(self) -> np.ndarray:
+        """[F,2] pixel centres at the sighted windows, in time order; where its region was
+        shared, linear between its own sightings (the shared region's centre lies between the
+        objects)."""
+        ks = sorted(self.blobs)
+        out = np.stack([self.blobs[k].centre for k in ks])
+        own = np.array([k not in self.shared for k in ks])
+        if own.any() and not own.all():
+            w = np.array(ks, dtype=np.float64)
+            out[~own] = np.stack([np.interp(w[~own], w[own], out[own, j]) for j in range(2)], 1)
+        return out
+
+    @property
+    def radius(self) -> float:
+        """The object's size in the image (px): the median of its own regions' disc radii."""
+        own = [b.radius for k, b in self.blobs.items() if k not in self.shared]
+        return float(np.median(own or [b.radius for b in self.blobs.values()]))
+
+    def _motion(self) -> tuple[int, np.ndarray, np.ndarray]:
+        """(window, centre, velocity px per window) of its last own sighting."""
+        ks = [k for k in sorted(self.blobs) if k not in self.shared] or sorted(self.blobs)
+        last = self.blobs[ks[-1]].centre
+        if len(ks) < 2:
+            return ks[-1], last, np.zeros(2)
+        return ks[-1], last, (last - self.blobs[ks[-2]].centre) / (ks[-1] - ks[-2])
+
+    def predict(self, window: int) -> np.ndarray:
+        """The object's centre at ``window`` at the velocity of its last own sightings."""
+        k, centre, velocity = self._motion()
+        return centre + velocity * (window - k)
+
+    def speed(self) -> float:
+        """Its last speed in px per window (0 with one sighting)."""
+        return float(np.linalg.norm(self._motion()[2]))
+
+
+def chain(per_window: list[list[Blob]], s: TrackSettings) -> list[Track]:
+    """Tracks through the windows' regions (``per_window[k]``: window k's), noise dropped and
+    fragments joined; the longest first."""
+    live: list[Track] = []
+    done: list[Track] = []
+    for k, blobs in enumerate(per_window):
+        taken = _assign(live, blobs, k, s)
+        for track in live:
+            if k in track.blobs:
+                track.missed = 0
+                continue
+            host = _host(track.predict(k), blobs)
+            if host is None:
+                track.missed += 1
+            else:  # hidden in another object's region, which is not that object's own there
+                for other in live:
+                    if other.blobs.get(k) is host:
+                        other.shared.add(k)
+        done += [t for t in live if t.missed > s.coast]
+        live = [t for t in live if t.missed <= s.coast]
+        live += [Track({k: b}) for j, b in enumerate(blobs) if j not in taken]
+    tracks = [t for t in done + live if len(t.blobs) >= s.min_windows]
+    return sorted(_join_fragments(tracks, s), key=lambda t: -len(t.blobs))
+
+
+def _host(guess: np.ndarray, blobs: list[Blob]) -> Blob | None:
+    """The region an unseen object's predicted centre lies in, if any: it passes behind that
+    object or merges with it in the image, and lives on while it does."""
+    for blob in blobs:
+        h, w = blob.mask.shape
+        x, y = int(np.floor(guess[0])), int(np.floor(guess[1]))
+        if 0 <= x < w and 0 <= y < h and blob.mask[y, x]:
+            return blob
+    return None
+
+
+def _assign(live: list[Track], blobs: list[Blob], k: int, s: TrackSettings) -> set[int]:
+    """Give window ``k``'s ``blobs`` to the ``live`` tracks; the indices of the blobs taken."""
+    if not live or not blobs:
+        return set()
+    cost = np.full((len(live), len(blobs)), UNASSIGNED)
+    for i, track in enumerate(live):
+        guess = track.predict(k)
+        reach = s.gate * max(track.radius, track.speed() * (track.missed + 1))
+        for j, blob in enumerate(blobs):
+            d = float(np.linalg.norm(blob.centre - guess))
+            if d <= reach + blob.radius * s.gate:
+                cost[i, j] = d
+    rows, cols = linear_sum_assignment(cost)
+    taken = set()
+    for i, j in zip(rows, cols):
+        if cost[i, j] < UNASSIGNED:
+            live[i].blobs[k] = blobs[j]
+            taken.add(int(j))
+    return taken
+
+
+def _together(a: Track, b: Track, s: TrackSettings) -> bool:
+    """Whether ``a`` and ``b`` are pieces of one object: they share windows, and in most of
+    them (all but one in five) their centres lie within ``s.together`` x their summed radii."""
+    shared = sorted(set(a.blobs) & set(b.blobs))
+    near = [
+        np.linalg.norm(a.blobs[k].centre - b.blobs[k].centre)
+        <= s.together * (a.blobs[k].radius + b.blobs[k].radius)
+        for k in shared
+    ]
+    return bool(shared) and np.mean(near) >= 0.8
+
+
+def _join_fragments(tracks: list[Track], s: TrackSettings) -> list[Track]:
+    """Tracks with the pieces of one object merged: per shared window, one region (the two
+    masks' union, its centre area-weighted)."""
+    out: list[Track] = []
+    for track in sorted(tracks, key=lambda t: -len(t.blobs)):
+        home = next((o for o in out if _together(o, track, s)), None)
+        if home is None:
+            out.append(track)
+            continue
+        for k, blob in track.blobs.items():
+            home.blobs[k] = blob if k not in home.blobs else _union(home.blobs[k], blob)
+    return out
+
+
+def _union(a: Blob, b: Blob) -> Blob:
+    """One region of two pieces of one object in one window."""
+    wa, wb = a.area, b.area
+    return Blob(
+        a.t_us,
+        (wa * a.centre + wb * b.centre) / (wa + wb),
+        a.mask | b.mask,
+        wa + wb,
+        max(a.contrast, b.contrast),
+        a.axis if wa >= wb else b.axis,
+        a.elongation if wa >= wb else b.elongation,
+    )

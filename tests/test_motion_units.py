@@ -1,0 +1,204 @@
+"""The motion module's steps, each against an independent oracle: rotations against scipy's,
+regions and tracks against the shapes and paths they were drawn from, the turn against the
+rate the events were made with, the path's ends against straight-line motion."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
+from evsplat.motion.paths import WorldPath, lift, near_path, turn_angles
+from evsplat.motion.segment import SegmentSettings, regions
+from evsplat.motion.tracks import TrackSettings, chain
+from evsplat.motion.turn import WindowEvents, turn_rate
+
+SEGMENT = SegmentSettings(
+    pool=3, blur_px=1.0, low=3.0, high=9.0, close_px=2, min_area_px=12, join=0.5
+)
+TRACKS = TrackSettings(gate=1.5, coast=3, min_windows=4, together=1.0)
+
+
+def test_rotvec_to_quat_matches_scipy_and_is_finite_at_zero():
+    v = np.random.default_rng(0).normal(size=(50, 3)) * np.array([[2.0], *[[1.0]] * 49])
+    q = rotvec_to_quat(torch.tensor(v))
+    want = Rotation.from_rotvec(v).as_quat()  # scipy: (x, y, z, w)
+    want = np.concatenate([want[:, 3:], want[:, :3]], 1)
+    want *= np.sign(want[:, :1])
+    assert np.allclose(q.numpy() * np.sign(q.numpy()[:, :1]), want, atol=1e-12)
+    zero = torch.zeros(1, 3, dtype=torch.float64, requires_grad=True)
+    rotvec_to_quat(zero).sum().backward()
+    assert torch.isfinite(zero.grad).all()
+    assert torch.allclose(zero.grad, torch.tensor([[0.5, 0.5, 0.5]], dtype=torch.float64))
+
+
+def test_quat_multiply_composes_rotations_as_scipy_does():
+    a, b = Rotation.random(2, random_state=1)
+    qa, qb = (torch.tensor(np.roll(r.as_quat(), 1)) for r in (a, b))
+    got = quat_multiply(qa, qb).numpy()
+    want = np.roll((a * b).as_quat(), 1)
+    assert np.allclose(got * np.sign(got[0]), want * np.sign(want[0]), atol=1e-12)
+
+
+def test_object_motion_moves_each_objects_gaussians_rigidly_and_leaves_the_scene():
+    g = 5
+    centres = torch.tensor([[0.0, 0.0, 3.0], [1.0, 0.0, 4.0]])
+    trans = torch.zeros(2, g, 3)
+    trans[0, :, 0] = torch.linspace(0, 1, g)  # object 0 slides 1 m along x over the sequence
+    rot = torch.zeros(2, g, 3)
+    rot[1, :, 2] = torch.linspace(0, np.pi, g)  # object 1 turns half a turn about z
+    motion = ObjectMotion(centres, torch.tensor([0.5, 0.5]), trans, rot)
+    means = torch.tensor([[0.1, 0.2, 3.0], [1.5, 0.0, 4.0], [9.0, 9.0, 9.0]])
+    quats = torch.tensor([[1.0, 0, 0, 0]] * 3)
+    ids = torch.tensor([0, 1, -1])
+    moved, turned = motion.apply(means, quats, ids, 0.5)
+    assert torch.allclose(moved[0], torch.tensor([0.6, 0.2, 3.0]), atol=1e-6)
+    # A quarter turn about z at t = 0.5: (0.5, 0) about the centre goes to (0, 0.5).
+    assert torch.allclose(moved[1], torch.tensor([1.0, 0.5, 4.0]), atol=1e-6)
+    assert torch.equal(moved[2], means[2]) and torch.equal(turned[2], quats[2])
+    want = np.roll(Rotation.from_rotvec([0, 0, np.pi / 2]).as_quat(), 1)
+    assert np.allclose(turned[1].detach().numpy(), want, atol=1e-6)
+    assert float(motion.prior_loss()) == 0.0
+    again = ObjectMotion.from_state(motion.state())
+    assert torch.equal(
+        again.apply(means, quats, ids, 0.3)[0], motion.apply(means, quats, ids, 0.3)[0]
+    )
+
+
+def _disc(shape, centre, radius):
+    ys, xs = np.mgrid[0 : shape[0], 0 : shape[1]] + 0.5
+    return ((xs - centre[0]) ** 2 + (ys - centre[1]) ** 2) <= radius**2
+
+
+def _ring_residual(shape, discs, seed=0):
+    """A residual map: noise everywhere, and the outlines of ``discs`` (centre, radius)
+    firing as a moving object's edges do."""
+    rng = np.random.default_rng(seed)
+    r = np.abs(rng.normal(0.0, 0.02, shape))
+    for centre, radius in discs:
+        r += 0.5 * (_disc(shape, centre, radius) & ~_disc(shape, centre, radius - 2))
+    return r
+
+
+def test_regions_finds_every_object_at_its_place_and_none_in_noise():
+    shape = (96, 128)
+    discs = [((30.0, 40.0), 10.0), ((90.0, 60.0), 14.0)]
+    blobs = regions(_ring_residual(shape, discs), 0, SEGMENT)
+    assert len(blobs) == 2
+    found = sorted(blobs, key=lambda b: b.centre[0])
+    for blob, (centre, radius) in zip(found, discs):
+        assert np.linalg.norm(blob.centre - centre) < 1.0
+        assert radius <= blob.radius <= radius + 3  # the whole disc, and a blur's rim
+    assert regions(_ring_residual(shape, []), 0, SEGMENT) == []
+
+
+def test_region_of_a_stick_has_its_axis_and_elongation():
+    residual = np.abs(np.random.default_rng(1).normal(0, 0.02, (80, 80)))
+    angle = 0.6
+    ys, xs = np.mgrid[0:80, 0:80] + 0.5
+    along = (xs - 40) * np.cos(angle) + (ys - 40) * np.sin(angle)
+    across = -(xs - 40) * np.sin(angle) + (ys - 40) * np.cos(angle)
+    residual[(np.abs(along) < 25) & (np.abs(across) < 3)] += 0.5
+    (blob,) = regions(residual, 0, SEGMENT)
+    assert abs(blob.axis - angle) < 0.05
+    assert blob.elongation > 0.7
+
+
+def test_pieces_of_one_object_are_one_region():
+    shape = (96, 96)
+    residual = _ring_residual(shape, [])
+    residual[30:50, 30:45] += 0.5  # one object's texture in two pieces 6 px apart
+    residual[30:50, 51:60] += 0.5
+    (blob,) = regions(residual, 0, SEGMENT)
+    assert abs(blob.area - 20 * 30) < 0.35 * 20 * 30
+
+
+def _crossing_windows(n=30):
+    """Two discs crossing in opposite directions, one hidden for two windows, plus a one-window
+    noise region: the regions of each window and each object's true centres."""
+    shape = (96, 128)
+    per_window, truth = [], {0: {}, 1: {}}
+    for k in range(n):
+        a = (10.0 + 3.5 * k, 40.0)
+        b = (118.0 - 3.5 * k, 56.0)
+        discs = [(a, 8.0)] + ([] if k in (20, 21) else [(b, 8.0)])
+        if k == 7:
+            discs.append(((64.0, 10.0), 6.0))
+        truth[0][k], truth[1][k] = np.array(a), np.array(b)
+        per_window.append(regions(_ring_residual(shape, discs, seed=k), k, SEGMENT))
+    return per_window, truth
+
+
+def test_tracks_keep_two_crossing_objects_apart_and_drop_noise():
+    per_window, truth = _crossing_windows()
+    tracks = chain(per_window, TRACKS)
+    assert len(tracks) == 2
+    for track in tracks:
+        ks = sorted(track.blobs)
+        who = min(truth, key=lambda o: np.linalg.norm(truth[o][ks[0]] - track.blobs[ks[0]].centre))
+        # Where the two regions merged, the track's centre is its own path's, not the merged
+        # region's (which lies between the objects).
+        for k, centre in zip(ks, track.centres):
+            assert np.linalg.norm(centre - truth[who][k]) < 1.0, (who, k)
+    assert sum(len(t.blobs) for t in tracks) >= 2 * 30 - 2 - 6  # hidden twice, merged a few
+
+
+def test_turn_rate_recovers_the_spin_of_a_translating_textured_card():
+    rng = np.random.default_rng(3)
+    rate, velocity = 12.0, np.array([300.0, -100.0])  # rad/s, px/s
+    texture = rng.uniform(-12, 12, size=(60, 2)) * np.array([1.0, 0.4])  # a card's marks
+    centre = np.array([48.0, 40.0])
+    dt = rng.uniform(-0.015, 0.015, size=(60, 40)).reshape(-1)
+    marks = np.repeat(texture, 40, axis=0)
+    ang = rate * dt
+    rotated = np.stack(
+        [np.cos(ang) * marks[:, 0] - np.sin(ang) * marks[:, 1],
+         np.sin(ang) * marks[:, 0] + np.cos(ang) * marks[:, 1]], 1
+    )  # fmt: skip
+    xy = centre + rotated + velocity * dt[:, None] + rng.normal(0, 0.3, size=rotated.shape)
+    ev = WindowEvents(xy, dt, np.where(rng.random(len(dt)) < 0.5, 1, -1))
+    found, gain = turn_rate(ev, centre, velocity, 1.0 / 0.03, (96, 96))
+    assert abs(found - rate) < 1.0
+    assert gain > 0.1  # seeding uses a turn from 0.05
+    still = WindowEvents(centre + marks + velocity * dt[:, None], dt, ev.p)
+    found, _ = turn_rate(still, centre, velocity, 1.0 / 0.03, (96, 96))
+    assert abs(found) < 1.0
+
+
+def test_turn_angles_integrate_the_rates():
+    times = np.array([0, 100_000, 200_000])
+    angles = turn_angles(
+        times, np.array([2.0, 2.0, 4.0]), np.array([0, 100_000, 200_000, 300_000]), 100_000
+    )
+    # 2 rad/s for 0.1 s before the reference; 3 rad/s on average after; held at 4 beyond.
+    assert np.allclose(angles, [-0.2, 0.0, 0.3, 0.7])
+
+
+def test_world_path_extrapolates_only_through_the_border():
+    t = np.array([100, 200, 300, 400])
+    pts = np.stack([np.array([1.0, 0.0, 0.0]) * s for s in (1, 2, 3, 4)])
+    both = WorldPath(t, pts, enters=True, leaves=True).at(np.array([0, 250, 500]))
+    assert np.allclose(both, [[0, 0, 0], [2.5, 0, 0], [5, 0, 0]])
+    held = WorldPath(t, pts, enters=False, leaves=False).at(np.array([0, 500]))
+    assert np.allclose(held, [[1, 0, 0], [4, 0, 0]])
+
+
+def test_lift_inverts_the_projection():
+    K = np.array([[100.0, 0, 48], [0, 100.0, 40], [0, 0, 1]])
+    c2w = np.eye(4)
+    c2w[:3, :3] = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()
+    c2w[:3, 3] = [0.5, -0.2, 1.0]
+    uv = np.array([[10.0, 20.0], [60.0, 70.0]])
+    world = lift(uv, np.array([2.0, 3.0]), c2w, K)
+    cam = (world - c2w[:3, 3]) @ c2w[:3, :3]
+    assert np.allclose(cam[:, 2], [2.0, 3.0])
+    assert np.allclose((K @ (cam / cam[:, 2:]).T).T[:, :2], uv)
+
+
+@pytest.mark.parametrize("radius, inside", [(0.5, [True, True, False]), (2.0, [True, True, True])])
+def test_near_path_is_the_swept_volume(radius, inside):
+    path = np.array([[0.0, 0, 0], [2.0, 0, 0]])
+    pts = np.array([[1.0, 0.4, 0], [2.3, 0, 0], [1.0, 1.5, 0]])
+    assert near_path(pts, path, radius).tolist() == inside
