@@ -5,9 +5,9 @@ last two sightings) and the regions are assigned to the tracks by the Hungarian 
 distance from those predictions, gated by the object's size and speed. A region no track takes
 starts a track; a track no region takes coasts on its prediction, for a few windows, or for as
 long as that prediction lies inside another object's region (it passes behind that object or
-merges with it in the image), then ends. A track seen in too few
-windows, or only faintly, was noise. Fragments of one object (two regions that move together in every window they
-share) are joined. Nothing here assumes a number, size or shape of objects.
+merges with it in the image), then ends. Fragments of one object (regions that move together in
+most windows they share) are joined; a track seen in too few windows, or only faintly, was
+noise. Nothing here assumes a number, size or shape of objects.
 """
 
 from __future__ import annotations
