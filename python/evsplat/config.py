@@ -148,7 +148,11 @@ class MoverConfig:
     gate: float = 1.5
     coast: int = 3
     min_windows: int = 4
-    together: float = 1.0
+    # A track whose regions peak at a median under this many robust sigmas is the static
+    # model's error, not a mover: on `still` after the tiny warm-up such tracks peak at 9-13,
+    # the tiny ball's at 17-47 (docs/motion.md, "Tuning numbers").
+    min_track_contrast: float = 15.0
+    together: float = 1.5
     # Placement: the object's depth is this quantile of the static model's rendered depth in its
     # regions (its front surface), median over them. It gets `fraction` of the Gaussians, split
     # by area, at least `min_gaussians` each, at `opacity` (it occludes what is behind it).

@@ -81,6 +81,13 @@ class Renderer:
         moving = None if self.static_mask is None else ~self.static_mask
         return deformed(self.model, self.mlp, self.time(t_us), moving, self.motion, self.object_id)
 
+    def opacities(self, t_us: float) -> torch.Tensor:
+        """[N] opacities at ``t_us``: time-local ones, and objects only while in view."""
+        opacity = self.model.opacities(self.time(t_us))
+        if self.motion is None or self.object_id is None:
+            return opacity
+        return opacity * self.motion.visibility(self.object_id, self.time(t_us))
+
     def render(
         self,
         t_us: float,
@@ -118,7 +125,7 @@ class Renderer:
             means,
             rotations,
             scales,
-            self.model.opacities(self.time(t_us)),
+            self.opacities(t_us),
             features,
             w2c,
             self.K,

@@ -226,15 +226,16 @@ class Trainer:
         """After the warm-up: find the moving objects and start their motion
         (``motion.seed.seed_objects``); the scene's Gaussians skip the MLP from then on.
         Numbers for the log."""
+        start = time.perf_counter()
         found = seed_objects(
             self.views, self.model, self.optimizer, self.cfg.mover, self.cfg.seed, self.depth_range
         )
         if found.motion is not None:
             motion, object_id = found.motion.to(self.device), found.object_id.to(self.device)
             self.renderer.motion, self.renderer.object_id = motion, object_id
-            self.renderer.static_mask = found.object_id < 0
+            self.renderer.static_mask = object_id < 0
             self.mlp_optimizer = self.mlp_adam(motion)  # the paths train beside the MLP
-        return found.stats
+        return found.stats | {"seed_seconds": time.perf_counter() - start}
 
     # Both optimizers take torch's multi-tensor ("foreach") Adam, which torch picks by default
     # only for GPU tensors: on the CPU it gives the same values bit for bit and halves the MLP
