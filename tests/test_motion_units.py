@@ -18,7 +18,7 @@ from evsplat.motion.turn import WindowEvents, turn_rate
 SEGMENT = SegmentSettings(
     pool=3, blur_px=1.0, low=3.0, high=9.0, close_px=2, min_area_px=12, join=0.5
 )
-TRACKS = TrackSettings(gate=1.5, coast=3, min_windows=4, min_contrast=15.0, together=1.0)
+TRACKS = TrackSettings(gate=1.5, coast=3, min_windows=4, high=9.0, min_evidence=30.0, together=1.5)
 
 
 def test_rotvec_to_quat_matches_scipy_and_is_finite_at_zero():

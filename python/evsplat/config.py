@@ -148,10 +148,9 @@ class MoverConfig:
     gate: float = 1.5
     coast: int = 3
     min_windows: int = 4
-    # A track whose regions peak at a median under this many robust sigmas is the static
-    # model's error, not a mover: on `still` after the tiny warm-up such tracks peak at 9-13,
-    # the tiny ball's at 17-47 (docs/motion.md, "Tuning numbers").
-    min_track_contrast: float = 15.0
+    # A track is a mover when its regions' peaks above the `high` level sum to this many robust
+    # sigmas over its windows; less is the static model's error (docs/motion.md).
+    min_evidence: float = 30.0
     together: float = 1.5
     # Placement: the object's depth is this quantile of the static model's rendered depth in its
     # regions (its front surface), median over them. It gets `fraction` of the Gaussians, split

@@ -205,7 +205,9 @@ def seed_objects(
     data = views.data
     views.renderer.mlp = None  # the warm-up's static model
     sightings = sight(views, mc)
-    settings = TrackSettings(mc.gate, mc.coast, mc.min_windows, mc.min_track_contrast, mc.together)
+    settings = TrackSettings(
+        mc.gate, mc.coast, mc.min_windows, mc.high, mc.min_evidence, mc.together
+    )
     tracks = chain(sightings.blobs, settings)
     stats = {
         "objects": float(len(tracks)),

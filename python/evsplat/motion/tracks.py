@@ -29,7 +29,8 @@ class TrackSettings:
     gate: float  # a region joins a track within this many object radii of its prediction
     coast: int  # windows a track lives on unseen and not hidden by another region
     min_windows: int  # a track seen in fewer windows is noise ...
-    min_contrast: float  # ... or one whose regions' median peak is under this (robust sigmas)
+    high: float  # ... or one whose regions' peaks above this level (robust sigmas) ...
+    min_evidence: float  # ... sum to less than this over its windows
     together: float  # fragments: centres within this many summed radii in most shared windows
 
 
@@ -121,7 +122,7 @@ def chain(per_window: list[list[Blob]], s: TrackSettings) -> list[Track]:
         t
         for t in tracks
         if len(t.blobs) >= s.min_windows
-        and np.median([b.contrast for b in t.blobs.values()]) >= s.min_contrast
+        and sum(max(b.contrast - s.high, 0.0) for b in t.blobs.values()) >= s.min_evidence
     ]
     return sorted(kept, key=lambda t: -len(t.blobs))
 
