@@ -265,8 +265,8 @@ class TrainConfig:
     """Everything a run needs besides the data; saved with every checkpoint. The defaults are
     the `default` preset."""
 
-    preset: str = "default"
-    seed: int = 0
+    preset: str = "default"  # the preset these settings started from (a name in PRESETS)
+    seed: int = 0  # seeds the initial Gaussians, the windows drawn and torch
     num_gaussians: int = 20_000  # initial random Gaussians (documented: no SfM/RGB available)
     background: float = 0.5  # grey background intensity where no Gaussian covers a pixel
     threads: int = 0  # torch intra-op threads (0 = torch's default)

@@ -9,7 +9,8 @@ HELP = "train a deformable Gaussian scene on a dataset folder (events + poses)"
 
 
 def add_config_arguments(parser: argparse.ArgumentParser) -> None:
-    """--preset, --config and --iters (shared with `evsplat train-many`)."""
+    """--preset, --config, --iters and --set (shared with `evsplat train-many` and
+    `evsplat config show`)."""
     from evsplat.config import PRESETS
 
     parser.add_argument("--preset", default="default", help=f"one of {', '.join(PRESETS)}")
@@ -17,13 +18,23 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
         "--config", type=Path, default=None, help="a TrainConfig JSON (as in a run's config.json)"
     )
     parser.add_argument("--iters", type=int, default=None, help="override the iteration count")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set one setting, e.g. --set loss.w_motion=0.2 --set mover.enabled=false "
+        "(repeatable; `evsplat config show` lists them all)",
+    )
 
 
 def config_from_args(args: argparse.Namespace):
-    """The TrainConfig that --config or --preset names."""
+    """The TrainConfig that --config or --preset names, with each --set applied."""
     from evsplat.config import load_config, preset
+    from evsplat.config_fields import apply
 
-    return load_config(args.config) if args.config is not None else preset(args.preset)
+    cfg = load_config(args.config) if args.config is not None else preset(args.preset)
+    return apply(cfg, args.set)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
