@@ -9,6 +9,7 @@ import torch
 from torch import Tensor, nn
 
 from evsplat.config import ModelConfig
+from evsplat.data.poses import rotation_entries
 
 PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh", "t_mean", "t_log_scale")
 # Time-local opacity (not in the paper): a Gaussian is visible around t_mean with width
@@ -71,16 +72,8 @@ def normalize_quats(q: Tensor) -> Tensor:
 
 
 def quat_to_rotmat(q: Tensor) -> Tensor:
-    """Rotation matrices [N,3,3] of unit quaternions [N,4] (w, x, y, z)."""
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(*q.shape[:-1], 3, 3)  # fmt: skip
+    """Rotation matrices [N,3,3] of unit quaternions [N,4] (w, x, y, z), differentiable."""
+    return torch.stack(rotation_entries(*q.unbind(-1)), dim=-1).reshape(*q.shape[:-1], 3, 3)
 
 
 def eval_sh(sh: Tensor, dirs: Tensor) -> Tensor:
