@@ -4,10 +4,8 @@
 use std::fs::File;
 use std::io::{Seek, SeekFrom};
 
-use numpy::PyReadonlyArray1;
 use pyo3::exceptions::PyOSError;
 use pyo3::prelude::*;
-use pyo3::types::PyBytes;
 
 use crate::errors::value_err;
 use crate::events::{event_arrays, EventArrays};

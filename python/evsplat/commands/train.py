@@ -56,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action=argparse.BooleanOptionalAction,
         default=None,
         help="time-local opacity for fast objects (default off; not in the paper, see "
-        "docs/results.md)",
+        "docs/experiments/paper-tables.md)",
     )
     parser.add_argument(
         "--time-range",
