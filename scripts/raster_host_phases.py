@@ -4,7 +4,7 @@ Times `evsplat.raster.rasterize` forward and its backward (a weighted sum of ima
 alpha, as `bench raster` differentiates) on `bench raster`'s scenes, with the wrapper's steps
 timed from outside: the input checks (`_check`), the numpy hand-over (`_args`), the native
 calls, and the rest of the wrapper and of torch's autograd. The native calls' own phases (the
-"host" dict a build since session 21 returns: buffer preparation, uploads, encoding, submission,
+"host" dict a build since f98f3be returns: buffer preparation, uploads, encoding, submission,
 the wait for the device, copies out of the mapped staging buffer, numpy results) are listed
 under them, with what is left of the Rust side and PyO3's argument conversion; "call less the
 wait" is a call's host work. "free outputs" is dropping a call's outputs and graph afterwards.

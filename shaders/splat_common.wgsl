@@ -39,7 +39,7 @@ struct Params {
 
 // Tile side in pixels: the compositing passes run one workgroup of TILE x TILE / (4 QUADS)
 // invocations per tile (see Lanes). 8x8 rather than 16x16: the lists are shorter, so each
-// pixel evaluates about half as many Gaussians (docs/benchmarks.md, session 20), for twice the
+// pixel evaluates about half as many Gaussians (docs/experiments/rasterizer.md, "Rasterizer: subgroup gradient sums, 8x8 tiles"), for twice the
 // tile keys to sort.
 const TILE: u32 = 8u;
 // Feature channels: the compositing passes use `D`, which the host declares per pipeline
@@ -74,7 +74,7 @@ const SORT_KEYS: u32 = SORT_BLOCK / SORT_THREADS;
 // invocations (run together as SIMD lanes on a CPU, a warp on a GPU) cover the tile, so a splat
 // that misses it is skipped by all of them at once. On lavapipe a tile is then one subgroup (its
 // 8 SIMD lanes), so the backward pass sums each Gaussian's gradients across lanes and adds them
-// with atomics once per tile, not once per half tile (docs/benchmarks.md, session 28); on a GPU
+// with atomics once per tile, not once per half tile (docs/experiments/rasterizer.md, "Two quads per invocation"); on a GPU
 // with 32-wide subgroups the workgroup fills a quarter of one.
 
 // Four pixels of a tile: one column, four consecutive rows (the vec4 lanes).

@@ -47,8 +47,8 @@ def test_a_config_saved_before_the_mover_existed_trains_without_it():
 
 
 def test_a_config_saved_with_a_fixed_mlp_rate_horizon_keeps_its_decay():
-    """Runs saved before session 22 give the MLP rate's decay in iterations; read back, the
-    decay spans the same iterations as a fraction of their run."""
+    """Runs saved before 30a96a3 (2026-11-26) give the MLP rate's decay in iterations; read
+    back, the decay spans the same iterations as a fraction of their run."""
     d = TrainConfig().to_dict()
     d["schedule"]["iterations"] = 4000
     del d["model"]["mlp_lr_span"]

@@ -18,7 +18,7 @@ import pytest
 from evsplat import _core
 from evsplat.cli import main
 from evsplat.data.event_files import read_events
-from evsplat.data.formats import Dropped, open_source, prophesee_writer, rosbag
+from evsplat.data.formats import Dropped, event_arrays, open_source, prophesee_writer, rosbag
 from evsplat.errors import EvsplatError
 
 W, H = 320, 240
@@ -310,7 +310,7 @@ def test_bag_reader_recovers_event_arrays_and_poses(tmp_path, ros2, pkg, mcap):
 def test_byte_views_agree_with_the_rosbags_deserializer(tmp_path, ros2):
     x, y, t, p = _events(6, n=1200, t0=3_000_000)
     bag = write_bag(tmp_path / ("b2" if ros2 else "a.bag"), x, y, t, p, ros2=ros2)
-    view = rosbag.cdr_event_records if ros2 else rosbag.ros1_event_records
+    view = event_arrays.cdr_event_records if ros2 else event_arrays.ros1_event_records
     reader = rosbag._open(bag)
     try:
         for conn, _, raw in reader.messages():
@@ -461,7 +461,7 @@ def test_cut_ros1_bag_keeps_its_complete_messages_and_says_what_was_dropped(tmp_
     at = data.find(raws[3])
     path = tmp_path / "cut.bag"
     path.write_bytes(data[: at + len(raws[3]) // 2])
-    kept = sum(len(rosbag.ros1_event_records(r)) for r in raws[:3])
+    kept = sum(len(event_arrays.ros1_event_records(r)) for r in raws[:3])
     out = tmp_path / "cut.h5"
     assert main(["convert", str(path), str(out)]) == 0
     err = capsys.readouterr().err.strip().splitlines()

@@ -6,7 +6,8 @@ the ball's Gaussians along the ball's true path through the deformation MLP alon
 opacity off). If the tracking error does not fall, the losses or their gradients cannot carry
 motion, whatever the initialisation. The background is marked static (it skips the MLP) so the
 test isolates the ball; the sequence is cut to its first 60 ms, where the ball moves ~30 px
-(the gradients of L_e reach that far only from a nearby start: docs/results.md, session 11).
+(the gradients of L_e reach that far only from a nearby start: docs/experiments/motion.md, "Can
+the losses carry motion?").
 """
 
 from __future__ import annotations
@@ -96,12 +97,13 @@ def oracle_errors(data_dir: str, run_dir: str, seed: int = 0) -> tuple[float, li
     cfg.model.temporal_opacity = False
     cfg.model.mlp_lr = 5e-3
     # The rate held near its start (a decay over 200 runs, as the fixed 40k-iteration horizon
-    # gave before session 22): the test asks whether the losses carry motion, and 200
+    # gave before 30a96a3): the test asks whether the losses carry motion, and 200
     # iterations with the training's own decay (over 4/3 of the run) leave the MLP too small a
     # rate to move 30 px.
     cfg.model.mlp_lr_span = 200.0
     cfg.model.pe_x = 3
-    # L_ef is off: with it the ball drifts off its path even here (docs/results.md, session 11).
+    # L_ef is off: with it the ball drifts off its path even here (docs/experiments/motion.md, "Can
+    # the losses carry motion?").
     cfg.loss.w_flow = 0.0
     cfg.densify.start_fraction = 2.0  # no densification: rows stay the ball's
     cfg.skips.static = False
@@ -131,13 +133,14 @@ def oracle_errors(data_dir: str, run_dir: str, seed: int = 0) -> tuple[float, li
 
 def test_training_moves_oracle_gaussians_along_the_true_path(tiny_scene, tmp_path):
     # Child processes with one lavapipe thread each: the backward's float atomics then add in a
-    # fixed order and each run is reproducible (with several threads a loaded machine saw the
-    # error end at 9.4-10.9 px against 3.0-5.1 px in quiet runs). The training is chaotic at this
-    # rate: one run is one trajectory, and about a quarter of them throw or stall the ball, which
-    # seed does so moving with the order in which the backward pass adds its float sums
-    # (docs/results.md, session 28: three builds that differ only in that order, 24 seeds each,
-    # halve the error in 14-18 seeds; with four seeds each passed or failed by that order). So the
-    # bar is on twelve seeds, two at a time: their median error and how many fall.
+    # fixed order and each run is reproducible (with several threads a loaded machine saw the error
+    # end at 9.4-10.9 px against 3.0-5.1 px in quiet runs). The training is chaotic at this rate:
+    # one run is one trajectory, and about a quarter of them throw or stall the ball, which seed
+    # does so moving with the order in which the backward pass adds its float sums
+    # (docs/experiments/rasterizer.md, "Two quads per invocation": three builds that differ only in
+    # that order, 24 seeds each, halve the error in 14-18 seeds; with four seeds each passed or
+    # failed by that order). So the bar is on twelve seeds, two at a time: their median error and
+    # how many fall.
     code = (
         "import json, sys; sys.path.insert(0, sys.argv[1]); "
         "from test_train_oracle_motion import oracle_errors; "

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
+import tempfile
 
 from evsplat import __version__, commands
 from evsplat.errors import EvsplatError
@@ -28,7 +30,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def quiet_vulkan_loader() -> None:
+    """Gives XDG_RUNTIME_DIR a harmless value where it is unset or not a folder, as
+    scripts/setup.sh does: the Vulkan loader otherwise prints two `error:` lines before every
+    command that renders, though nothing is wrong. Called before anything loads Vulkan."""
+    if not os.path.isdir(os.environ.get("XDG_RUNTIME_DIR") or ""):
+        os.environ["XDG_RUNTIME_DIR"] = tempfile.gettempdir()
+
+
 def main(argv: list[str] | None = None) -> int:
+    quiet_vulkan_loader()
     args = build_parser().parse_args(argv)
     try:
         return int(args.command_run(args) or 0)

@@ -6,7 +6,8 @@ of it (``PRESETS``), and a run writes its resolved config to ``config.json``. Fa
 paper) names its losses and schedule but defers hyperparameters to a supplementary that is not
 available; where it gives no value the default is a documented choice taken from 3DGS,
 Deformable-3DGS or EventNeRF practice, and the comment says so; where a value was measured,
-the comment names the section of docs/results.md that holds the measurements. Times are
+the comment names the docs section that holds the measurements (docs/results.md and
+docs/experiments/). Times are
 fractions of the sequence duration and iteration counts fractions of the run, so a short run
 keeps the proportions of the paper's 30k-iteration schedule.
 """
@@ -44,19 +45,23 @@ class ModelConfig:
     mlp_lr: float = 8e-4  # Deformable-3DGS: 1.6e-4 x 5 (its fixed spatial scale) ...
     mlp_lr_final: float = 1.6e-6  # ... decaying exponentially to this
     # The MLP rate's decay spans this fraction of the run from iteration 0: the authors' code
-    # decays over 40k iterations of a 30k run (measured: docs/results.md, session 22).
+    # decays over 40k iterations of a 30k run (measured:
+    # docs/experiments/training.md, "The MLP rate settles").
     mlp_lr_span: float = 4 / 3
     # Time-local opacity (not in the paper): each Gaussian's opacity is modulated by a Gaussian
     # in time, so an object can be drawn by different Gaussians at different times. Off: the
-    # MLP carries the motion (measured: docs/results.md, session 12). `--temporal-opacity`
+    # MLP carries the motion (measured:
+    # docs/experiments/motion.md, "The MLP carries the ball"). `--temporal-opacity`
     # turns it on; never on for a static run (deform=False).
     temporal_opacity: bool = False
     # Learning rates of the time centre (units of the sequence) and of the log-width in time:
-    # slow, or Gaussians flicker in time (measured: docs/results.md, session 8).
+    # slow, or Gaussians flicker in time (measured:
+    # docs/experiments/paper-tables.md, "Slower time parameters").
     t_mean_lr: float = 3e-3
     t_scale_lr: float = 6e-3
     # (fraction, width): Gaussians that start time-local, and their width in normalised time
-    # (measured: docs/results.md, session 7). The others start at width 1.
+    # (measured: docs/experiments/paper-tables.md, "Longer event windows, Gaussians that start
+    # time-local"). The others start at width 1.
     init_time_local: tuple[float, float] = (0.3, 0.05)
 
 
@@ -99,13 +104,14 @@ class LossConfig:
     lambda_ssim: float = 0.2  # eq. 9 λ_e; documented choice: 3DGS's D-SSIM weight 0.2
     window_min: float = 0.02  # eq. 7 Δt_k, shortest L_e window; documented choice (EventNeRF)
     # eq. 7 Δt_k, longest L_e window: long windows tie each time to more of the sequence's
-    # brightness (measured: docs/results.md, session 7).
+    # brightness (measured: docs/experiments/paper-tables.md, "Longer event windows").
     window_max: float = 0.3
     views: int = 2  # renders per step; L_e on every pair of them (2: the paper's one window)
     flow_window: float = 0.005  # eq. 13 Δτ, short window for L_ef; documented choice
     # Whether L_ef's gradient reaches the Gaussian flow (the MLP's motion): off, as in the
     # authors' code; on, it drove the ball's Gaussians off their path in the oracle test
-    # (docs/results.md, session 11) and left the full method level (session 33). L_ef then
+    # (docs/experiments/motion.md, "Can the losses carry motion?") and left the full method
+    # level (docs/experiments/paper-tables.md, "Table 3's steps again"). L_ef then
     # trains appearance and depth.
     flow_moves_gaussians: bool = False
     motion_window: float = 0.02  # §4.3 Δt split into m sub-windows for L_m; documented choice
@@ -200,12 +206,13 @@ class SkipConfig:
     static_dq: float = 5e-2  # |Δq| (about 3° of rotation)
     static_ds: float = 5e-2  # Δs in log scale (5% size change)
     # Static scene: when the first classification finds at least this fraction of the Gaussians
-    # within the static_scene_* bounds, the scene is taken as static: every Gaussian is baked
-    # and the MLP and the motion losses are off for the rest of the run. Documented choices,
-    # measured on `still` with the tiny preset (docs/results.md, session 21): its MLP moves the
-    # Gaussians by up to 2.1-2.3 px, |Δq| 0.056-0.07 and Δs 0.076-0.094 (95th percentiles,
-    # iterations 1500-2000 of 2000; 2.7 px, 0.12, 0.15 at the 99th of a 4000-iteration run), so
-    # the scene needs looser bounds than one Gaussian; a moving object moves by tens of pixels.
+    # within the static_scene_* bounds, the scene is taken as static: every Gaussian is baked and
+    # the MLP and the motion losses are off for the rest of the run. Documented choices, measured on
+    # `still` with the tiny preset (docs/experiments/skips.md, "The static-scene check fires on
+    # `still` again"): its MLP moves the Gaussians by up to 2.1-2.3 px, |Δq| 0.056-0.07 and Δs
+    # 0.076-0.094 (95th percentiles, iterations 1500-2000 of 2000; 2.7 px, 0.12, 0.15 at the 99th of
+    # a 4000-iteration run), so the scene needs looser bounds than one Gaussian; a moving object
+    # moves by tens of pixels.
     static_scene_px: float = 3.0
     static_scene_dq: float = 0.15
     static_scene_ds: float = 0.15
@@ -219,7 +226,7 @@ class SkipConfig:
     # does not show that nothing moves (it found the moving `ball` static). 1 or more turns the
     # evidence off. Documented choices between `still`'s worst region (0.12-0.26) and the
     # moving scenes' (0.49-0.94), with short windows, which separate best (measured:
-    # docs/results.md, "How the skips decide").
+    # docs/experiments/skips.md, "How the skips decide").
     static_scene_unexplained: float = 0.35
     static_scene_windows: int = 32  # 64 renders, once per run; documented choice
     static_scene_window_lengths: tuple[float, float] = (0.02, 0.1)  # fractions of the sequence
@@ -268,8 +275,8 @@ class TrainConfig:
     """Everything a run needs besides the data; saved with every checkpoint. The defaults are
     the `default` preset."""
 
-    preset: str = "default"
-    seed: int = 0
+    preset: str = "default"  # the preset these settings started from (a name in PRESETS)
+    seed: int = 0  # seeds the initial Gaussians, the windows drawn and torch
     num_gaussians: int = 20_000  # initial random Gaussians (documented: no SfM/RGB available)
     background: float = 0.5  # grey background intensity where no Gaussian covers a pixel
     threads: int = 0  # torch intra-op threads (0 = torch's default)
@@ -311,8 +318,8 @@ class TrainConfig:
 
 
 def _model_settings(model: dict, iterations: int) -> dict:
-    """A saved run's model settings in today's names: runs saved before session 22 give the
-    MLP rate's decay as a fixed horizon in iterations (``mlp_lr_horizon``)."""
+    """A saved run's model settings in today's names: runs saved before 30a96a3 (2026-11-26) give
+    the MLP rate's decay as a fixed horizon in iterations (``mlp_lr_horizon``)."""
     model = dict(model)
     horizon = model.pop("mlp_lr_horizon", None)
     if horizon is not None:
@@ -335,7 +342,7 @@ PRESETS: dict[str, dict] = {
     # schedule needs larger colour and scale learning rates than 3DGS's 30k-iteration ones
     # (documented choice: 10x and 2x). One torch thread: at 96x96 torch's ops gain nothing
     # from more, and on a CPU adapter idle workers spin on the cores lavapipe needs
-    # (docs/benchmarks.md).
+    # (docs/experiments/paper-tables.md, "The demo on one torch thread").
     "tiny": {
         "num_gaussians": 1500,
         "threads": 1,

@@ -3,6 +3,7 @@
 
 use pyo3::prelude::*;
 
+mod blosc;
 mod camera;
 mod errors;
 mod events;
@@ -18,6 +19,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     gpu::register(m)?;
     events::register(m)?;
     formats::register(m)?;
+    blosc::register(m)?;
     camera::register(m)?;
     sim::register(m)?;
     io::register(m)?;

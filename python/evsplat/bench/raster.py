@@ -169,7 +169,7 @@ def measure(size: int, n: int, d: int, atomics: list[str], repeats: int, keep: P
 
 def _work_line(size: int, n: int, d: int, work: dict) -> str:
     pixels = size * size
-    tiles = math.ceil(size / work.get("tile_size", 16)) ** 2  # builds before session 20: 16
+    tiles = math.ceil(size / work.get("tile_size", 16)) ** 2  # builds before 518a066: 16
     frac = work["contributed"] / max(work["evaluated"], 1)
     return (
         f"| {size}x{size} | {n} | {d} | {work['pairs']:,} | {work['pairs'] / tiles:.0f} "

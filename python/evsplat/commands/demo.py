@@ -8,9 +8,9 @@ import time
 from pathlib import Path
 
 HELP = "the end-to-end demo on the tiny built-in synthetic scene"
-# Twice the tiny preset's 2000: the ball's tracking error 1.64 +- 0.20 -> 0.90 +- 0.12 px and
-# its mask +0.9 dB over 3 seeds (docs/results.md, session 21). The preset keeps 2000 for the
-# quick runs it is made for (benchmark tables, sweeps).
+# Twice the tiny preset's 2000: the ball's tracking error 1.64 +- 0.20 -> 0.90 +- 0.12 px and its
+# mask +0.9 dB over 3 seeds (docs/experiments/training.md, "The tiny preset trains 4000
+# iterations"). The preset keeps 2000 for the quick runs it is made for (benchmark tables, sweeps).
 DEMO_ITERATIONS = 4000
 
 

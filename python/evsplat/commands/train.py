@@ -9,7 +9,8 @@ HELP = "train a deformable Gaussian scene on a dataset folder (events + poses)"
 
 
 def add_config_arguments(parser: argparse.ArgumentParser) -> None:
-    """--preset, --config, --iters and --device (shared with `evsplat train-many`)."""
+    """--preset, --config, --iters, --device and --set (shared with `evsplat train-many` and
+    `evsplat config show`)."""
     from evsplat.config import PRESETS
 
     parser.add_argument("--preset", default="default", help=f"one of {', '.join(PRESETS)}")
@@ -18,6 +19,14 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--iters", type=int, default=None, help="override the iteration count")
     add_device_argument(parser, None)
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set one setting, e.g. --set loss.w_motion=0.2 --set mover.enabled=false "
+        "(repeatable; `evsplat config show` lists them all)",
+    )
 
 
 def add_device_argument(parser: argparse.ArgumentParser, default: str | None) -> None:
@@ -34,13 +43,15 @@ def add_device_argument(parser: argparse.ArgumentParser, default: str | None) ->
 
 
 def config_from_args(args: argparse.Namespace):
-    """The TrainConfig that --config or --preset names, on --device when given."""
+    """The TrainConfig that --config or --preset names, on --device when given, with each
+    --set applied."""
     from evsplat.config import load_config, preset
+    from evsplat.config_fields import apply
 
     cfg = load_config(args.config) if args.config is not None else preset(args.preset)
-    if args.device is not None:
+    if getattr(args, "device", None) is not None:
         cfg.device = args.device
-    return cfg
+    return apply(cfg, getattr(args, "set", []))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -62,7 +73,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action=argparse.BooleanOptionalAction,
         default=None,
         help="time-local opacity for fast objects (default off; not in the paper, see "
-        "docs/results.md)",
+        "docs/experiments/paper-tables.md)",
     )
     parser.add_argument(
         "--time-range",

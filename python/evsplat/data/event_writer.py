@@ -26,7 +26,7 @@ from evsplat.errors import EvsplatError
 #: chunk (850 KB raw over the four columns) decompresses in about a millisecond.
 CHUNK = 1 << 16
 #: Blosc LZ4 with byte shuffle decodes ~4x faster than gzip and writes ~15x faster, at
-#: 4.6 against 3.9 bytes per event (measured, docs/results.md "Issue 24").
+#: 4.6 against 3.9 bytes per event (measured, docs/experiments/formats.md).
 DEFAULT_CODEC = "blosc"
 
 
@@ -41,9 +41,10 @@ def codecs() -> dict[str, Mapping]:
     }
 
 
-#: Threads compressing one column's chunks: on the 2-core test machine a second one made the
-#: writes alone faster only with a core to spare, and ``evsplat convert``, whose reader and
-#: checksum threads take that core, no faster (docs/results.md, session 24).
+#: Threads compressing one column's chunks: on the 2-core test machine a second one made the writes
+#: alone faster only with a core to spare, and ``evsplat convert``, whose reader and checksum
+#: threads take that core, no faster (docs/experiments/formats.md, "Blosc chunks compressed off the
+#: GIL").
 _BLOSC_THREADS = 1
 
 

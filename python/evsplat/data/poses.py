@@ -18,17 +18,20 @@ from evsplat.errors import EvsplatError
 QUAT_NORM_TOL = 1e-3
 
 
+def rotation_entries(w, x, y, z) -> list:
+    """The nine entries, row by row, of the rotation matrix of the unit quaternion (w, x, y, z),
+    given as numpy arrays or torch tensors alike (the one place the formula is written)."""
+    return [
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ]  # fmt: skip
+
+
 def quat_to_matrix(q_wxyz: np.ndarray) -> np.ndarray:
-    """Unit quaternions (w, x, y, z) [..., 4] -> rotation matrices [..., 3, 3]."""
-    w, x, y, z = np.moveaxis(np.asarray(q_wxyz, dtype=np.float64), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
+    """Unit quaternions (w, x, y, z) [..., 4] -> rotation matrices [..., 3, 3] (float64)."""
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    return np.stack(rotation_entries(*np.moveaxis(q, -1, 0)), -1).reshape(*q.shape[:-1], 3, 3)
 
 
 def matrix_to_quat(r: np.ndarray) -> np.ndarray:

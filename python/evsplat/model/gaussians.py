@@ -9,6 +9,7 @@ import torch
 from torch import Tensor, nn
 
 from evsplat.config import ModelConfig
+from evsplat.data.poses import rotation_entries
 
 PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh", "t_mean", "t_log_scale")
 # Time-local opacity (not in the paper): a Gaussian is visible around t_mean with width
@@ -17,10 +18,11 @@ PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh", "t_mean",
 T_LOG_SCALE_RANGE = (math.log(0.02), math.log(20.0))
 SCALE_MIN, SCALE_MAX = 1e-6, 1e3  # guard: keeps exp(log_scale) and its inverse finite
 QUAT_EPS = 1e-12  # below this norm a quaternion carries no rotation and becomes the identity
-# Colour is softplus(SH + 0.5) with this sharpness, not 3DGS's max(SH + 0.5, 0): the clamp passes
-# no gradient below 0, so a channel pushed under it once stays black for the rest of the run
-# (after the demo's run 36% of the static Gaussians had a dead channel, after `camo`'s 88%).
-# Within 0.005 of the clamp above 0.3 (documented choice; docs/results.md, session 30).
+# Colour is softplus(SH + 0.5) with this sharpness, not 3DGS's max(SH + 0.5, 0): the clamp passes no
+# gradient below 0, so a channel pushed under it once stays black for the rest of the run (after the
+# demo's run 36% of the static Gaussians had a dead channel, after `camo`'s 88%). Within 0.005 of
+# the clamp above 0.3 (documented choice; docs/experiments/training.md, "Colour through a
+# softplus").
 COLOR_BETA = 10.0
 
 # Real spherical-harmonic constants (as in 3DGS), bands 0..3.
@@ -71,16 +73,8 @@ def normalize_quats(q: Tensor) -> Tensor:
 
 
 def quat_to_rotmat(q: Tensor) -> Tensor:
-    """Rotation matrices [N,3,3] of unit quaternions [N,4] (w, x, y, z)."""
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(*q.shape[:-1], 3, 3)  # fmt: skip
+    """Rotation matrices [N,3,3] of unit quaternions [N,4] (w, x, y, z), differentiable."""
+    return torch.stack(rotation_entries(*q.unbind(-1)), dim=-1).reshape(*q.shape[:-1], 3, 3)
 
 
 def eval_sh(sh: Tensor, dirs: Tensor) -> Tensor:

@@ -27,8 +27,8 @@ BASE_HEIGHT = 400
 # pixel integrates the light on it (Blender, which renders the paper's scenes, filters over the
 # pixel too). One ray per pixel drew every edge as a staircase that crawls as things move: 17%
 # (ball) to 37% (duck) of the tiny scenes' events came from that crawl, and a model with smooth
-# edges lost ~1.7 dB on the ball's mask against aliased ground truth (docs/results.md,
-# session 25).
+# edges lost ~1.7 dB on the ball's mask against aliased ground truth
+# (docs/experiments/training.md, "The simulator's pixels integrate their area").
 PIXEL_SAMPLES = 3
 # Focal length in units of the image height (a ~51° vertical field of view).
 FOCAL_PER_HEIGHT = 1.05

@@ -239,7 +239,7 @@ class Trainer:
 
     # Both optimizers take torch's multi-tensor ("foreach") Adam, which torch picks by default
     # only for GPU tensors: on the CPU it gives the same values bit for bit and halves the MLP
-    # update's time (docs/benchmarks.md, session 23).
+    # update's time (docs/experiments/training-speed.md, "The training step at the demo size").
     def gaussians_adam(self) -> torch.optim.Adam:
         groups = self.model.param_groups(self.cfg.model, self.extent)
         return torch.optim.Adam(groups, eps=1e-15, foreach=True)

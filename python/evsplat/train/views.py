@@ -53,7 +53,8 @@ class Views:
         The windows are placed as if the sequence went on past its ends, then pushed back
         inside it: a window placed wholly within would render the first and last instants only
         from one side, half as often as the middle, and the model's ends came out blurred
-        (docs/results.md, session 22)."""
+        (docs/experiments/training.md, "The MLP rate settles, and the windows reach the
+        sequence's ends")."""
         start, end = self.data.t_start_us, self.data.t_end_us
         draw = [rng.uniform(lc.window_min, lc.window_max) for _ in range(lc.views - 1)]
         gaps = [int(g * (end - start)) for g in draw]
@@ -78,7 +79,8 @@ class Views:
     def linearized_change(self, out: RenderOut, flow: torch.Tensor, coarse: bool) -> torch.Tensor:
         """-∇L·F (eq. 13) in the sensor's channels. A colour render is differentiated per
         channel before each pixel keeps its Bayer channel: differences across a mosaic mix
-        colours, and drove the MLP's motion backwards in the oracle test (docs/results.md)."""
+        colours, and drove the MLP's motion backwards in the oracle test
+        (docs/experiments/motion.md)."""
         if self.channel_map is None:
             return linearized_brightness_change(log_render(out.image[..., 0]), flow)
         change = linearized_brightness_change(log_render(out.image).permute(2, 0, 1), flow)

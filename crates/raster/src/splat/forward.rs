@@ -15,7 +15,7 @@ use crate::{Kernel, ScanScratch};
 /// The depth sort: 4 radix passes of 8-bit digits over the 32-bit keys (an even count: the
 /// sorted ids end in the first ping-pong buffer). A stable LSD sort orders the same at any digit
 /// width, and on small scenes a pass costs much the same at 4 and 8 bits (its dispatches, not
-/// its keys): 4 passes instead of 8 saved ~0.7 ms a render at 96x96 on lavapipe (session 23).
+/// its keys): 4 passes instead of 8 saved ~0.7 ms a render at 96x96 on lavapipe (7ca0e26, 2026-11-26).
 pub const DEPTH_PASSES: usize = 4;
 pub const DEPTH_BITS: u32 = 8;
 /// The tile sort's widest digit (MAX_DIGITS in sort.wgsl) and its most passes (32-bit ids).
