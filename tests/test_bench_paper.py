@@ -64,6 +64,7 @@ def _args(tmp_path, doc, tables, seeds="0"):
         max_retries=3,
         cpus_per_cell=1.0,
         fresh=False,
+        device="auto",
     )
 
 
