@@ -362,6 +362,10 @@ def test_a_scene_is_static_only_when_its_events_show_nothing_moving(
     cfg = preset("tiny")
     cfg.schedule.iterations = 300
     cfg.skips = SkipConfig(early_stop=False, static_scene_px=1e9, static_dq=1e9, static_ds=1e9)
+    # The check alone: after this run's 30-iteration warm-up the objects' seeding would take
+    # the static model's errors for movers (its own test, at the preset's warm-up, is in
+    # test_motion_seed.py), and a seeded run never asks the scene-level question.
+    cfg.mover.enabled = False
     data = load_dataset(tiny_data if name == "ball" else tiny_still)
     trainer = Trainer(data, cfg, tmp_path / "run")
     threads = torch.get_num_threads()

@@ -81,8 +81,8 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
         change = views.log_image(end) - views.log_image(start)
         residual = unexplained(views.esi(t0, t1)[0], change, mc.pool)
         blobs.append(regions(residual, int(mid), settings))
-        depth.append(end.depth.numpy())
-        alpha.append(end.alpha.numpy())
+        depth.append(end.depth.cpu().numpy())
+        alpha.append(end.alpha.cpu().numpy())
     return Sightings(mids, blobs, depth, alpha)
 
 
@@ -170,12 +170,14 @@ def place(
     identity rotation, grey, ``opacity``, shown at all times; their optimizer state starts
     afresh."""
     o = min(max(opacity, 1e-4), 1.0 - 1e-4)
+    device = model.means.device
+    rows = rows.to(device)
     values = {
-        "means": torch.from_numpy(points.astype(np.float32)),
-        "log_scales": torch.from_numpy(np.log(np.maximum(spacing, 1e-12)).astype(np.float32))[
-            :, None
-        ],
-        "quats": torch.tensor([1.0, 0.0, 0.0, 0.0]),
+        "means": torch.from_numpy(points.astype(np.float32)).to(device),
+        "log_scales": torch.from_numpy(np.log(np.maximum(spacing, 1e-12)).astype(np.float32))
+        .to(device)
+        .unsqueeze(1),
+        "quats": torch.tensor([1.0, 0.0, 0.0, 0.0], device=device),
         "opacity_logits": math.log(o / (1.0 - o)),
         "sh": 0.0,
         "t_mean": 0.5,
@@ -217,9 +219,9 @@ def seed_objects(
         return Seeded(stats, None, None)
     rng = np.random.default_rng(seed)
     n, focal = model.num_gaussians, float(data.K[0, 0])
-    means = model.means.detach().numpy().astype(np.float64)
+    means = model.means.detach().cpu().numpy().astype(np.float64)
     free = np.ones(n, dtype=bool)
-    faintest = np.argsort(model.opacities().detach().numpy(), kind="stable")
+    faintest = np.argsort(model.opacities().detach().cpu().numpy(), kind="stable")
     areas = np.array([np.median([b.area for b in t.blobs.values()]) for t in tracks])
     knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
     object_id = np.full(n, -1, dtype=np.int64)
@@ -284,4 +286,5 @@ def seed_objects(
         torch.tensor(spans),
         fade=1.0 / mc.windows,  # one window spacing
     )
-    return Seeded(stats, motion, torch.from_numpy(object_id))
+    device = model.means.device
+    return Seeded(stats, motion.to(device), torch.from_numpy(object_id).to(device))

@@ -64,7 +64,7 @@ def pooled(energy: Tensor, pool: int) -> Tensor:
 
 def unexplained(esi: Tensor, predicted: Tensor, pool: int) -> np.ndarray:
     """[H,W] float64 residual |ESI - predicted log change| after ``pool`` px box averaging."""
-    return pooled(esi - predicted, pool).numpy()
+    return pooled(esi - predicted, pool).cpu().numpy()
 
 
 def robust_level(values: np.ndarray) -> tuple[float, float]:
