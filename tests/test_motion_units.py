@@ -10,7 +10,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
-from evsplat.motion.paths import WorldPath, lift, near_path, turn_angles
+from evsplat.motion.paths import hold_path, lift, near_path, turn_angles
 from evsplat.motion.segment import SegmentSettings, regions
 from evsplat.motion.tracks import TrackSettings, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
@@ -18,7 +18,7 @@ from evsplat.motion.turn import WindowEvents, turn_rate
 SEGMENT = SegmentSettings(
     pool=3, blur_px=1.0, low=3.0, high=9.0, close_px=2, min_area_px=12, join=0.5
 )
-TRACKS = TrackSettings(gate=1.5, coast=3, min_windows=4, together=1.0)
+TRACKS = TrackSettings(gate=1.5, coast=3, min_windows=4, high=9.0, min_evidence=30.0, together=1.5)
 
 
 def test_rotvec_to_quat_matches_scipy_and_is_finite_at_zero():
@@ -176,13 +176,27 @@ def test_turn_angles_integrate_the_rates():
     assert np.allclose(angles, [-0.2, 0.0, 0.3, 0.7])
 
 
-def test_world_path_extrapolates_only_through_the_border():
+def test_hold_path_is_linear_between_sightings_and_held_beyond():
     t = np.array([100, 200, 300, 400])
     pts = np.stack([np.array([1.0, 0.0, 0.0]) * s for s in (1, 2, 3, 4)])
-    both = WorldPath(t, pts, enters=True, leaves=True).at(np.array([0, 250, 500]))
-    assert np.allclose(both, [[0, 0, 0], [2.5, 0, 0], [5, 0, 0]])
-    held = WorldPath(t, pts, enters=False, leaves=False).at(np.array([0, 500]))
-    assert np.allclose(held, [[1, 0, 0], [4, 0, 0]])
+    got = hold_path(t, pts, np.array([0, 250, 500]))
+    assert np.allclose(got, [[1, 0, 0], [2.5, 0, 0], [4, 0, 0]])
+
+
+def test_an_object_is_visible_only_inside_its_span():
+    motion = ObjectMotion(
+        torch.zeros(2, 3),
+        torch.ones(2),
+        torch.zeros(2, 3, 3),
+        torch.zeros(2, 3, 3),
+        torch.tensor([[0.4, 0.6], [-float("inf"), float("inf")]]),
+        fade=0.02,
+    )
+    ids = torch.tensor([-1, 0, 1])
+    assert torch.allclose(motion.visibility(ids, 0.5), torch.ones(3), atol=1e-6)
+    early = motion.visibility(ids, 0.1)
+    assert early[0] == 1 and early[1] < 1e-6 and early[2] == 1
+    assert abs(float(motion.visibility(ids, 0.4)[1]) - 0.5) < 1e-6  # half faded at the edge
 
 
 def test_lift_inverts_the_projection():

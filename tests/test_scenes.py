@@ -11,7 +11,7 @@ NAMES = ["butterfly", "duck", "clock", "ball"]
 
 
 def test_the_four_paper_like_scenes_exist_with_paper_sizes():
-    assert scene_names() == [*NAMES, "still", "camo", "blobs"]
+    assert scene_names()[:7] == [*NAMES, "still", "camo", "blobs"]
     sizes = {n: (get_scene(n).width, get_scene(n).height) for n in NAMES}
     assert sizes == {
         "butterfly": (400, 400),

@@ -180,6 +180,28 @@ def test_track_json_samples_the_centre_at_1khz_over_the_sequence(tiny_ball_with_
         np.testing.assert_allclose(f.object_centre, ball_centre(f.time_us * 1e-6), atol=1e-12)
 
 
+def test_a_dataset_from_before_per_object_ground_truth_is_one_object(
+    tiny_ball_with_track, tmp_path
+):
+    from evsplat.data.dataset import load_dataset
+
+    old = tmp_path / "v3"
+    shutil.copytree(tiny_ball_with_track, old)
+    frames = json.loads((old / "test" / "frames.json").read_text())
+    for f in frames:
+        del f["objects"]
+    (old / "test" / "frames.json").write_text(json.dumps(frames))
+    track = json.loads((old / "test" / "track.json").read_text())
+    del track["objects"]
+    (old / "test" / "track.json").write_text(json.dumps(track))
+    data = load_dataset(old)
+    assert [t.name for t in data.tracks] == ["object"] and data.tracks[0].radius == 0.38
+    for f in data.test_frames:
+        (obj,) = f.objects
+        assert obj.name == "object" and obj.mask_path == f.mask_path
+        np.testing.assert_array_equal(obj.centre, f.object_centre)
+
+
 def test_a_static_scene_has_no_tracked_object(tmp_path):
     from evsplat.data.dataset import load_dataset
     from evsplat.data.simulator import simulate_dataset
@@ -190,15 +212,18 @@ def test_a_static_scene_has_no_tracked_object(tmp_path):
     assert data.track is None and all(f.object_centre is None for f in data.test_frames)
 
 
-def test_a_scene_track_callable_overrides_the_first_moving_primitive():
+def test_the_ducks_parts_are_one_object_bounded_by_its_farthest_part():
     from evsplat.scenes import get_scene
 
     scene = get_scene("duck", tiny=True)
-    body = scene.object_centre(250_000)
-    assert scene.object_radius() == 0.42
-    scene.track = lambda t: np.array([t, 2 * t, 3.0])
-    np.testing.assert_allclose(scene.object_centre(250_000), [0.25, 0.5, 3.0])
-    assert scene.object_radius() is None and not np.allclose(body, [0.25, 0.5, 3.0])
+    assert [o.name for o in scene.objects] == ["duck"] and len(scene.objects[0].parts) == 5
+    body = scene.primitives[scene.objects[0].parts[0]]
+    np.testing.assert_allclose(scene.object_centre(250_000), body.pose(0.25)[:3, 3])
+    # The beak, 0.6 m right and 0.46 m up of the body's centre, a box of half extents
+    # (0.14, 0.045, 0.09), reaches farthest (library.duck, written out).
+    beak = np.hypot(0.6, 0.46) + np.linalg.norm([0.14, 0.045, 0.09])
+    assert scene.object_radius() == pytest.approx(beak, rel=1e-9)
+    assert scene.object_centre(0, 1) is None and scene.object_radius(1) is None
 
 
 def test_datasets_without_tracking_load_and_a_broken_track_is_reported(
@@ -211,10 +236,11 @@ def test_datasets_without_tracking_load_and_a_broken_track_is_reported(
     (old / "test" / "track.json").unlink()
     frames = json.loads((old / "test" / "frames.json").read_text())
     for f in frames:
-        del f["object_centre"]
+        del f["object_centre"], f["objects"]
     (old / "test" / "frames.json").write_text(json.dumps(frames))
     data = load_dataset(old)
     assert data.track is None and data.test_frames[0].object_centre is None
+    assert data.tracks == [] and data.test_frames[0].objects == []
 
     (old / "test" / "track.json").write_text('{"times_us": [0, 0], "centres": [[0, 0, 1]]}')
     frames[0]["object_centre"] = [0, "x", 1]

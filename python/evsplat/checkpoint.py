@@ -29,14 +29,27 @@ def checkpoint_dir(run_dir: Path) -> Path:
     return Path(run_dir) / "checkpoints"
 
 
+def on_host(value: Any) -> Any:
+    """``value`` with every tensor in it (in dicts, lists and tuples) copied to the CPU."""
+    if isinstance(value, torch.Tensor):
+        return value.cpu()
+    if isinstance(value, dict):
+        return {k: on_host(v) for k, v in value.items()}
+    if type(value) in (list, tuple):  # exactly: a named tuple is rebuilt differently
+        return type(value)(on_host(v) for v in value)
+    return value
+
+
 def save_checkpoint(
     run_dir: Path, iteration: int, state: dict[str, Any], version: int, keep: int = 2
 ) -> Path:
     """Write ``state`` (layout ``version``) as the checkpoint of ``iteration`` and prune all but
-    the newest ``keep``."""
+    the newest ``keep``. Tensors are saved from CPU copies: a run trained on a GPU loads on a
+    machine without one."""
     folder = checkpoint_dir(run_dir)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"ckpt_{iteration:07d}.pt"
+    state = on_host(state)
     payload = {"format": FORMAT, "version": version, "iteration": iteration, **state}
     write_atomic(path, lambda tmp: torch.save(payload, tmp))
     write_text_atomic(folder / "latest", path.name + "\n")

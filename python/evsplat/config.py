@@ -154,7 +154,10 @@ class MoverConfig:
     gate: float = 1.5
     coast: int = 3
     min_windows: int = 4
-    together: float = 1.0
+    # A track is a mover when its regions' peaks above the `high` level sum to this many robust
+    # sigmas over its windows; less is the static model's error (docs/motion.md).
+    min_evidence: float = 30.0
+    together: float = 1.5
     # Placement: the object's depth is this quantile of the static model's rendered depth in its
     # regions (its front surface), median over them. It gets `fraction` of the Gaussians, split
     # by area, at least `min_gaussians` each, at `opacity` (it occludes what is behind it).
@@ -277,6 +280,7 @@ class TrainConfig:
     num_gaussians: int = 20_000  # initial random Gaussians (documented: no SfM/RGB available)
     background: float = 0.5  # grey background intensity where no Gaussian covers a pixel
     threads: int = 0  # torch intra-op threads (0 = torch's default)
+    device: str = "auto"  # auto | cpu | cuda: where torch trains (train/device.py)
     deform: bool = True  # False: a static scene, no deformation MLP at all (also a baseline)
     # Seconds from the recording's start (meta.json t_start_us) to train on; None = that end.
     time_range: tuple[float | None, float | None] | None = None
@@ -299,6 +303,7 @@ class TrainConfig:
             num_gaussians=d["num_gaussians"],
             background=d["background"],
             threads=d.get("threads", 0),
+            device=d.get("device", "auto"),
             deform=d.get("deform", True),
             time_range=tuple(d["time_range"]) if d.get("time_range") else None,
             schedule=ScheduleConfig(**d["schedule"]),

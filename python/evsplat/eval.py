@@ -4,8 +4,8 @@ Two colour-fit protocols, both next to the score a flat grey image reaches under
 (events carry no absolute brightness, so the fit alone already earns a flat image some dB):
 per image and channel in log space with metrics on linear [0, 1] (the paper's), and one fit per
 channel for the whole sequence with metrics on display gamma (EventNeRF's stricter one). Where
-the dataset gives the moving object's centre, ``evsplat.motion_metrics`` measures whether the
-model's Gaussians follow it.
+the dataset gives each moving object's centre, ``evsplat.motion_metrics`` measures whether the
+model's Gaussians follow it, and ``evsplat.eval_objects`` scores each object on its own mask.
 """
 
 from __future__ import annotations
@@ -18,10 +18,11 @@ import torch
 
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset, load_dataset
-from evsplat.data.images import read_exr, read_png
+from evsplat.data.images import read_png
+from evsplat.eval_objects import evaluate_objects, mask2d, object_table, worst_object_headline
 from evsplat.intensity import LUMA
 from evsplat.metrics import DISPLAY_GAMMA, Lpips, fit_log_linear, flat_fit, psnr, ssim, to_display
-from evsplat.motion_metrics import PERCENTILES, TrackView, track_object, track_region
+from evsplat.motion_metrics import PERCENTILES
 from evsplat.plots import plot_track
 from evsplat.render import Renderer
 
@@ -62,11 +63,6 @@ def render_test_frames(renderer: Renderer, data: Dataset) -> list[dict]:
     return frames
 
 
-def _mask2d(mask: np.ndarray | None) -> np.ndarray | None:
-    """The moving-object mask as [H,W] bool (a colour PNG mask has one channel per colour)."""
-    return mask[..., 0] if mask is not None and mask.ndim == 3 else mask
-
-
 def score(
     fitted: np.ndarray, flat: np.ndarray, gt: np.ndarray, mask: np.ndarray | None, lp: Lpips
 ) -> dict:
@@ -97,45 +93,24 @@ def summarise(rows: list[dict]) -> dict:
     return out
 
 
-def tracking_views(
-    data: Dataset, drawn_depths: list[np.ndarray] | None = None
-) -> tuple[list[TrackView] | None, str | None]:
-    """The test frames as tracking views (with the model's rendered depth of each, when
-    given), or None and why tracking is not reported."""
-    frames = data.test_frames
-    if not frames or any(f.object_centre is None for f in frames):
-        return None, "the dataset gives no object_centre per test frame (docs/dataset.md)"
-    if any(f.mask_path is None for f in frames):
-        return None, "the dataset gives no moving-object mask per test frame"
-    views = [
-        TrackView(
-            f.time_us,
-            f.c2w,
-            _mask2d(read_png(f.mask_path) > 0.5),
-            read_exr(f.depth_path),
-            f.object_centre,
-            None if drawn_depths is None else drawn_depths[k],
-        )
-        for k, f in enumerate(frames)
-    ]
-    return views, None
-
-
 @torch.no_grad()
 def evaluate(renderer: Renderer, data: Dataset) -> dict:
     """Scores under two colour-fit protocols (per image, as the paper; per sequence on display
-    gamma, as EventNeRF's stricter one), each next to a flat grey image's, and the tracking of
-    the moving object (``evsplat.motion_metrics``) where the dataset gives its centre."""
+    gamma, as EventNeRF's stricter one), each next to a flat grey image's, and per moving
+    object its mask PSNR and tracking (``evsplat.eval_objects``) where the dataset gives its
+    centre; ``tracking`` is the first object's, as with one tracked object."""
     lp = Lpips()
     frames = render_test_frames(renderer, data)
     renders, gts, masks = [], [], []
     for fr in frames:
         renders.append(fr["render"])
         gts.append(to_sensor_channels(fr["gt"], fr["render"].shape[-1]))
-        masks.append(_mask2d(fr["mask"]))
+        masks.append(mask2d(fr["mask"]))
+    fitted = [fit_log_linear(r, g) for r, g in zip(renders, gts)]
+    flat = [flat_fit(g) for g in gts]
     rows = [
-        {"time_us": int(fr["time_us"])} | score(fit_log_linear(r, g), flat_fit(g), g, m, lp)
-        for fr, r, g, m in zip(frames, renders, gts, masks)
+        {"time_us": int(fr["time_us"])} | score(f, fl, g, m, lp)
+        for fr, f, fl, g, m in zip(frames, fitted, flat, gts, masks)
     ]
     seq_fit, seq_flat = fit_log_linear(np.stack(renders), np.stack(gts)), flat_fit(np.stack(gts))
     seq_rows = [
@@ -143,17 +118,15 @@ def evaluate(renderer: Renderer, data: Dataset) -> dict:
         | score(to_display(seq_fit[i]), to_display(seq_flat[i]), to_display(g), m, lp)
         for i, (row, g, m) in enumerate(zip(rows, gts, masks))
     ]
-    views, why = tracking_views(data, [fr["depth"] for fr in frames])
-    radius = data.track.radius if data.track is not None else None
+    depths = [fr["depth"] for fr in frames]
+    objects, why = evaluate_objects(renderer, data, fitted, flat, gts, depths)
     return {
         "frames": rows,
         "mean": summarise(rows),
         "protocol": PER_IMAGE,
         "sequence": {"frames": seq_rows, "mean": summarise(seq_rows), "protocol": SEQUENCE},
-        "tracking": None
-        if views is None
-        else track_object(renderer, views, radius)
-        | {"region": track_region(renderer, views, radius)},
+        "tracking": objects[0]["tracking"] if objects else None,
+        "objects": objects,
         "tracking_missing": why,
         "lpips_missing": lp.missing,
     }
@@ -200,10 +173,11 @@ def _region_fmt(p: dict) -> str:
     return "out of view" if p["error_px"] is None else _fmt(p["error_px"], 2)
 
 
-def _tracking_lines(tr: dict) -> list[str]:
+def _tracking_lines(tr: dict, what: str = "the moving object") -> list[str]:
+    """The tracking of one object, ``what``, in words."""
     used = sum(1 for p in tr["paths"] if p["n"] > 0)
     if used == 0:
-        return ["Tracking the moving object: no Gaussian draws it at any test frame."]
+        return [f"Tracking {what}: no Gaussian draws it at any test frame."]
     region = tr["region"]
 
     def dist(d: dict) -> str:
@@ -211,9 +185,9 @@ def _tracking_lines(tr: dict) -> list[str]:
         return f"{vals} (n = {d['n']})"
 
     return [
-        f"Tracking the moving object (evsplat.motion_metrics): the region its {region['members']} "
+        f"Tracking {what} (evsplat.motion_metrics): the region its {region['members']} "
         "Gaussians draw is off the true object's by a median "
-        f"{_fmt(region['error_px_median'], 2)} px (the table's column; {region['in_view']} test "
+        f"{_fmt(region['error_px_median'], 2)} px (track err; {region['in_view']} test "
         f"times with the object in view, {region['not_drawn']} of them not drawn).",
         "",
         f"Following the Gaussians ({used} of {len(tr['paths'])} test frames as reference): "
@@ -231,10 +205,11 @@ def _tracking_lines(tr: dict) -> list[str]:
 
 
 def format_table(result: dict) -> str:
-    """Markdown: both protocols' tables, the margins over a flat image and the tracking."""
-    tr = result.get("tracking")
+    """Markdown: both protocols' tables, the margins over a flat image, one row per moving
+    object and its tracking (a per-frame column too for a single object)."""
+    tr, objects = result.get("tracking"), result.get("objects") or []
     track_col = None
-    if tr is not None:
+    if tr is not None and len(objects) == 1:
         region = tr["region"]
         track_col = ["track err (px)"] + [_region_fmt(p) for p in region["per_time"]]
         track_col.append(_fmt(region["error_px_median"], 2) + " (median)")
@@ -253,9 +228,12 @@ def format_table(result: dict) -> str:
         _margins(seq["mean"]),
         "",
     ]
-    if tr is not None:
-        lines += _tracking_lines(tr)
-    else:
+    if objects:
+        lines += ["Per moving object (per-image fit):", "", *object_table(objects), ""]
+    for k, o in enumerate(objects):
+        what = "the moving object" if len(objects) == 1 else f"'{o['name']}'"
+        lines += ([""] if k else []) + _tracking_lines(o["tracking"], what)
+    if not objects:
         lines.append(f"Tracking not reported: {result['tracking_missing']}.")
     if result["lpips_missing"]:
         lines += ["", f"LPIPS missing: {result['lpips_missing']}."]
@@ -263,7 +241,11 @@ def format_table(result: dict) -> str:
 
 
 def headline(result: dict) -> str:
-    """One line: the moving object's PSNR against the flat image's, and the tracking error."""
+    """One line: the moving object's PSNR against the flat image's, and the tracking error;
+    with several objects, the worst object's mask margin and each one's tracking."""
+    objects = result.get("objects") or []
+    if len(objects) > 1:
+        return worst_object_headline(objects)
     m, tr = result["mean"], result.get("tracking")
     parts = []
     if m["psnr_moving"] is not None:
@@ -282,19 +264,20 @@ def headline(result: dict) -> str:
 
 
 def write_track_plot(result: dict, data: Dataset, out: Path) -> bool:
-    """Draw ``out`` (track.png): the predicted object paths over the true one on the middle
-    test frame's ground truth; False (nothing drawn) when tracking was not measured."""
-    if result.get("tracking") is None:
+    """Draw ``out`` (track.png): every moving object's predicted paths over its true one on
+    the middle test frame's ground truth; False (nothing drawn) when tracking was not measured."""
+    objects = result.get("objects") or []
+    if not objects:
         return False
     middle = data.test_frames[len(data.test_frames) // 2]
+    tracks = {t.name: t for t in data.tracks}
     plot_track(
         read_png(middle.rgb_path),
         middle.c2w,
         data.K,
-        result["tracking"],
-        data.track,
+        [(o["name"], o["tracking"], tracks.get(o["name"])) for o in objects],
         out,
-        title=f"{data.meta.get('scene', data.root.name)}: object path seen at "
+        title=f"{data.meta.get('scene', data.root.name)}: object paths seen at "
         f"t = {middle.time_us / 1e6:.3f} s",
     )
     return True

@@ -27,7 +27,7 @@ def gaussian_arrays(renderer: Renderer, t_us: float) -> dict[str, np.ndarray]:
         sh[:, 0] = (renderer.model.colors() - 0.5) / SH_C0
         if sh.shape[-1] == 1:
             sh = sh.expand(-1, -1, 3)
-        opacity = renderer.model.opacities(renderer.time(t_us)).clamp(1e-6, 1 - 1e-6)
+        opacity = renderer.opacities(t_us).clamp(1e-6, 1 - 1e-6)
         return {
             "means": means.numpy().astype(np.float32),
             "log_scales": torch.log(scales).numpy().astype(np.float32),

@@ -133,7 +133,7 @@ def deformed_centres(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(means [J,N,3], opacities at each time [J,N], peak opacities [N]) at ``times_us``."""
     means = np.stack([renderer.gaussians_at(t)[0].double().numpy() for t in times_us])
-    opac = np.stack([renderer.model.opacities(renderer.time(t)).double().numpy() for t in times_us])
+    opac = np.stack([renderer.opacities(t).detach().double().numpy() for t in times_us])
     return means, opac, renderer.model.opacities().double().numpy()
 
 

@@ -10,7 +10,7 @@ import numpy as np
 from evsplat.data.atomic import write_atomic
 
 if TYPE_CHECKING:
-    from evsplat.data.dataset import ObjectTrack
+    from evsplat.data.ground_truth import ObjectTrack
 
 
 def _pyplot():
@@ -81,19 +81,24 @@ TRACK_FIGURE_INCHES = 6.5  # a 96 px image is drawn about 8x larger, so the path
 TRACK_MAX_OVERHANG = 0.5  # the view extends at most this fraction of the image beyond its edges
 
 
+# One colour per object: its true path thick, its tracked paths thin (bright named colours,
+# the greys left out: they vanish on a grey picture).
+TRACK_COLOURS = ("lime", "magenta", "orange", "cyan", "red", "yellow", "deepskyblue", "white")
+
+
 def plot_track(
     image: np.ndarray,
     c2w: np.ndarray,
     K: np.ndarray,
-    tracking: dict,
-    track: ObjectTrack | None,
+    objects: list[tuple[str, dict, ObjectTrack | None]],
     out: Path,
     title: str = "",
 ) -> None:
-    """The true object path (dense ``track`` if given, else through the test times) and each
-    reference frame's predicted path (``evsplat.motion_metrics``), projected with one camera
-    ``c2w`` over ``image`` (linear, shown at display gamma). Paths may leave the image: the view
-    extends past its edges up to ``TRACK_MAX_OVERHANG``."""
+    """Per moving object (name, its tracking from ``evsplat.motion_metrics``, its dense
+    ``track`` or None), in one colour each: the true path (dense when ``track`` is given, else
+    through the test times) and each reference frame's predicted path, projected with one
+    camera ``c2w`` over ``image`` (linear, shown at display gamma). Paths may leave the image:
+    the view extends past its edges up to ``TRACK_MAX_OVERHANG``."""
     from evsplat.metrics import to_display
     from evsplat.motion_metrics import project
 
@@ -102,36 +107,48 @@ def plot_track(
     fig, ax = plt.subplots(figsize=(TRACK_FIGURE_INCHES, TRACK_FIGURE_INCHES * h / w + 0.6))
     shown = to_display(image)
     ax.imshow(shown, cmap="gray", extent=(0, w, h, 0), interpolation="nearest", vmin=0, vmax=1)
-    times = [p["time_us"] for p in tracking["per_time"]]
-    refs = [p for p in tracking["paths"] if p["centres"] is not None]
-    gt_px = project(_true_path(tracking, track, times), c2w, K)
-    ax.plot(*gt_px.T, color="lime", lw=2.0, label="true path")
-    at_tests = np.asarray([p["centre"] for p in tracking["per_time"]])
-    ax.plot(*project(at_tests, c2w, K).T, "o", color="lime", ms=5, label="true, at test times")
-    drawn = [gt_px]
-    for i, ref in enumerate(refs):
-        px = project(np.asarray(ref["centres"]), c2w, K)
-        k = times.index(ref["reference_us"])
-        label = "predicted paths (one per reference frame; ring = reference)" if i == 0 else None
-        ax.plot(*px.T, "o-", color="magenta", lw=1.2, ms=3, alpha=0.8, label=label)
-        ax.plot(*px[k], "o", mfc="none", mec="magenta", ms=9, mew=1.5)
-        drawn.append(px)
+    drawn, summaries = [], []
+    for n, (name, tracking, track) in enumerate(objects):
+        colour = TRACK_COLOURS[n % len(TRACK_COLOURS)]
+        drawn += _draw_object(ax, project, c2w, K, tracking, track, colour, name)
+        err, ratio = tracking["error_px_median"], tracking["path_ratio"]
+        region = tracking["region"]["error_px_median"]
+        summaries.append(
+            f"{name}: no reference frame shows its Gaussians"
+            if err is None
+            else f"{name}: region off by {'-' if region is None else f'{region:.1f}'} px "
+            f"(median); Gaussians followed: {err:.1f} px, path ratio "
+            f"{'-' if ratio is None else f'{ratio:.2f}'}"
+        )
     _frame_view(ax, np.concatenate(drawn), w, h)
     ax.set_xticks([])
     ax.set_yticks([])
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, 0.0), frameon=False)
-    err, ratio = tracking["error_px_median"], tracking["path_ratio"]
-    region = tracking["region"]["error_px_median"]
-    summary = (
-        "no reference frame shows the object's Gaussians"
-        if err is None or ratio is None
-        else f"object region off by {'-' if region is None else f'{region:.1f}'} px (median); "
-        f"Gaussians followed: {err:.1f} px, path ratio {ratio:.2f}"
-    )
+    summary = "\n".join(summaries)
     ax.set_title(f"{title}\n{summary}" if title else summary, fontsize=9)
     fig.tight_layout()
     write_atomic(out, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     plt.close(fig)
+
+
+def _draw_object(ax, project, c2w, K, tracking, track, colour: str, name: str) -> list:
+    """One object's true path (thick) and predicted paths (thin; ring = reference); returns
+    the drawn pixel points."""
+    times = [p["time_us"] for p in tracking["per_time"]]
+    gt_px = project(_true_path(tracking, track, times), c2w, K)
+    ax.plot(*gt_px.T, color=colour, lw=2.5, label=f"{name}: true path (dots: test times)")
+    at_tests = np.asarray([p["centre"] for p in tracking["per_time"]])
+    ax.plot(*project(at_tests, c2w, K).T, "o", color=colour, ms=5)
+    drawn = [gt_px]
+    refs = [p for p in tracking["paths"] if p["centres"] is not None]
+    for i, ref in enumerate(refs):
+        px = project(np.asarray(ref["centres"]), c2w, K)
+        k = times.index(ref["reference_us"])
+        label = f"{name}: tracked, one per reference frame (ring)" if i == 0 else None
+        ax.plot(*px.T, "o--", color=colour, lw=1.0, ms=3, alpha=0.8, label=label)
+        ax.plot(*px[k], "o", mfc="none", mec=colour, ms=9, mew=1.5)
+        drawn.append(px)
+    return drawn
 
 
 def _true_path(tracking: dict, track: ObjectTrack | None, times: list[int]) -> np.ndarray:

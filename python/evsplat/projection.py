@@ -20,9 +20,10 @@ def world_to_camera(c2w: np.ndarray) -> np.ndarray:
     return out
 
 
-def viewmat(c2w: np.ndarray) -> torch.Tensor:
-    """World-to-camera matrix as the float32 tensor the rasterizer takes."""
-    return torch.from_numpy(world_to_camera(c2w).astype(np.float32))
+def viewmat(c2w: np.ndarray, device: torch.device | None = None) -> torch.Tensor:
+    """World-to-camera matrix as the float32 tensor the rasterizer takes (on ``device``, default
+    the CPU)."""
+    return torch.from_numpy(world_to_camera(c2w).astype(np.float32)).to(device)
 
 
 def project_points(points: torch.Tensor, w2c: torch.Tensor, K: torch.Tensor) -> torch.Tensor:

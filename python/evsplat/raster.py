@@ -1,8 +1,11 @@
 """The differentiable Gaussian splatting rasterizer (wgpu compute passes behind a torch autograd
 Function).
 
-``rasterize`` takes float32 CPU tensors and returns the image, expected depth and alpha plus a
-``meta`` dict; gradients flow to means, quats, scales, opacities and features. Conventions
+``rasterize`` takes float32 tensors and returns the image, expected depth and alpha plus a
+``meta`` dict; gradients flow to means, quats, scales, opacities and features. The tensors may
+live on any torch device: the core works on host memory, so tensors elsewhere (CUDA) go to the
+host in one copy per render and the outputs, and later the gradients, come back in one copy
+each, on the Gaussians' device. Conventions
 (gsplat's): quaternions (w, x, y, z), scales are standard deviations, the camera looks along +z,
 pixel (row i, column j) has its centre at (j + 0.5, i + 0.5) in K's pixel coordinates.
 """
@@ -20,8 +23,15 @@ from evsplat.errors import EvsplatError, core_call
 MAX_FEATURES = 32
 
 
+#: The Gaussians' inputs as the core names them, in ``rasterize``'s order.
+_GAUSSIANS = ("means", "quats", "scales", "opacities", "features", "background")
+
+
 @dataclass(frozen=True)
 class _Camera:
+    """One render's settings, and its inputs on the host (``host``: flat float32 arrays under
+    the core's names, copied from another device once and reused by the backward)."""
+
     width: int
     height: int
     near: float
@@ -29,10 +39,30 @@ class _Camera:
     atomics: str | None
     profile: dict | None
     work: dict | None  # filled with the compositing step counts when not None
+    host: dict[str, np.ndarray]
+    device: torch.device  # the Gaussians': outputs and gradients go there
 
 
-def _flat(t: torch.Tensor) -> np.ndarray:
-    return t.detach().reshape(-1).contiguous().numpy()
+def _to_host(tensors: list[torch.Tensor]) -> list[np.ndarray]:
+    """Flat host arrays of ``tensors``: views of CPU tensors (no copy when contiguous), and the
+    others concatenated on their device and copied to the host in one transfer."""
+    out = [t.detach().reshape(-1).contiguous() for t in tensors]
+    away = [i for i, t in enumerate(out) if t.device.type != "cpu"]
+    if away:
+        host = torch.cat([out[i] for i in away]).cpu()
+        for i, part in zip(away, host.split([out[i].numel() for i in away])):
+            out[i] = part
+    return [t.numpy() for t in out]
+
+
+def _to_device(arrays: list[np.ndarray], device: torch.device) -> list[torch.Tensor]:
+    """The core's flat 4-byte arrays (float32 or int32) as tensors on ``device``: wrapped
+    without a copy on the CPU, else joined on the host and sent in one transfer."""
+    if device.type == "cpu":
+        return [torch.from_numpy(a) for a in arrays]
+    bits = torch.from_numpy(np.concatenate([a.reshape(-1).view(np.float32) for a in arrays]))
+    parts = bits.to(device).split([a.size for a in arrays])
+    return [p.view(torch.int32) if a.dtype == np.int32 else p for p, a in zip(parts, arrays)]
 
 
 def _check(name: str, t: object, shape: tuple[int | None, ...]) -> torch.Tensor:
@@ -40,37 +70,32 @@ def _check(name: str, t: object, shape: tuple[int | None, ...]) -> torch.Tensor:
         raise EvsplatError(f"rasterize: {name} must be a torch.Tensor, got {type(t).__name__}")
     if t.dtype != torch.float32:
         raise EvsplatError(f"rasterize: {name} must be float32, got {t.dtype}; use .float()")
-    if t.device.type != "cpu":
-        raise EvsplatError(f"rasterize: {name} must be on the CPU, got {t.device}; use .cpu()")
     ok = t.dim() == len(shape) and all(w is None or w == s for w, s in zip(shape, t.shape))
     if not ok:
         want = "[" + ", ".join("*" if w is None else str(w) for w in shape) + "]"
         raise EvsplatError(f"rasterize: {name} has shape {list(t.shape)}, expected {want}")
-    # numpy's isfinite: torch's took 53 ms per 3 M floats here (~300 ms of a 1 M Gaussian call).
-    if not np.isfinite(t.detach().numpy()).all():
-        raise EvsplatError(f"rasterize: {name} contains NaN or Inf; pass finite values")
     return t
 
 
-def _inputs(means, quats, scales, opacities, features, background) -> dict[str, np.ndarray]:
-    """The Gaussians as the core takes them: flat float32 views (no copy when contiguous)."""
-    names = ("means", "quats", "scales", "opacities", "features", "background")
-    return {
-        k: _flat(t) for k, t in zip(names, (means, quats, scales, opacities, features, background))
-    }
+def _host_inputs(named: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
+    """``named`` tensors on the host under the core's names, each checked finite."""
+    host = dict(zip(named, _to_host(list(named.values()))))
+    for name, a in host.items():
+        # numpy's isfinite: torch's took 53 ms per 3 M floats here (~300 ms of a 1 M Gaussian
+        # call).
+        if not np.isfinite(a).all():
+            shown = "K" if name == "k" else name
+            raise EvsplatError(f"rasterize: {shown} contains NaN or Inf; pass finite values")
+    return host
 
 
-def _args(means, quats, scales, opacities, features, viewmat, K, background, cam: _Camera):
-    return dict(
-        **_inputs(means, quats, scales, opacities, features, background),
-        d=features.shape[1],
-        viewmat=_flat(viewmat),
-        k=_flat(K),
-        width=cam.width,
-        height=cam.height,
-        near=cam.near,
-        far=cam.far,
-    )
+def _inputs(cam: _Camera) -> dict[str, np.ndarray]:
+    """The Gaussians as the core takes them: flat float32 host arrays."""
+    return {k: cam.host[k] for k in _GAUSSIANS}
+
+
+def _args(cam: _Camera, d: int) -> dict:
+    return dict(**cam.host, d=d, width=cam.width, height=cam.height, near=cam.near, far=cam.far)
 
 
 def _core_call(fn, *args, **kwargs) -> dict:
@@ -102,7 +127,7 @@ class _Rasterize(torch.autograd.Function):
         if started is None:
             out = _core_call(
                 _core.rasterize_forward,
-                **_args(means, quats, scales, opacities, features, viewmat, K, background, cam),
+                **_args(cam, d),
                 profile=cam.profile is not None,
                 count_work=cam.work is not None,
             )
@@ -110,18 +135,19 @@ class _Rasterize(torch.autograd.Function):
                 cam.profile["forward"] = dict(out["times"])
             if cam.work is not None:
                 cam.work.update(out["work"])
-            outputs = [torch.from_numpy(out[k]).reshape(s) for k, s in zip(_OUTPUTS, shapes)]
+            flat = _to_device([out[k] for k in _OUTPUTS], cam.device)
+            outputs = [t.reshape(s) for t, s in zip(flat, shapes)]
             ctx.render = _Render(out["state"])
         else:
             # Started by rasterize_async: the node is made now, where a render in place would
             # be (torch sums gradients in the order of its nodes), and the outputs are filled
             # when the render is read back (PendingRaster.result), before anything sees them.
             dtypes = (torch.float32,) * 3 + (torch.int32,) + (torch.float32,) * 2
-            outputs = [torch.empty(s, dtype=t) for s, t in zip(shapes, dtypes)]
+            outputs = [torch.empty(s, dtype=t, device=cam.device) for s, t in zip(shapes, dtypes)]
             started.outputs = outputs
             ctx.render = started.render
-        # The render's inputs (to render it again when later renders took its buffers; saved
-        # so that torch rejects their in-place change before the backward).
+        # The render's inputs, saved so that torch rejects their in-place change before the
+        # backward: it renders again from their host copies when later renders took its buffers.
         ctx.save_for_backward(means, quats, scales, opacities, features, background)
         ctx.cam = cam
         ctx.shape = (n, d)
@@ -136,28 +162,34 @@ class _Rasterize(torch.autograd.Function):
         n, d = ctx.shape
         h, w = cam.height, cam.width
 
-        def grad(g, shape):
-            return np.zeros(int(np.prod(shape)), np.float32) if g is None else _flat(g.float())
-
+        grads, sizes = (g_image, g_depth, g_alpha), (h * w * d, h * w, h * w)
+        sent = iter(_to_host([g.float() for g in grads if g is not None]))
+        image, depth, alpha = (
+            np.zeros(s, np.float32) if g is None else next(sent) for g, s in zip(grads, sizes)
+        )
         out = _core_call(
             _core.rasterize_backward,
             ctx.render.state,
-            **_inputs(*ctx.saved_tensors),
-            grad_image=grad(g_image, (h, w, d)),
-            grad_depth=grad(g_depth, (h, w)),
-            grad_alpha=grad(g_alpha, (h, w)),
+            **_inputs(cam),
+            grad_image=image,
+            grad_depth=depth,
+            grad_alpha=alpha,
             atomics=cam.atomics,
             profile=cam.profile is not None,
         )
         if cam.profile is not None:
             cam.profile["backward"] = dict(out["times"])
-        ctx.means2d_grad.copy_(torch.from_numpy(out["means2d"]).reshape(n, 2))
+        names = ("means2d", "means", "quats", "scales", "opacities", "features")
+        m2d, means, quats, scales, opacities, features = _to_device(
+            [out[k] for k in names], cam.device
+        )
+        ctx.means2d_grad.copy_(m2d.reshape(n, 2))
         return (
-            torch.from_numpy(out["means"]).reshape(n, 3),
-            torch.from_numpy(out["quats"]).reshape(n, 4),
-            torch.from_numpy(out["scales"]).reshape(n, 3),
-            torch.from_numpy(out["opacities"]),
-            torch.from_numpy(out["features"]).reshape(n, d),
+            means.reshape(n, 3),
+            quats.reshape(n, 4),
+            scales.reshape(n, 3),
+            opacities,
+            features.reshape(n, d),
             None,
             None,
             None,
@@ -235,13 +267,9 @@ def rasterize_async(
         means, quats, scales, opacities, features, viewmat, K, width, height, near, far,
         background, atomics, None, count_work,
     )  # fmt: skip
-    means, quats, scales, opacities, features, viewmat, K, background, cam = args
+    cam = args[-1]
     started = _Started(
-        _core_call(
-            _core.rasterize_submit,
-            **_args(means, quats, scales, opacities, features, viewmat, K, background, cam),
-            count_work=count_work,
-        )
+        _core_call(_core.rasterize_submit, **_args(cam, args[4].shape[1]), count_work=count_work)
     )
     return PendingRaster(args, started, _apply(args, started))
 
@@ -272,15 +300,15 @@ class PendingRaster:
             raise EvsplatError(
                 "rasterize_async: an input changed in place after the render was started"
             )
-        means, quats, scales, opacities, features, _, _, background, cam = self._args
-        inputs = _inputs(means, quats, scales, opacities, features, background)
-        out = _core_call(_core.rasterize_finish, started.handle, **inputs)
+        cam = self._args[-1]
+        out = _core_call(_core.rasterize_finish, started.handle, **_inputs(cam))
         started.render.state = out["state"]
         if cam.work is not None:
             cam.work.update(out["work"])
         with torch.no_grad():
-            for t, key in zip(started.outputs, _OUTPUTS):
-                t.view(-1).copy_(torch.from_numpy(out[key]))
+            flat = _to_device([out[k] for k in _OUTPUTS], cam.device)
+            for t, value in zip(started.outputs, flat):
+                t.view(-1).copy_(value)
         return _results(*self._applied, cam)
 
 
@@ -288,7 +316,9 @@ def _checked(
     means, quats, scales, opacities, features, viewmat, K, width, height, near, far, background,
     atomics, profile, count_work,
 ) -> tuple:  # fmt: skip
-    """The arguments of ``rasterize`` checked at the boundary: the tensors and the _Camera."""
+    """The arguments of ``rasterize`` checked at the boundary: the tensors and the _Camera,
+    with the tensors' host copies. The Gaussians (and ``background``) share one device, the
+    outputs' and gradients'; ``viewmat`` and ``K`` may be anywhere."""
     means = _check("means", means, (None, 3))
     n = means.shape[0]
     quats = _check("quats", quats, (n, 4))
@@ -301,8 +331,13 @@ def _checked(
     viewmat = _check("viewmat", viewmat, (4, 4))
     K = _check("K", K, (3, 3))
     if background is None:
-        background = torch.zeros(d)
+        background = torch.zeros(d, device=means.device)
     background = _check("background", background, (d,))
+    gaussians = dict(zip(_GAUSSIANS, (means, quats, scales, opacities, features, background)))
+    devices = {t.device for t in gaussians.values()}
+    if len(devices) > 1:
+        where = ", ".join(f"{k} on {t.device}" for k, t in gaussians.items())
+        raise EvsplatError(f"rasterize: the Gaussians are on several devices ({where}); use .to()")
     for name, value in (("width", width), ("height", height)):
         if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 16384:
             raise EvsplatError(f"rasterize: {name}={value!r} must be an int in 1..16384")
@@ -311,14 +346,17 @@ def _checked(
     if atomics not in (None, "float", "cas"):
         raise EvsplatError(f"rasterize: atomics={atomics!r} must be 'float', 'cas' or None")
     work = {} if count_work else None
-    cam = _Camera(int(width), int(height), float(near), float(far), atomics, profile, work)
+    host = _host_inputs(gaussians | {"viewmat": viewmat, "k": K})
+    cam = _Camera(
+        int(width), int(height), float(near), float(far), atomics, profile, work, host, means.device
+    )
     return means, quats, scales, opacities, features, viewmat, K, background, cam
 
 
 def _apply(args: tuple, started: _Started | None) -> tuple:
     """The render's autograd node: (image, depth, alpha, radii, means2d, depths, means2d_grad)."""
     means, quats, scales, opacities, features, viewmat, K, background, cam = args
-    means2d_grad = torch.zeros(means.shape[0], 2)
+    means2d_grad = torch.zeros(means.shape[0], 2, device=means.device)
     outputs = _Rasterize.apply(
         means, quats, scales, opacities, features, viewmat, K, background, cam, means2d_grad,
         started,

@@ -81,6 +81,13 @@ class Renderer:
         moving = None if self.static_mask is None else ~self.static_mask
         return deformed(self.model, self.mlp, self.time(t_us), moving, self.motion, self.object_id)
 
+    def opacities(self, t_us: float) -> torch.Tensor:
+        """[N] opacities at ``t_us``: time-local ones, and objects only while in view."""
+        opacity = self.model.opacities(self.time(t_us))
+        if self.motion is None or self.object_id is None:
+            return opacity
+        return opacity * self.motion.visibility(self.object_id, self.time(t_us))
+
     def render(
         self,
         t_us: float,
@@ -106,17 +113,19 @@ class Renderer:
         ``.result()`` gives its RenderOut. The trainer prepares its next render and reads its
         events while the device draws."""
         means, rotations, scales = gaussians if gaussians is not None else self.gaussians_at(t_us)
-        w2c = viewmat(c2w)
-        colors = self.model.colors(torch.from_numpy(np.asarray(c2w, np.float32)[:3, 3]))
+        w2c = viewmat(c2w, self.K.device)
+        device = self.K.device
+        centre = torch.from_numpy(np.asarray(c2w, np.float32)[:3, 3]).to(device)
+        colors = self.model.colors(centre)
         channels = colors.shape[1]
         features = colors if extra is None else torch.cat([colors, extra], dim=1)
-        background = torch.zeros(features.shape[1])
+        background = torch.zeros(features.shape[1], device=device)
         background[:channels] = self.background
         raster = rasterize_async(
             means,
             rotations,
             scales,
-            self.model.opacities(self.time(t_us)),
+            self.opacities(t_us),
             features,
             w2c,
             self.K,

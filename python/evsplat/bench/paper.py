@@ -24,6 +24,7 @@ from evsplat.bench.train import (
     plot_pareto,
     simulate_cases,
 )
+from evsplat.commands.train import add_device_argument
 from evsplat.data.atomic import write_text_atomic
 from evsplat.errors import EvsplatError
 from evsplat.sweep import SweepOptions, add_sweep_arguments, run_sweep
@@ -76,6 +77,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="comma list of training seeds; with several, each table cell is the mean +- the "
         "standard deviation over them (default 0)",
     )
+    add_device_argument(parser, "auto")
     add_sweep_arguments(parser)
 
 
@@ -222,7 +224,11 @@ def run(args: argparse.Namespace) -> int:
     tables = {int(t) for t in args.tables.split(",") if t}
     seeds = _seeds(args.seeds)
     tiny = not args.full_size
-    spec = {"train_preset": "tiny" if tiny else "default", "iterations": args.iters}
+    spec = {
+        "train_preset": "tiny" if tiny else "default",
+        "iterations": args.iters,
+        "device": args.device,
+    }
     info = machine_info()
     print(f"machine: {info['machine']}\nadapter: {info['adapter']}\ncommit: {info['commit']}")
     out: Path = args.out

@@ -17,6 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from evsplat.commands.train import add_device_argument
 from evsplat.data.atomic import write_atomic
 from evsplat.sweep import Cell, SweepOptions, add_sweep_arguments, run_sweep
 from evsplat.sweep.store import write_table
@@ -101,6 +102,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=None, help="default bench_results/<preset>")
     parser.add_argument("--iters", type=int, default=None, help="override iterations per run")
     parser.add_argument("--variants", default=None, help="comma list to run a subset")
+    add_device_argument(parser, "auto")
     add_sweep_arguments(parser)
 
 
@@ -147,13 +149,14 @@ def bench_cell(
     cli: tuple[str, ...] = (),
     seed: int | None = None,
 ) -> Cell:
-    """One run of the grid: the preset's config changed by ``apply`` (default: the named entry
-    of ``VARIANTS``), ``cli`` as extra `evsplat train` arguments, and ``seed`` (default the
-    preset's). The sweep trains it in its own process (so peak memory is per run) and scores
-    it on the held-out frames."""
+    """One run of the grid: the preset's config on ``spec``'s device (default auto) changed by
+    ``apply`` (default: the named entry of ``VARIANTS``), ``cli`` as extra `evsplat train`
+    arguments, and ``seed`` (default the preset's). The sweep trains it in its own process (so
+    peak memory is per run) and scores it on the held-out frames."""
     from evsplat.config import preset
 
     cfg = preset(spec["train_preset"])
+    cfg.device = spec.get("device", "auto")
     (apply or VARIANTS[variant])(cfg)
     n = iters or spec["iterations"]
     if n:
@@ -218,7 +221,7 @@ def plot_pareto(rows: list[dict], path: Path, title: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    spec = PRESETS[args.preset]
+    spec = PRESETS[args.preset] | {"device": args.device}
     out = args.out or Path("bench_results") / args.preset
     out.mkdir(parents=True, exist_ok=True)
     variants = args.variants.split(",") if args.variants else spec["variants"]

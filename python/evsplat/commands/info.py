@@ -1,4 +1,5 @@
-"""`evsplat info`: the GPU adapter in use, its limits, and package versions."""
+"""`evsplat info`: the GPU adapter in use, its limits, the device torch trains on, and package
+versions."""
 
 from __future__ import annotations
 
@@ -6,7 +7,10 @@ import argparse
 import json
 import platform
 
-HELP = "print the GPU adapter, its limits, float-atomic and subgroup support, and package versions"
+HELP = (
+    "print the GPU adapter, its limits, float-atomic and subgroup support, the training device "
+    "and package versions"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,8 +34,13 @@ def versions() -> dict[str, str]:
 
 def run(args: argparse.Namespace) -> int:
     from evsplat.gpu import adapter_info
+    from evsplat.train.device import describe_device
 
-    info = {"adapter": adapter_info(), "versions": versions()}
+    info = {
+        "adapter": adapter_info(),
+        "training_device": describe_device("auto"),
+        "versions": versions(),
+    }
     if args.json:
         print(json.dumps(info, indent=2))
         return 0
@@ -41,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"f32 atomics  {'yes' if a['float32_atomics'] else 'no'} (using {a['atomic_mode']})")
     sums = "summed across subgroups" if a["subgroup_reduce"] else "one atomic per invocation"
     print(f"subgroups    {'yes' if a['subgroups'] else 'no'} (gradients {sums})")
+    print(f"training     torch on {info['training_device']}")
     for key in (
         "max_storage_buffer_binding_size",
         "max_buffer_size",

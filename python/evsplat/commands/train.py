@@ -9,7 +9,7 @@ HELP = "train a deformable Gaussian scene on a dataset folder (events + poses)"
 
 
 def add_config_arguments(parser: argparse.ArgumentParser) -> None:
-    """--preset, --config, --iters and --set (shared with `evsplat train-many` and
+    """--preset, --config, --iters, --device and --set (shared with `evsplat train-many` and
     `evsplat config show`)."""
     from evsplat.config import PRESETS
 
@@ -18,6 +18,7 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
         "--config", type=Path, default=None, help="a TrainConfig JSON (as in a run's config.json)"
     )
     parser.add_argument("--iters", type=int, default=None, help="override the iteration count")
+    add_device_argument(parser, None)
     parser.add_argument(
         "--set",
         action="append",
@@ -28,13 +29,29 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_device_argument(parser: argparse.ArgumentParser, default: str | None) -> None:
+    """--device: where torch trains (shared with the training benchmarks)."""
+    from evsplat.train.device import DEVICES
+
+    shown = default or "the config's (auto)"
+    parser.add_argument(
+        "--device",
+        choices=DEVICES,
+        default=default,
+        help=f"where torch trains: auto (CUDA when torch sees a GPU), cpu or cuda; default {shown}",
+    )
+
+
 def config_from_args(args: argparse.Namespace):
-    """The TrainConfig that --config or --preset names, with each --set applied."""
+    """The TrainConfig that --config or --preset names, on --device when given, with each
+    --set applied."""
     from evsplat.config import load_config, preset
     from evsplat.config_fields import apply
 
     cfg = load_config(args.config) if args.config is not None else preset(args.preset)
-    return apply(cfg, args.set)
+    if getattr(args, "device", None) is not None:
+        cfg.device = args.device
+    return apply(cfg, getattr(args, "set", []))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -106,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
         resume=args.resume,
         depth_prior=args.depth_prior,
         progress=not args.no_progress,
+        device=args.device,
     )
     rate = stats.iterations / max(stats.seconds, 1e-9)
     print(

@@ -8,9 +8,10 @@ Layout (docs/dataset.md describes every field):
     intrinsics.json      {"K": 3x3, "width", "height", "distortion": null or a lens model
                          (evsplat.data.distortion: radtan / equidistant, OpenCV order)}
     meta.json            sensor and scene metadata (c_pos, c_neg, bayer, t_start_us, t_end_us, ...)
-    test/frames.json     optional [{"time_us", "c2w", "rgb", "depth", "mask", "object_centre"}],
-                         files in test/
-    test/track.json      optional dense path of the tracked moving object (for path plots)
+    test/frames.json     optional [{"time_us", "c2w", "rgb", "depth", "mask", "object_centre",
+                         "objects": [{"name", "centre", "mask"}]}], files in test/
+                         (evsplat.data.ground_truth reads them)
+    test/track.json      optional dense paths of the moving objects (for path plots)
     depth_prior/         optional precomputed depth priors
 """
 
@@ -26,33 +27,13 @@ import numpy as np
 from evsplat.data.distortion import LensDistortion, Rectifier
 from evsplat.data.event_index import MS
 from evsplat.data.event_store import EventStore, open_store, verify_store
+from evsplat.data.ground_truth import ObjectTrack, TestFrame, read_test_frames, read_tracks
 from evsplat.data.poses import read_tum
 from evsplat.data.simulator import BAYER_PATTERNS
-from evsplat.data.trajectory import Trajectory, validate_poses
+from evsplat.data.trajectory import Trajectory
 from evsplat.errors import EvsplatError
 
 REQUIRED_FILES = ("events.h5", "poses.txt", "intrinsics.json", "meta.json")
-
-
-@dataclass
-class TestFrame:
-    """A ground-truth view at an intermediate time (mask marks moving-object pixels)."""
-
-    time_us: int
-    c2w: np.ndarray
-    rgb_path: Path
-    depth_path: Path
-    mask_path: Path | None
-    object_centre: np.ndarray | None = None  # [3] world position of the tracked moving object
-
-
-@dataclass
-class ObjectTrack:
-    """The tracked moving object's centre over the sequence (test/track.json)."""
-
-    times_us: np.ndarray  # [T] int64, increasing
-    centres: np.ndarray  # [T,3] float64 world positions (metres)
-    radius: float | None  # bounds the object around its centre (metres), if known
 
 
 @dataclass
@@ -75,7 +56,8 @@ class Dataset:
     meta: dict
     depth_prior_dir: Path | None = None
     distortion: LensDistortion | None = None  # of the raw events; ``events`` are undistorted
-    track: ObjectTrack | None = None  # dense ground-truth path of the tracked moving object
+    track: ObjectTrack | None = None  # dense ground-truth path of the (first) moving object
+    tracks: list[ObjectTrack] = field(default_factory=list)  # every moving object's
 
     def between(self, t0_us: int, t1_us: int) -> Dataset:
         """The same data restricted to [t0, t1] µs, a part of [t_start_us, t_end_us]: training
@@ -197,101 +179,6 @@ def _trajectory(c: _Checker, name: str, t0: int | None, t1: int | None) -> Traje
     return traj
 
 
-def _test_frames(
-    c: _Checker, size: tuple[int, int] | None, t0: int | None, t1: int | None
-) -> list[TestFrame]:
-    from evsplat.data.images import read_exr, read_png
-
-    path = c.root / "test" / "frames.json"
-    if not path.exists():
-        return []
-    doc = c.json("test/frames.json")
-    if not isinstance(doc, list):
-        if doc is not None:
-            c.fail(f"{path}: expected a list of frames")
-        return []
-    frames = []
-    for i, f in enumerate(doc):
-        try:
-            t = f["time_us"]
-            m = np.array(f["c2w"], dtype=np.float64)
-            rgb, depth, mask = f["rgb"], f["depth"], f.get("mask")
-        except (KeyError, TypeError, ValueError):
-            c.fail(f"{path}: frame {i} needs 'time_us', 'c2w' (4x4), 'rgb' and 'depth'")
-            continue
-        if not isinstance(t, int) or isinstance(t, bool):
-            c.fail(f"{path}: frame {i} time_us must be an integer (µs), got {t!r}")
-            continue
-        # One pose: validated as a two-sample trajectory that stands still.
-        still = (np.array([t, t + 1]), np.stack([m, m]), f"{path} frame {i}")
-        if c.attempt(validate_poses, *still) is None:
-            continue
-        if t0 is not None and not (t0 <= t <= t1):
-            c.fail(f"{path}: frame {i} time {t} µs is outside [{t0}, {t1}] µs")
-        paths = [c.root / "test" / p for p in (rgb, depth) + ((mask,) if mask else ())]
-        missing = [p for p in paths if not p.is_file()]
-        if missing:
-            c.fail(f"{missing[0]}: missing (listed in {path} frame {i})")
-            continue
-        if size is not None:
-            for p, read in zip(paths, (read_png, read_exr, read_png)):
-                img = c.attempt(read, p)
-                if img is not None and img.shape[:2] != (size[1], size[0]):
-                    c.fail(
-                        f"{p}: image is {img.shape[1]}x{img.shape[0]} "
-                        f"but the sensor is {size[0]}x{size[1]}"
-                    )
-        centre = _centre(c, f.get("object_centre"), f"{path}: frame {i} object_centre")
-        frames.append(TestFrame(int(t), m, paths[0], paths[1], paths[2] if mask else None, centre))
-    return frames
-
-
-def _centre(c: _Checker, value, where: str) -> np.ndarray | None:
-    """An optional world point: None when absent, else 3 finite numbers (a problem otherwise)."""
-    if value is None:
-        return None
-    try:
-        p = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        p = np.zeros(0)
-    if p.shape != (3,) or not np.all(np.isfinite(p)):
-        c.fail(f"{where} must be [x, y, z] (finite metres), got {value!r}")
-        return None
-    return p
-
-
-def _track(c: _Checker) -> ObjectTrack | None:
-    path = c.root / "test" / "track.json"
-    if not path.exists():
-        return None
-    doc = c.json("test/track.json")
-    if doc is None:
-        return None
-    try:
-        times = np.array(doc["times_us"], dtype=np.int64)
-        centres = np.array(doc["centres"], dtype=np.float64)
-        radius = doc.get("radius")
-    except (KeyError, TypeError, ValueError, OverflowError):
-        c.fail(f"{path}: needs 'times_us' (integers), 'centres' ([x, y, z] each) and 'radius'")
-        return None
-    radius_ok = radius is None or (
-        isinstance(radius, (int, float)) and not isinstance(radius, bool) and radius > 0
-    )
-    if (
-        times.ndim != 1
-        or centres.shape != (len(times), 3)
-        or not np.all(np.isfinite(centres))
-        or np.any(np.diff(times) <= 0)
-        or not radius_ok
-    ):
-        c.fail(
-            f"{path}: needs increasing 'times_us', one finite [x, y, z] in 'centres' per time "
-            "and a positive 'radius' or null"
-        )
-        return None
-    return ObjectTrack(times, centres, None if radius is None else float(radius))
-
-
 def _events(
     c: _Checker,
     path: Path,
@@ -370,8 +257,8 @@ def _inspect(root: str | os.PathLike, verify: bool = False) -> tuple[list[str], 
     traj = _trajectory(c, "poses.txt", t0, t1) if (root / "poses.txt").is_file() else None
     gt = _trajectory(c, "poses_gt.txt", t0, t1) if (root / "poses_gt.txt").is_file() else None
     # With two different sensor sizes on record, image sizes cannot be judged (one line above).
-    frames = _test_frames(c, None if sizes_disagree else size, t0, t1)
-    track = _track(c)
+    frames = read_test_frames(c, None if sizes_disagree else size, t0, t1)
+    tracks = read_tracks(c)
     if c.problems:
         return c.problems, None
     prior = root / "depth_prior"
@@ -392,7 +279,8 @@ def _inspect(root: str | os.PathLike, verify: bool = False) -> tuple[list[str], 
         meta=meta,
         depth_prior_dir=prior if prior.is_dir() else None,
         distortion=intr[3],
-        track=track,
+        track=tracks[0] if tracks else None,
+        tracks=tracks,
     )
 
 

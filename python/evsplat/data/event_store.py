@@ -145,6 +145,15 @@ class EventStore:
         self.largest_read = max(self.largest_read, len(t))
         return _absolute(t, self._t_offset, self.source)
 
+    @property
+    def transforms(self) -> bool:
+        """Whether reads apply a transform (which may move and drop events)."""
+        return self._transform is not None
+
+    def events(self, i0: int, i1: int) -> EventStream:
+        """Events [i0, i1) by index as a validated stream (transformed, if the store does)."""
+        return self._stream(int(i0), int(i1))
+
     def _stream(self, i0: int, i1: int) -> EventStream:
         """Events [i0, i1) as a validated stream, with the store's transform applied."""
         x, y, p = (self._columns[k][i0:i1] for k in (0, 1, 3))

@@ -127,8 +127,9 @@ def simulate_events(
 # ----------------------------------------------------------------- dataset generation
 
 # 2: test frames carry the tracked object's centre, test/track.json; 3: pixels integrate their
-# area (`samples` rays per side, meta.json's `pixel_samples`)
-GENERATOR_VERSION = 3
+# area (`samples` rays per side, meta.json's `pixel_samples`); 4: every moving object's mask,
+# centre and radius (test frames' `objects`, track.json's `objects`)
+GENERATOR_VERSION = 4
 MEASURED_POSE_HZ = 100  # "measured" poses, as from a motion-capture system
 GT_POSE_HZ = 1000  # dense ground-truth poses
 TEST_FRAMES_FULL = 12
@@ -143,14 +144,35 @@ def _times(duration_us: int, step_us: float) -> np.ndarray:
 
 
 def _write_track(path: Path, scene: Scene, times_us: np.ndarray) -> None:
-    """The tracked object's centre at `times_us` (the dense ground-truth pose times), for path
-    plots; `radius` bounds the object around its centre (null when unknown)."""
-    doc = {
-        "times_us": [int(t) for t in times_us],
-        "centres": [scene.object_centre(int(t)).tolist() for t in times_us],
-        "radius": scene.object_radius(),
+    """Every moving object's centre at `times_us` (the dense ground-truth pose times), for path
+    plots, and the radius that bounds it around its centre; the first object's also at the top
+    level, as datasets with one tracked object have it."""
+    objects = [
+        {
+            "name": obj.name,
+            "centres": [scene.object_centre(int(t), k).tolist() for t in times_us],
+            "radius": scene.object_radius(k),
+        }
+        for k, obj in enumerate(scene.objects)
+    ]
+    doc = {"times_us": [int(t) for t in times_us]} | {
+        key: objects[0][key] for key in ("centres", "radius")
     }
-    write_text_atomic(path, json.dumps(doc) + "\n")
+    write_text_atomic(path, json.dumps(doc | {"objects": objects}) + "\n")
+
+
+def _object_entries(scene: Scene, t_us: int, k: int, folder: Path) -> list[dict]:
+    """Test frame `k`'s per-object ground truth: name, world centre and the file of its mask
+    (written into `folder`: the pixels that see that object first)."""
+    from evsplat.data.images import write_png
+
+    entries = []
+    for j, (obj, mask) in enumerate(zip(scene.objects, scene.object_masks(t_us))):
+        name = f"mask_{k:05d}_object{j}.png"
+        write_png(folder / name, mask.astype(np.float32))
+        centre = scene.object_centre(t_us, j).tolist()
+        entries.append({"name": obj.name, "centre": centre, "mask": name})
+    return entries
 
 
 def simulate_dataset(
@@ -254,12 +276,12 @@ def simulate_dataset(
                 "depth": names[1],
                 "mask": names[2],
             }
-            centre = scene.object_centre(int(t))
-            if centre is not None:
-                frame["object_centre"] = centre.tolist()
+            if scene.objects:
+                frame["object_centre"] = scene.object_centre(int(t)).tolist()
+                frame["objects"] = _object_entries(scene, int(t), k, tmp / "test")
             test.append(frame)
         write_text_atomic(tmp / "test" / "frames.json", json.dumps(test, indent=1) + "\n")
-        if scene.object_centre(0) is not None:
+        if scene.objects:
             _write_track(tmp / "test" / "track.json", scene, gt_t)
         meta = {
             "generator": "evsplat simulate",

@@ -26,10 +26,8 @@ def camera_flow(depth: Tensor, K: Tensor, w2c_a: Tensor, w2c_b: Tensor) -> Tenso
     point falls behind camera b get flow 0.
     """
     h, w = depth.shape
-    dtype = depth.dtype
-    ys, xs = torch.meshgrid(
-        torch.arange(h, dtype=dtype) + 0.5, torch.arange(w, dtype=dtype) + 0.5, indexing="ij"
-    )
+    kw = {"dtype": depth.dtype, "device": depth.device}
+    ys, xs = torch.meshgrid(torch.arange(h, **kw) + 0.5, torch.arange(w, **kw) + 0.5, indexing="ij")
     pix = torch.stack([xs, ys], dim=-1)  # [H,W,2]
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     valid_a = depth > MIN_DEPTH

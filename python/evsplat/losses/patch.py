@@ -16,7 +16,7 @@ def extract_patches(frames: Tensor, centres: Tensor, side: int) -> Tensor:
     Differentiable with respect to the centres."""
     m, h, w = frames.shape
     n = centres.shape[0]
-    offs = torch.arange(side, dtype=centres.dtype) - (side - 1) / 2.0
+    offs = torch.arange(side, dtype=centres.dtype, device=centres.device) - (side - 1) / 2.0
     oy, ox = torch.meshgrid(offs, offs, indexing="ij")
     # [m, n, side, side] sample positions; grid_sample's align_corners=False maps x in [0, W]
     # onto [-1, 1], which is exactly the pixel-centre convention above.
@@ -85,5 +85,7 @@ def select_visible(
         surface = rendered_depth[row, col]
         visible = inside & (surface > 0) & (depths <= surface * (1.0 + rel_tol))
         candidates = torch.nonzero(visible, as_tuple=False).reshape(-1)
+        # Drawn on the CPU (the generator's device): every device samples the same Gaussians.
         pick = torch.randperm(candidates.numel(), generator=generator)[: max(n, 0)]
+        pick = pick.to(candidates.device)
         return candidates[pick].sort().values

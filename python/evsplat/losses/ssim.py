@@ -7,9 +7,9 @@ import torch.nn.functional as F
 from torch import Tensor
 
 
-def gaussian_window(window: int, sigma: float) -> Tensor:
-    """Normalised 1-D Gaussian weights of length ``window``."""
-    x = torch.arange(window, dtype=torch.float32) - (window - 1) / 2.0
+def gaussian_window(window: int, sigma: float, device: torch.device | None = None) -> Tensor:
+    """Normalised 1-D Gaussian weights of length ``window`` (on ``device``, default the CPU)."""
+    x = torch.arange(window, dtype=torch.float32, device=device) - (window - 1) / 2.0
     w = torch.exp(-(x * x) / (2.0 * sigma * sigma))
     return w / w.sum()
 
@@ -29,7 +29,7 @@ def ssim(
     shape4 = a.reshape(-1, *a.shape[-3:]) if a.dim() == 4 else a.reshape(1, -1, *a.shape[-2:])
     a4, b4 = shape4, b.reshape(shape4.shape)
     channels = a4.shape[1]
-    g = gaussian_window(window, sigma).to(a.dtype)
+    g = gaussian_window(window, sigma, a.device).to(a.dtype)
     # The five local statistics in one separable pass (a row then a column convolution): the
     # same sums as the 11x11 window with zero padding, at 2/11 of the multiply-adds.
     stack = torch.cat([a4, b4, a4 * a4, b4 * b4, a4 * b4], dim=1)

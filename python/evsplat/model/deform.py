@@ -101,7 +101,10 @@ def deformed(
         idx = torch.nonzero(mask.reshape(-1), as_tuple=False).reshape(-1)
         n = means.shape[0]
         sub = mlp(model.means.detach()[idx], t)
-        dx, dq, ds = (torch.zeros(n, d.shape[1], dtype=d.dtype).index_copy(0, idx, d) for d in sub)
+        dx, dq, ds = (
+            torch.zeros(n, d.shape[1], dtype=d.dtype, device=d.device).index_copy(0, idx, d)
+            for d in sub
+        )
     rotations = normalize_quats(rotations + dq)
     return means + dx, rotations, scale_activation(model.log_scales + ds)
 
@@ -120,7 +123,11 @@ def deformed_means(
     means = model.means[rows]
     if motion is not None and object_id is not None:
         means = motion.apply(means, model.quats[rows], object_id[rows], t)[0]
-    moving = torch.arange(rows.numel()) if static is None else torch.nonzero(~static[rows])
+    moving = (
+        torch.arange(rows.numel(), device=rows.device)
+        if static is None
+        else torch.nonzero(~static[rows])
+    )
     moving = moving.reshape(-1)
     dx = mlp(model.means[rows].detach()[moving], t)[0]
     return means.index_add(0, moving, dx)

@@ -58,14 +58,14 @@ class Densifier:
         # per-Gaussian state kept elsewhere (the static mask) can follow clones and prunes.
         self.origin = torch.zeros(0, dtype=torch.long)
 
-    def _reset_stats(self, n: int) -> None:
-        self.grad_accum = torch.zeros(n)
-        self.denom = torch.zeros(n)
-        self.max_radii = torch.zeros(n)
+    def _reset_stats(self, n: int, device: torch.device) -> None:
+        self.grad_accum = torch.zeros(n, device=device)
+        self.denom = torch.zeros(n, device=device)
+        self.max_radii = torch.zeros(n, device=device)
 
-    def _ensure_size(self, n: int) -> None:
+    def _ensure_size(self, n: int, device: torch.device) -> None:
         if self.grad_accum.shape[0] != n:
-            self._reset_stats(n)
+            self._reset_stats(n, device)
 
     def accumulate(
         self,
@@ -86,9 +86,10 @@ class Densifier:
         """
         if means2d_grad is None:
             return
-        self._ensure_size(means2d_grad.shape[0])
+        self._ensure_size(means2d_grad.shape[0], means2d_grad.device)
         visible = radii.reshape(-1) > 0
-        g = means2d_grad.detach().reshape(-1, 2) * torch.tensor([width / 2.0, height / 2.0])
+        ndc = torch.tensor([width / 2.0, height / 2.0], device=means2d_grad.device)
+        g = means2d_grad.detach().reshape(-1, 2) * ndc
         norm = torch.nan_to_num(g.norm(dim=-1), nan=0.0, posinf=0.0)
         # Whole-array updates that add 0 (and keep the old maximum) where not visible: the same
         # values as updating the visible rows through boolean indexing, in fewer calls.
@@ -108,7 +109,8 @@ class Densifier:
         clone or split parent).
         """
         cfg, counts = self.cfg, {}
-        self.origin = torch.arange(model.num_gaussians)
+        device = model.means.device
+        self.origin = torch.arange(model.num_gaussians, device=device)
         if self.start < iteration < self.stop and iteration % cfg.interval == 0:
             counts.update(self._densify_and_prune(model, optimizer, iteration))
         resets = self.reset_interval > 0 and 0 < iteration < self.stop
@@ -117,7 +119,7 @@ class Densifier:
             counts["reset"] = 1
         excess = model.num_gaussians - cfg.max_gaussians
         if excess > 0:
-            keep = torch.ones(model.num_gaussians, dtype=torch.bool)
+            keep = torch.ones(model.num_gaussians, dtype=torch.bool, device=device)
             keep[torch.argsort(model.opacity_logits.detach())[:excess]] = False
             self._prune(model, optimizer, keep)
             counts["capped"] = excess
@@ -125,8 +127,8 @@ class Densifier:
 
     def _densify_and_prune(self, model: GaussianModel, optimizer, iteration: int) -> dict:
         cfg = self.cfg
-        n0 = model.num_gaussians
-        self._ensure_size(n0)
+        n0, device = model.num_gaussians, model.means.device
+        self._ensure_size(n0, device)
         grads = self.grad_accum / self.denom.clamp_min(1)
         high = grads >= cfg.grad_threshold
         room = cfg.max_gaussians - n0  # a clone adds one Gaussian, a split into two one net
@@ -174,12 +176,11 @@ class Densifier:
         parents = torch.nonzero(clone).reshape(-1), torch.nonzero(split).reshape(-1).repeat(k)
         self.origin = torch.cat([self.origin, *parents])
         opac = model.opacities().detach()
-        prune = torch.cat([split | recycled, torch.zeros(n_new, dtype=torch.bool)]) | (
-            opac < cfg.prune_opacity
-        )
+        none = torch.zeros(n_new, dtype=torch.bool, device=device)
+        prune = torch.cat([split | recycled, none]) | (opac < cfg.prune_opacity)
         # 3DGS: size pruning only once opacities were reset
         if 0 < self.reset_interval < iteration:
-            radii = torch.cat([self.max_radii, torch.zeros(n_new)])
+            radii = torch.cat([self.max_radii, torch.zeros(n_new, device=device)])
             big_world = (
                 model.scales().detach().max(dim=-1).values > cfg.max_world_scale * self.extent
             )
@@ -188,7 +189,8 @@ class Densifier:
         n_recycled = int(recycled.sum())
         n_pruned = int(prune.sum()) - n_split - n_recycled
         self._prune(model, optimizer, ~prune)
-        self._reset_stats(model.num_gaussians)  # statistics restart after every density change
+        # Statistics restart after every density change.
+        self._reset_stats(model.num_gaussians, device)
         return {"cloned": n_clone, "split": n_split, "pruned": n_pruned, "recycled": n_recycled}
 
     def _split_in_time(self, new: dict[str, Tensor], n_clone: int) -> None:
@@ -202,7 +204,7 @@ class Densifier:
         t_mean, t_log = new["t_mean"][n_clone:], new["t_log_scale"][n_clone:]
         width = time_width(t_log)
         local = width < cfg.time_local_width
-        jitter = torch.randn(t_mean.shape) * width
+        jitter = torch.randn(t_mean.shape, device=t_mean.device) * width
         new["t_mean"][n_clone:] = torch.where(local, (t_mean + jitter).clamp(0.0, 1.0), t_mean)
         shrunk = t_log - math.log(cfg.split_scale_divisor)
         new["t_log_scale"][n_clone:] = torch.where(local, shrunk, t_log)
@@ -249,8 +251,8 @@ class Densifier:
         """Gradient statistics, for checkpoints."""
         return {"grad_accum": self.grad_accum, "denom": self.denom, "max_radii": self.max_radii}
 
-    def load_state_dict(self, state: dict) -> None:
-        """Restore ``state_dict``."""
-        self.grad_accum = state["grad_accum"].clone()
-        self.denom = state["denom"].clone()
-        self.max_radii = state["max_radii"].clone()
+    def load_state_dict(self, state: dict, device: torch.device | str = "cpu") -> None:
+        """Restore ``state_dict`` onto ``device`` (the model's)."""
+        self.grad_accum = state["grad_accum"].to(device, copy=True)
+        self.denom = state["denom"].to(device, copy=True)
+        self.max_radii = state["max_radii"].to(device, copy=True)

@@ -55,7 +55,15 @@ class ObjectMotion(nn.Module):
     the refined path near.
     """
 
-    def __init__(self, centres: Tensor, radii: Tensor, translations: Tensor, rotvecs: Tensor):
+    def __init__(
+        self,
+        centres: Tensor,
+        radii: Tensor,
+        translations: Tensor,
+        rotvecs: Tensor,
+        spans: Tensor | None = None,
+        fade: float = 0.0,
+    ):
         super().__init__()
         k, g = translations.shape[:2]
         if centres.shape != (k, 3) or radii.shape != (k,) or rotvecs.shape != (k, g, 3) or g < 2:
@@ -66,6 +74,12 @@ class ObjectMotion(nn.Module):
             )
         self.register_buffer("centres", centres.float().clone())
         self.register_buffer("radii", radii.float().clone())
+        # [K,2] normalised times each object is in view between (it enters and leaves through
+        # the image border), faded in and out over ``fade``; ±inf: there from start to end.
+        inf = float("inf")
+        spans = torch.tensor([[-inf, inf]] * k) if spans is None else spans.float().clone()
+        self.register_buffer("spans", spans)
+        self.register_buffer("fade", torch.tensor(float(fade)))
         self.translations = nn.Parameter(translations.float().clone())
         self.rotvecs = nn.Parameter(rotvecs.float().clone())
         self.register_buffer("prior_translations", translations.float().clone())
@@ -104,6 +118,17 @@ class ObjectMotion(nn.Module):
         turned = quat_multiply(turn[k], quats[rows])
         return means.index_copy(0, rows, moved), quats.index_copy(0, rows, turned)
 
+    def visibility(self, object_id: Tensor, t: float) -> Tensor:
+        """[N] opacity factor at normalised time ``t``: 1 for the scene (id -1) and for an
+        object in view, falling to 0 outside its span (smoothly, over ``fade``)."""
+        width = float(self.fade.clamp_min(1e-6))
+        start, end = self.spans[:, 0], self.spans[:, 1]
+        seen = torch.sigmoid((t - start) / width * 4) * torch.sigmoid((end - t) / width * 4)
+        out = torch.ones(object_id.shape[0], dtype=seen.dtype, device=seen.device)
+        rows = object_id >= 0
+        out[rows] = seen[object_id[rows]]
+        return out
+
     def prior_loss(self) -> Tensor:
         """Mean squared distance of the paths from their starting values, translations in
         object radii and rotations in radians."""
@@ -119,6 +144,13 @@ class ObjectMotion(nn.Module):
 
     @classmethod
     def from_state(cls, state: dict[str, Tensor]) -> ObjectMotion:
-        motion = cls(state["centres"], state["radii"], state["translations"], state["rotvecs"])
+        motion = cls(
+            state["centres"],
+            state["radii"],
+            state["translations"],
+            state["rotvecs"],
+            state["spans"],
+            float(state["fade"]),
+        )
         motion.load_state_dict(state)
         return motion

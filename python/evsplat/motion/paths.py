@@ -3,54 +3,23 @@
 Its depth is the static model's: after the warm-up the model draws a mover as a smear partly in
 front of what it passes, and a near quantile of the rendered depth in the object's regions reads
 its front surface (a median of the regions' depth lay up to 1.1 m behind the tiny ball and put it
-behind the wall: docs/experiments/motion.md). The path's ends: an object first seen touching the
-image border came in from outside, so before its first sighting it goes on at its first velocity
-(out of view); likewise after its last sighting for one that leaves through the border. Any
-other object is held where it was first or last seen (it was there, still: a still object makes
-no events).
+behind the wall: docs/experiments/motion.md). Beyond its first and last sightings an object is
+held where it was seen (a still object makes no events); one that came in or went out through
+the image border is hidden there instead (``seed.spans``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-EDGE_SIGHTINGS = 3  # sightings whose mean velocity carries an object beyond its ends
 
-
-@dataclass
-class WorldPath:
-    """One object's path: world centres at its sighting times, and whether it comes in and
-    goes out through the image border."""
-
-    times_us: np.ndarray  # [F] int64, sorted
-    points: np.ndarray  # [F,3]
-    enters: bool
-    leaves: bool
-
-    def at(self, t_us: np.ndarray) -> np.ndarray:
-        """[T,3] centres at ``t_us``: linear between sightings, beyond them as the class says."""
-        t = np.asarray(t_us, dtype=np.float64).reshape(-1)
-        ts = self.times_us.astype(np.float64)
-        out = np.stack([np.interp(t, ts, self.points[:, k]) for k in range(3)], 1)
-        if len(ts) < 2:
-            return out
-        if self.enters:
-            v = _velocity(ts[:EDGE_SIGHTINGS], self.points[:EDGE_SIGHTINGS])
-            before = t < ts[0]
-            out[before] = self.points[0] + np.outer(t[before] - ts[0], v)
-        if self.leaves:
-            v = _velocity(ts[-EDGE_SIGHTINGS:], self.points[-EDGE_SIGHTINGS:])
-            after = t > ts[-1]
-            out[after] = self.points[-1] + np.outer(t[after] - ts[-1], v)
-        return out
-
-
-def _velocity(t: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Least-squares velocity [3] (per µs) of points ``p`` [F,3] at times ``t`` [F]."""
-    dt = t - t.mean()
-    return (dt[:, None] * (p - p.mean(0))).sum(0) / max(float((dt * dt).sum()), 1e-12)
+def hold_path(times_us: np.ndarray, points: np.ndarray, query_us: np.ndarray) -> np.ndarray:
+    """[Q,3] centres at ``query_us``: linear between the sightings ``points`` [F,3] at
+    ``times_us`` [F], held beyond them (an object out of view is hidden by its span instead,
+    ``ObjectMotion.visibility``)."""
+    q = np.asarray(query_us, dtype=np.float64).reshape(-1)
+    t = times_us.astype(np.float64)
+    return np.stack([np.interp(q, t, points[:, k]) for k in range(3)], 1)
 
 
 def lift(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray, K: np.ndarray) -> np.ndarray:

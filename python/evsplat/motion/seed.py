@@ -29,7 +29,7 @@ from evsplat.config import MoverConfig
 from evsplat.model.densify import update_params
 from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
 from evsplat.model.motion import ObjectMotion
-from evsplat.motion.paths import WorldPath, lift, near_path, turn_angles
+from evsplat.motion.paths import hold_path, lift, near_path, turn_angles
 from evsplat.motion.segment import Blob, SegmentSettings, regions, unexplained
 from evsplat.motion.tracks import Track, TrackSettings, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
@@ -99,6 +99,25 @@ def object_depth(track: Track, sightings: Sightings, quantile: float) -> float |
 
 def touches_border(mask: np.ndarray) -> bool:
     return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+
+
+def span(track: Track, sightings: Sightings, t_start_us: int, t_end_us: int) -> list[float]:
+    """The normalised times the object is in view between: from half a window spacing before
+    its first sighting when that region touches the image border (it came in there), unless it
+    is the first window; likewise at its end; ±inf otherwise (it was there all along, still)."""
+    ks, last = sorted(track.blobs), len(sightings.times_us) - 1
+    length = max(t_end_us - t_start_us, 1)
+    step = 0.5 / max(last, 1)
+
+    def time(k: int) -> float:
+        return (float(sightings.times_us[k]) - t_start_us) / length
+
+    enters = ks[0] > 0 and touches_border(track.blobs[ks[0]].mask)
+    leaves = ks[-1] < last and touches_border(track.blobs[ks[-1]].mask)
+    return [
+        time(ks[0]) - step if enters else -float("inf"),
+        time(ks[-1]) + step if leaves else float("inf"),
+    ]
 
 
 def reference(track: Track) -> int:
@@ -186,7 +205,9 @@ def seed_objects(
     data = views.data
     views.renderer.mlp = None  # the warm-up's static model
     sightings = sight(views, mc)
-    settings = TrackSettings(mc.gate, mc.coast, mc.min_windows, mc.together)
+    settings = TrackSettings(
+        mc.gate, mc.coast, mc.min_windows, mc.high, mc.min_evidence, mc.together
+    )
     tracks = chain(sightings.blobs, settings)
     stats = {
         "objects": float(len(tracks)),
@@ -202,7 +223,7 @@ def seed_objects(
     areas = np.array([np.median([b.area for b in t.blobs.values()]) for t in tracks])
     knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
     object_id = np.full(n, -1, dtype=np.int64)
-    rows, points, spacing, centres, radii, translations, rotvecs = [], [], [], [], [], [], []
+    rows, points, spacing, centres, radii, translations, rotvecs, spans = ([] for _ in range(8))
     for k, track in enumerate(tracks):
         depth = object_depth(track, sightings, mc.depth_quantile) or float(np.mean(depth_range))
         ref = reference(track)
@@ -210,13 +231,8 @@ def seed_objects(
         radius = track.radius * depth / focal
         ks = sorted(track.blobs)
         poses = data.trajectory.pose(track.times_us.astype(np.float64))
-        path = WorldPath(
-            track.times_us,
-            lift(track.centres, np.full(len(ks), depth), poses, data.K),
-            touches_border(track.blobs[ks[0]].mask),
-            touches_border(track.blobs[ks[-1]].mask),
-        )
-        swept = np.flatnonzero(near_path(means, path.points, radius) & free)
+        path = lift(track.centres, np.full(len(ks), depth), poses, data.K)
+        swept = np.flatnonzero(near_path(means, path, radius) & free)
         share = max(int(mc.fraction * n * areas[k] / areas.sum()), mc.min_gaussians)
         rest = faintest[free[faintest]]
         rest = rest[~np.isin(rest, swept)][: max(share - len(swept), 0)]
@@ -235,7 +251,9 @@ def seed_objects(
         spacing.append(np.full(len(pick), (volume / max(len(pick), 1)) ** (1 / 3)))
         centres.append(placed.mean(0))
         radii.append(radius)
-        translations.append(path.at(knots) - path.at(np.array([t_ref]))[0])
+        at_ref = hold_path(track.times_us, path, np.array([t_ref]))[0]
+        translations.append(hold_path(track.times_us, path, knots) - at_ref)
+        spans.append(span(track, sightings, data.t_start_us, data.t_end_us))
         rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
         used = np.isfinite(rates)
         angles = np.zeros(len(knots))
@@ -263,5 +281,7 @@ def seed_objects(
         torch.tensor(radii),
         torch.from_numpy(np.stack(translations)),
         torch.from_numpy(np.stack(rotvecs)),
+        torch.tensor(spans),
+        fade=1.0 / mc.windows,  # one window spacing
     )
     return Seeded(stats, motion, torch.from_numpy(object_id))

@@ -5,9 +5,9 @@ last two sightings) and the regions are assigned to the tracks by the Hungarian 
 distance from those predictions, gated by the object's size and speed. A region no track takes
 starts a track; a track no region takes coasts on its prediction, for a few windows, or for as
 long as that prediction lies inside another object's region (it passes behind that object or
-merges with it in the image), then ends. A track seen in too few
-windows was noise. Fragments of one object (two regions that move together in every window they
-share) are joined. Nothing here assumes a number, size or shape of objects.
+merges with it in the image), then ends. Fragments of one object (regions that move together in
+most windows they share) are joined; a track seen in too few windows, or only faintly, was
+noise. Nothing here assumes a number, size or shape of objects.
 """
 
 from __future__ import annotations
@@ -28,7 +28,9 @@ class TrackSettings:
 
     gate: float  # a region joins a track within this many object radii of its prediction
     coast: int  # windows a track lives on unseen and not hidden by another region
-    min_windows: int  # a track seen in fewer windows is noise
+    min_windows: int  # a track seen in fewer windows is noise ...
+    high: float  # ... or one whose regions' peaks above this level (robust sigmas) ...
+    min_evidence: float  # ... sum to less than this over its windows
     together: float  # fragments: centres within this many summed radii in most shared windows
 
 
@@ -39,6 +41,7 @@ class Track:
 
     blobs: dict[int, Blob] = field(default_factory=dict)
     shared: set[int] = field(default_factory=set)
+    hidden: dict[int, Blob] = field(default_factory=dict)  # unseen, inside another's region
     missed: int = 0  # windows since the last sighting
 
     @property
@@ -100,15 +103,28 @@ def chain(per_window: list[list[Blob]], s: TrackSettings) -> list[Track]:
             host = _host(track.predict(k), blobs)
             if host is None:
                 track.missed += 1
-            else:  # hidden in another object's region, which is not that object's own there
-                for other in live:
-                    if other.blobs.get(k) is host:
-                        other.shared.add(k)
+                continue
+            track.hidden[k] = host  # the host's region is not its own object's alone there
+            for other in live:
+                if other.blobs.get(k) is host:
+                    other.shared.add(k)
         done += [t for t in live if t.missed > s.coast]
         live = [t for t in live if t.missed <= s.coast]
         live += [Track({k: b}) for j, b in enumerate(blobs) if j not in taken]
-    tracks = [t for t in done + live if len(t.blobs) >= s.min_windows]
-    return sorted(_join_fragments(tracks, s), key=lambda t: -len(t.blobs))
+    tracks = _join_fragments(done + live, s)
+    for track in tracks:  # shared with another object, not with a piece of its own
+        track.shared = {
+            k
+            for k, blob in track.blobs.items()
+            if any(o.hidden.get(k) is blob for o in tracks if o is not track)
+        }
+    kept = [
+        t
+        for t in tracks
+        if len(t.blobs) >= s.min_windows
+        and sum(max(b.contrast - s.high, 0.0) for b in t.blobs.values()) >= s.min_evidence
+    ]
+    return sorted(kept, key=lambda t: -len(t.blobs))
 
 
 def _host(guess: np.ndarray, blobs: list[Blob]) -> Blob | None:
@@ -166,6 +182,7 @@ def _join_fragments(tracks: list[Track], s: TrackSettings) -> list[Track]:
             continue
         for k, blob in track.blobs.items():
             home.blobs[k] = blob if k not in home.blobs else _union(home.blobs[k], blob)
+        home.hidden |= {k: b for k, b in track.hidden.items() if k not in home.blobs}
     return out
 
 

@@ -1,5 +1,6 @@
-"""Built-in synthetic dynamic scenes with ground truth (RGB, depth, moving-object mask, poses),
-rendered by an analytic ray caster that shares no code with the splatting rasterizer."""
+"""Built-in synthetic dynamic scenes with ground truth (RGB, depth, moving-object mask, poses,
+and per moving object its mask, centre and radius), rendered by an analytic ray caster that
+shares no code with the splatting rasterizer."""
 
 from __future__ import annotations
 
@@ -10,8 +11,10 @@ import numpy as np
 
 from evsplat import _core
 from evsplat.errors import EvsplatError
+from evsplat.scenes import library, multi_object
 from evsplat.scenes.geometry import Primitive
-from evsplat.scenes.library import SCENES
+
+SCENES = library.SCENES | multi_object.SCENES
 
 FULL_DURATION_US = 1_000_000
 TINY_DURATION_US = 600_000
@@ -31,6 +34,25 @@ PIXEL_SAMPLES = 3
 FOCAL_PER_HEIGHT = 1.05
 # The tiny variant zooms in so the moving object covers a good part of its few pixels.
 TINY_ZOOM = 1.6
+RADIUS_SAMPLES = 11  # times over the sequence at which an object's parts are bounded
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    """One moving object: its name and its primitives' indices (the first is its root)."""
+
+    name: str
+    parts: tuple[int, ...]
+
+
+def scene_objects(primitives: list[Primitive]) -> list[SceneObject]:
+    """The moving objects in order of their first primitive: primitives sharing a ``group``
+    form one object; a moving primitive without one is an object named ``object<k>``."""
+    parts: dict[str, list[int]] = {}
+    for i, p in enumerate(primitives):
+        if p.moving:
+            parts.setdefault(p.group or f"object{len(parts)}", []).append(i)
+    return [SceneObject(name, tuple(idx)) for name, idx in parts.items()]
 
 
 @dataclass
@@ -46,16 +68,23 @@ class Scene:
     fps: float  # render rate at speed 1
     primitives: list[Primitive]
     camera: Callable[[float], np.ndarray]  # seconds -> camera-to-world 4x4
-    # The moving object whose path evaluation tracks: seconds -> object-to-world 4x4 or xyz.
-    # None: the translation of the first moving primitive's pose (none if nothing moves).
-    track: Callable[[float], np.ndarray] | None = None
     samples: int = PIXEL_SAMPLES  # rays per pixel side; a pixel's colour is their mean
+    objects: list[SceneObject] = field(init=False)
     _renderer: _core.SceneRenderer = field(init=False, repr=False)
+    _object_renderers: list[_core.SceneRenderer] | None = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        self.objects = scene_objects(self.primitives)
+        self._renderer = self._make_renderer(None, self.samples)
+        self._object_renderers = None
+
+    def _make_renderer(self, only: SceneObject | None, samples: int) -> _core.SceneRenderer:
+        """A ray caster whose moving mask marks every moving primitive, or ``only``'s."""
         k = (self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2])
         specs = [p.spec() for p in self.primitives]
-        self._renderer = _core.SceneRenderer(specs, self.width, self.height, k, self.samples)
+        if only is not None:
+            specs = [(*s[:4], i in only.parts) for i, s in enumerate(specs)]
+        return _core.SceneRenderer(specs, self.width, self.height, k, samples)
 
     def c2w(self, t_us: int | float | np.ndarray) -> np.ndarray:
         """Camera-to-world pose(s) float64[..., 4, 4] at `t_us`."""
@@ -63,32 +92,28 @@ class Scene:
         out = np.stack([self.camera(float(s) * 1e-6) for s in t.reshape(-1)])
         return out.reshape(*t.shape, 4, 4)
 
-    def _tracked(self) -> tuple[Callable[[float], np.ndarray] | None, Primitive | None]:
-        """The tracking callable and the primitive it comes from (None for a given ``track``)."""
-        if self.track is not None:
-            return self.track, None
-        moving = next((p for p in self.primitives if p.moving), None)
-        return (None, None) if moving is None else (moving.pose, moving)
-
-    def object_centre(self, t_us: int | float) -> np.ndarray | None:
-        """World position float64[3] (metres) of the tracked moving object at `t_us`, or None
-        for a scene where nothing moves."""
-        fn, _ = self._tracked()
-        if fn is None:
+    def object_centre(self, t_us: int | float, k: int = 0) -> np.ndarray | None:
+        """World position float64[3] (metres) of moving object `k` at `t_us` (its root
+        primitive's origin), or None when the scene has no such object."""
+        if k >= len(self.objects):
             return None
-        m = np.asarray(fn(float(t_us) * 1e-6), dtype=np.float64)
-        return m[:3, 3].copy() if m.shape == (4, 4) else m.reshape(3).copy()
+        root = self.primitives[self.objects[k].parts[0]]
+        return np.asarray(root.pose(float(t_us) * 1e-6), dtype=np.float64)[:3, 3].copy()
 
-    def object_radius(self) -> float | None:
-        """Radius (metres) of a sphere around the tracked object's centre that holds the tracked
-        primitive (a sphere's radius, a box's or quad's half diagonal); None when the scene gives
-        its own ``track`` or nothing moves."""
-        _, prim = self._tracked()
-        if prim is None:
+    def object_radius(self, k: int = 0) -> float | None:
+        """Radius (metres) of a sphere about object `k`'s centre that holds all its parts at
+        every one of ``RADIUS_SAMPLES`` times over the sequence (a part's own bound: a sphere's
+        radius, a box's or quad's half diagonal); None when there is no such object."""
+        if k >= len(self.objects):
             return None
-        if prim.kind == "sphere":
-            return float(prim.size[0])
-        return float(np.linalg.norm(prim.size[: 3 if prim.kind == "box" else 2]))
+        reach = 0.0
+        for t_us in np.linspace(0, self.duration_us, RADIUS_SAMPLES):
+            centre = self.object_centre(t_us, k)
+            for i in self.objects[k].parts:
+                part = self.primitives[i]
+                offset = np.linalg.norm(part.pose(t_us * 1e-6)[:3, 3] - centre)
+                reach = max(reach, float(offset) + part.radius())
+        return reach
 
     def render(self, t_us: int | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(rgb float32[H,W,3] linear in [0,1], depth float32[H,W] camera z (0 = nothing hit),
@@ -96,6 +121,17 @@ class Scene:
         t_s = float(t_us) * 1e-6
         poses = np.stack([p.pose(t_s) for p in self.primitives]).astype(np.float64)
         return self._renderer.render(np.asarray(self.camera(t_s), np.float64), poses)
+
+    def object_masks(self, t_us: int | float) -> list[np.ndarray]:
+        """Per moving object, bool[H,W]: the pixels whose centre ray hits that object first
+        (what covers it, hides it); together they are ``render``'s moving mask."""
+        if self._object_renderers is None:
+            # One ray per pixel: masks are the centre ray's at any sample count.
+            self._object_renderers = [self._make_renderer(o, 1) for o in self.objects]
+        t_s = float(t_us) * 1e-6
+        poses = np.stack([p.pose(t_s) for p in self.primitives]).astype(np.float64)
+        c2w = np.asarray(self.camera(t_s), np.float64)
+        return [r.render(c2w, poses)[2] for r in self._object_renderers]
 
 
 def scene_names() -> list[str]:
@@ -154,6 +190,5 @@ def get_scene(
         fps=BASE_FPS * h / BASE_HEIGHT,
         primitives=spec["primitives"],
         camera=spec["camera"],
-        track=spec.get("track"),
         samples=samples,
     )

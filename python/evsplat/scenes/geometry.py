@@ -9,7 +9,7 @@ Here the scenes say what is where: shapes, sizes, textures and poses as function
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -43,13 +43,23 @@ def static(m: np.ndarray) -> Pose:
 class Primitive:
     """A shape in its object frame: 'sphere' (size (r,)), 'box' (half extents (a, b, c)),
     'quad' (plane z = 0, half sizes (a, b)) or 'wing' (a quad cut to butterfly-wing lobes,
-    size (a, b, side) with side = +1 right wing, -1 left wing)."""
+    size (a, b, side) with side = +1 right wing, -1 left wing). Moving primitives with the same
+    `group` are parts of one object (the first listed is its root, whose pose places it); a
+    moving primitive without a group is an object of its own."""
 
     kind: str
     size: tuple[float, ...]
     pose: Pose
     texture: Texture
     moving: bool
+    group: str | None = None
+
+    def radius(self) -> float:
+        """Radius of a sphere about the primitive's origin that holds it (a sphere's radius, a
+        box's or quad's half diagonal)."""
+        if self.kind == "sphere":
+            return float(self.size[0])
+        return float(np.linalg.norm(self.size[: 3 if self.kind == "box" else 2]))
 
     def spec(self) -> tuple[str, list[float], str, list[float], bool]:
         """The tuple `_core.SceneRenderer` takes."""
@@ -61,6 +71,11 @@ class Primitive:
             [float(v) for v in params],
             self.moving,
         )
+
+
+def one_object(name: str, parts: Sequence[Primitive]) -> list[Primitive]:
+    """The moving `parts` labelled as the one object `name` (the first is its root)."""
+    return [replace(p, group=name) for p in parts]
 
 
 def _flat(colours: Sequence[Rgb]) -> list[float]:

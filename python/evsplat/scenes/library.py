@@ -17,6 +17,7 @@ from evsplat.scenes.geometry import (
     colour_blobs,
     feathers,
     noise,
+    one_object,
     rot,
     solid,
     sphere_segments,
@@ -86,19 +87,18 @@ def butterfly() -> dict:
         return pose
 
     prims = room([(0.2, 0.45, 0.2), (0.35, 0.6, 0.25), (0.15, 0.3, 0.35), (0.5, 0.55, 0.3)], seed=1)
-    prims.append(
-        Primitive(
-            "box",
-            (0.035, 0.32, 0.035),
-            body_pose,
-            checker(0, 12.0, (0.1, 0.08, 0.05), (0.4, 0.3, 0.15), scale=(1, 0.64)),
-            True,
-        )
+    body = Primitive(
+        "box",
+        (0.035, 0.32, 0.035),
+        body_pose,
+        checker(0, 12.0, (0.1, 0.08, 0.05), (0.4, 0.3, 0.15), scale=(1, 0.64)),
+        True,
     )
-    for side in (1.0, -1.0):
-        prims.append(
-            Primitive("wing", (*half, side), wing_pose(side), wing_pattern(half, side), True)
-        )
+    wings = [
+        Primitive("wing", (*half, side), wing_pose(side), wing_pattern(half, side), True)
+        for side in (1.0, -1.0)
+    ]
+    prims += one_object("butterfly", [body, *wings])
     return dict(
         description=(
             "butterfly with two thin quad wings flapping at 4 Hz (±43°) while "
@@ -130,33 +130,36 @@ def duck() -> dict:
         return lambda t: body_pose(t) @ offset
 
     prims = room([(0.25, 0.4, 0.6), (0.15, 0.25, 0.5), (0.4, 0.55, 0.7), (0.2, 0.3, 0.35)], seed=2)
-    prims += [
-        Primitive("sphere", (0.42,), body_pose, feathers(), True),
-        Primitive(
-            "sphere",
-            (0.26,),
-            part(trans(0.3, -0.5, 0.0)),
-            sphere_segments(8, 4, [(0.95, 0.8, 0.1), (0.85, 0.65, 0.05)]),
-            True,
-        ),
-        Primitive(
-            "box",
-            (0.14, 0.045, 0.09),
-            part(trans(0.6, -0.46, 0.0) @ rot("z", 0.15)),
-            solid((0.95, 0.35, 0.02)),
-            True,
-        ),
-        Primitive(
-            "sphere", (0.05,), part(trans(0.42, -0.62, -0.18)), solid((0.1, 0.1, 0.12)), True
-        ),
-        Primitive(
-            "box",
-            (0.3, 0.08, 0.06),
-            part(trans(-0.15, -0.1, -0.38) @ rot("z", -0.3)),
-            checker(6.0, 1.0, (0.9, 0.6, 0.05), (0.6, 0.35, 0.02), scale=(0.6, 1)),
-            True,
-        ),
-    ]
+    prims += one_object(
+        "duck",
+        [
+            Primitive("sphere", (0.42,), body_pose, feathers(), True),
+            Primitive(
+                "sphere",
+                (0.26,),
+                part(trans(0.3, -0.5, 0.0)),
+                sphere_segments(8, 4, [(0.95, 0.8, 0.1), (0.85, 0.65, 0.05)]),
+                True,
+            ),
+            Primitive(
+                "box",
+                (0.14, 0.045, 0.09),
+                part(trans(0.6, -0.46, 0.0) @ rot("z", 0.15)),
+                solid((0.95, 0.35, 0.02)),
+                True,
+            ),
+            Primitive(
+                "sphere", (0.05,), part(trans(0.42, -0.62, -0.18)), solid((0.1, 0.1, 0.12)), True
+            ),
+            Primitive(
+                "box",
+                (0.3, 0.08, 0.06),
+                part(trans(-0.15, -0.1, -0.38) @ rot("z", -0.3)),
+                checker(6.0, 1.0, (0.9, 0.6, 0.05), (0.6, 0.35, 0.02), scale=(0.6, 1)),
+                True,
+            ),
+        ],
+    )
     return dict(
         description=(
             "duck-like toy (body, head, beak, wing) bobbing at 3 Hz on a sinusoid "
@@ -197,19 +200,22 @@ def clock() -> dict:
     prims = room(
         [(0.6, 0.5, 0.35), (0.45, 0.35, 0.25), (0.7, 0.65, 0.5), (0.35, 0.25, 0.2)], seed=3
     )
-    prims += [
-        Primitive("box", half, body_pose, clock_face(half[:2]), True),
-        Primitive("sphere", (0.17,), part(trans(-0.3, -0.55, 0.0)), bell, True),
-        Primitive("sphere", (0.17,), part(trans(0.3, -0.55, 0.0)), bell, True),
-        Primitive(
-            "box", (0.05, 0.08, 0.05), part(trans(-0.3, 0.5, 0.0)), solid((0.1, 0.1, 0.1)), True
-        ),
-        Primitive(
-            "box", (0.05, 0.08, 0.05), part(trans(0.3, 0.5, 0.0)), solid((0.1, 0.1, 0.1)), True
-        ),
-        hand(0.32, 0.025, 0.0, 1.0),
-        hand(0.5, 0.012, 1.5, 0.0),
-    ]
+    prims += one_object(
+        "clock",
+        [
+            Primitive("box", half, body_pose, clock_face(half[:2]), True),
+            Primitive("sphere", (0.17,), part(trans(-0.3, -0.55, 0.0)), bell, True),
+            Primitive("sphere", (0.17,), part(trans(0.3, -0.55, 0.0)), bell, True),
+            Primitive(
+                "box", (0.05, 0.08, 0.05), part(trans(-0.3, 0.5, 0.0)), solid((0.1, 0.1, 0.1)), True
+            ),
+            Primitive(
+                "box", (0.05, 0.08, 0.05), part(trans(0.3, 0.5, 0.0)), solid((0.1, 0.1, 0.1)), True
+            ),
+            hand(0.32, 0.025, 0.0, 1.0),
+            hand(0.5, 0.012, 1.5, 0.0),
+        ],
+    )
     return dict(
         description=(
             "red alarm clock with bells shaking at 9 Hz (±13°) while its second "
@@ -245,7 +251,7 @@ def ball() -> dict:
         (0.95, 0.95, 0.9),
     ]
     prims = room([(0.5, 0.3, 0.5), (0.35, 0.2, 0.4), (0.6, 0.45, 0.6), (0.25, 0.15, 0.3)], seed=4)
-    prims.append(Primitive("sphere", (r,), pose, sphere_segments(6, 4, colours), True))
+    prims.append(Primitive("sphere", (r,), pose, sphere_segments(6, 4, colours), True, "ball"))
     return dict(
         description=(
             "textured beach ball bouncing 2.5 times a second (up to 3.3 m/s) and "
@@ -324,7 +330,9 @@ def camo() -> dict:
     # a slightly brighter base keeps the two mean colours alike (1.05, not 0.77 / 0.71, as
     # clamping to [0, 1] already shifts the means; measured on the tiny frames).
     sphere_base = tuple(1.05 * c for c in base)
-    ball_prim = Primitive("sphere", (r,), pose, noise(12, sphere_freq, 2, sphere_base, amp), True)
+    ball_prim = Primitive(
+        "sphere", (r,), pose, noise(12, sphere_freq, 2, sphere_base, amp), True, "sphere"
+    )
     return dict(
         description=(
             "camouflaged sphere: dense multi-colour noise on the sphere and on the wall behind "

@@ -27,12 +27,15 @@ def train(
     resume: bool = False,
     depth_prior: str = "auto",
     progress: bool = True,
+    device: str | None = None,
 ) -> TrainStats:
     """Train a dynamic Gaussian scene on a dataset folder, writing checkpoints to ``out_dir``.
 
     With ``resume`` the newest complete checkpoint in ``out_dir`` is continued (its saved
     configuration wins); without it, an ``out_dir`` that already holds checkpoints is an error so
-    a finished run is never overwritten by accident.
+    a finished run is never overwritten by accident. ``device`` (auto | cpu | cuda) overrides
+    the configuration's; a resumed run takes it, else ``auto``, not the device it was saved on
+    (checkpoints hold CPU tensors, so a CUDA run resumes on a CPU).
     """
     # Imported here so `evsplat.train`'s light modules load without the data/model stack.
     import torch
@@ -54,8 +57,11 @@ def train(
         )
     if latest is not None:
         cfg = RunState.load(latest).config
+        cfg.device = "auto"
     else:
         cfg = config or preset(preset_name)
+    if device is not None:
+        cfg.device = device
     if cfg.time_range is not None:
         data = data.between(*_range_us(data.t_start_us, data.t_end_us, cfg.time_range))
     if iterations is not None:

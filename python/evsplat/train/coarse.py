@@ -26,7 +26,7 @@ def coarse_due(cfg: TrainConfig, iteration: int, stage: Stage) -> bool:
 
 def half_renderer(renderer: Renderer) -> Renderer:
     """The same scene and camera at half the resolution (odd last rows/columns dropped)."""
-    scale = torch.tensor([[0.5], [0.5], [1.0]], dtype=renderer.K.dtype)
+    scale = torch.tensor([[0.5], [0.5], [1.0]], dtype=renderer.K.dtype, device=renderer.K.device)
     return dataclasses.replace(
         renderer, K=renderer.K * scale, width=renderer.width // 2, height=renderer.height // 2
     )

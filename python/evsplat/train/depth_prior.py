@@ -68,7 +68,8 @@ class PrecomputedDepthPrior:
                 f"{path}: depth is {d.shape[1]}x{d.shape[0]} but renders are "
                 f"{render.shape[1]}x{render.shape[0]}; resize the depth files"
             )
-        return torch.from_numpy(np.nan_to_num(d.astype(np.float32), nan=0.0, posinf=0.0))
+        d = np.nan_to_num(d.astype(np.float32), nan=0.0, posinf=0.0)
+        return torch.from_numpy(d).to(render.device)
 
 
 class OracleDepthPrior:
@@ -93,7 +94,7 @@ class OracleDepthPrior:
         rng = np.random.default_rng([self.seed, int(t_us)])
         noisy = gt * (1.0 + self.noise * rng.standard_normal(gt.shape))
         d = np.where(gt > 0, self.scale * noisy + self.shift, 0.0)
-        return torch.from_numpy(d.astype(np.float32))
+        return torch.from_numpy(d.astype(np.float32)).to(render.device)
 
 
 class VggtDepthPrior:
@@ -110,7 +111,7 @@ class VggtDepthPrior:
 
     @torch.no_grad()
     def depth(self, t_us: int, render: torch.Tensor) -> torch.Tensor | None:
-        img = render.detach().clamp(0, 1)
+        img = render.detach().clamp(0, 1).cpu()  # where the weights were loaded
         if img.shape[-1] == 1:
             img = img.expand(*img.shape[:2], 3)
         h, w = img.shape[:2]
@@ -120,7 +121,8 @@ class VggtDepthPrior:
             img.permute(2, 0, 1)[None], size=size, mode="bilinear", align_corners=False
         )
         pred = self.model(x[None])["depth"].reshape(1, 1, *size)
-        return torch.nn.functional.interpolate(pred, size=(h, w), mode="bilinear")[0, 0]
+        depth = torch.nn.functional.interpolate(pred, size=(h, w), mode="bilinear")[0, 0]
+        return depth.to(render.device)
 
 
 def vggt_status() -> str | None:

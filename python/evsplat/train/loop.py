@@ -32,6 +32,7 @@ from evsplat.render import Renderer
 from evsplat.run_state import RunState
 from evsplat.train.coarse import coarse_due, half_renderer
 from evsplat.train.depth_prior import DepthPrior
+from evsplat.train.device import training_device
 from evsplat.train.gradients import first_nonfinite_grad, grad_norms_due, mlp_grad_norms
 from evsplat.train.init import initial_gaussians, scene_extent
 from evsplat.train.objective import (
@@ -75,15 +76,16 @@ class Trainer:
         self.depth_range = tuple(data.meta.get("depth_range") or cfg.model.init_depth_range)
         self.extent = scene_extent(data, self.depth_range)
 
-        self.model = initial_gaussians(data, cfg, self.channels, self.depth_range)
-        self.mlp = DeformationMLP(cfg.model)
+        self.device = training_device(cfg.device)
+        self.model = initial_gaussians(data, cfg, self.channels, self.depth_range).to(self.device)
+        self.mlp = DeformationMLP(cfg.model).to(self.device)
         self.optimizer = self.gaussians_adam()
         self.mlp_optimizer = self.mlp_adam()
         self.densifier = Densifier(cfg.densify, self.extent, cfg.schedule.iterations)
         self.renderer = Renderer(
             model=self.model,
             mlp=None,
-            K=torch.from_numpy(data.K.astype(np.float32)),
+            K=torch.from_numpy(data.K.astype(np.float32)).to(self.device),
             width=data.width,
             height=data.height,
             t_start_us=data.t_start_us,
@@ -224,14 +226,16 @@ class Trainer:
         """After the warm-up: find the moving objects and start their motion
         (``motion.seed.seed_objects``); the scene's Gaussians skip the MLP from then on.
         Numbers for the log."""
+        start = time.perf_counter()
         found = seed_objects(
             self.views, self.model, self.optimizer, self.cfg.mover, self.cfg.seed, self.depth_range
         )
         if found.motion is not None:
-            self.renderer.motion, self.renderer.object_id = found.motion, found.object_id
-            self.renderer.static_mask = found.object_id < 0
-            self.mlp_optimizer = self.mlp_adam(found.motion)  # the paths train beside the MLP
-        return found.stats
+            motion, object_id = found.motion.to(self.device), found.object_id.to(self.device)
+            self.renderer.motion, self.renderer.object_id = motion, object_id
+            self.renderer.static_mask = object_id < 0
+            self.mlp_optimizer = self.mlp_adam(motion)  # the paths train beside the MLP
+        return found.stats | {"seed_seconds": time.perf_counter() - start}
 
     # Both optimizers take torch's multi-tensor ("foreach") Adam, which torch picks by default
     # only for GPU tensors: on the CPU it gives the same values bit for bit and halves the MLP
@@ -261,6 +265,7 @@ class Trainer:
         """Mark the dynamic Gaussians that stopped moving static (``skips.update_static``);
         the first classification may find the whole scene static."""
         centre = torch.from_numpy(self.pose_samples[1][:, :3, 3].mean(0).astype(np.float32))
+        centre = centre.to(self.device)
         focal = float(self.data.K[0, 0])
         whole = update_static(
             self.model,

@@ -65,7 +65,7 @@ def motion_events(views: Views, lc: LossConfig, t1: int, dtau: int, coarse: bool
     frames, times = [], []
     for j in range(lc.patch_m):
         a, b = int(bounds[j]), int(bounds[j + 1])
-        frames.append(torch.from_numpy(store.accumulate(a, b, data.c_pos, data.c_neg)[0]))
+        frames.append(views.accumulate(a, b)[0])
         times.append(0.5 * (store.time_at(a) + store.time_at(max(b - 1, a))))
     return MotionEvents(flow, (i0, i1), torch.stack(frames), times)
 
@@ -91,7 +91,9 @@ def motion_losses(
     # L_ef (eq. 13): linearised event model over [t1, t1 + dtau].
     short, _, count = events.flow or (None, None, 0)
     if count > 0:
-        flow_cam = camera_flow(out1.depth, view.K, viewmat(pose1), viewmat(views.pose(t1 + dtau)))
+        device = out1.depth.device
+        w2c1, w2c2 = viewmat(pose1, device), viewmat(views.pose(t1 + dtau), device)
+        flow_cam = camera_flow(out1.depth, view.K, w2c1, w2c2)
         pred = views.linearized_change(out1, flow_cam + out1.extra, coarse)
         out["ef"] = event_flow_loss(short, pred)
     # L_m (eq. 15): patches of m equal-count sub-windows around the moving centres.
@@ -120,7 +122,8 @@ def motion_losses(
                     renderer.motion,
                     renderer.object_id,
                 )
-                centres.append(project_points(means, viewmat(views.pose(t_mid)), renderer.K))
+                w2c = viewmat(views.pose(t_mid), means.device)
+                centres.append(project_points(means, w2c, renderer.K))
             out["m"] = patch_motion_loss(events.frames, torch.stack(centres, dim=1), lc.patch_side)
     return out
 

@@ -63,10 +63,10 @@ def classify_static(
     on, and baking it into the canonical Gaussian keeps the render unchanged.
     """
     times = torch.linspace(0.0, 1.0, cfg.static_times).tolist()
-    n = means.shape[0]
-    static = torch.zeros(n, dtype=torch.bool)
-    scene_static = torch.zeros(n, dtype=torch.bool)
-    mean = Deformation(torch.zeros(n, 3), torch.zeros(n, 4), torch.zeros(n, 3))
+    n, device = means.shape[0], means.device
+    static = torch.zeros(n, dtype=torch.bool, device=device)
+    scene_static = torch.zeros(n, dtype=torch.bool, device=device)
+    mean = Deformation(*(torch.zeros(n, k, device=device) for k in (3, 4, 3)))
     for a in range(0, n, CHUNK):
         x = means[a : a + CHUNK].detach()
         dx, dq, ds = (torch.stack(d) for d in zip(*(mlp(x, t) for t in times)))
@@ -168,8 +168,10 @@ def unexplained_events(
         pool = min(cfg.static_scene_pool, *pred.shape[-2:])
         e, d = (F.avg_pool2d(x.reshape(-1, 1, *x.shape[-2:]).double(), pool) for x in (w.esi, pred))
         if sums is None:
-            ids, regions = region_ids(e.shape[-2], e.shape[-1], cfg.static_scene_block / pool)
-            sums = torch.zeros(3, regions, dtype=torch.float64)
+            ids, regions = region_ids(
+                e.shape[-2], e.shape[-1], cfg.static_scene_block / pool, e.device
+            )
+            sums = torch.zeros(3, regions, dtype=torch.float64, device=e.device)
         for k, x in enumerate((e * e, e * d, d * d)):
             sums[k].index_add_(0, ids, x.sum((0, 1)).reshape(-1))
     if sums is None:
@@ -180,12 +182,14 @@ def unexplained_events(
     return (1.0 - rho**2)[enough].float()
 
 
-def region_ids(height: int, width: int, size: float) -> tuple[Tensor, int]:
+def region_ids(
+    height: int, width: int, size: float, device: torch.device | None = None
+) -> tuple[Tensor, int]:
     """([height * width] region index of each pixel, region count): about ``size``-pixel
     squares, round(height / size) x round(width / size) of them (at least one each way)."""
     ny, nx = max(1, round(height / size)), max(1, round(width / size))
-    y = torch.arange(height) * ny // height
-    x = torch.arange(width) * nx // width
+    y = torch.arange(height, device=device) * ny // height
+    x = torch.arange(width, device=device) * nx // width
     return (y[:, None] * nx + x[None, :]).reshape(-1), ny * nx
 
 
@@ -286,7 +290,8 @@ def update_static(
     evidence) to agree: the MLP having learned no motion does not show that nothing moves
     (time-local opacity may carry the moving object)."""
     first = renderer.static_mask is None
-    old = torch.zeros(model.num_gaussians, dtype=torch.bool) if first else renderer.static_mask
+    none = torch.zeros(model.num_gaussians, dtype=torch.bool, device=model.means.device)
+    old = none if first else renderer.static_mask
     dynamic = torch.nonzero(~old).reshape(-1)
     means = model.means[dynamic]
     scale = pixels_per_unit(means, centre, focal, 1e-2)

@@ -59,18 +59,23 @@ def restore(trainer: Trainer, state: RunState, path: Path) -> None:
             f"{path}: checkpoint is for a {cam.width}x{cam.height} sensor but the data is "
             f"{t.data.width}x{t.data.height}; resume with the dataset it was trained on"
         )
-    t.model = GaussianModel.from_checkpoint(state.gaussians)
+    device = t.device  # where this run trains, whatever the checkpoint's run trained on
+    t.model = GaussianModel.from_checkpoint(state.gaussians).to(device)
     t.renderer.model = t.model
     t.mlp.load_state_dict(state.mlp)
     t.optimizer = t.gaussians_adam()  # over the restored model's parameters
     t.optimizer.load_state_dict(state.optimizer)
     objects = state.objects
-    t.renderer.motion = None if objects is None else ObjectMotion.from_state(objects["motion"])
-    t.renderer.object_id = None if objects is None else objects["object_id"]
+    if objects is None:
+        t.renderer.motion = t.renderer.object_id = None
+    else:
+        t.renderer.motion = ObjectMotion.from_state(objects["motion"]).to(device)
+        t.renderer.object_id = objects["object_id"].to(device)
     t.mlp_optimizer = t.mlp_adam(t.renderer.motion)  # with the restored paths, if any
     t.mlp_optimizer.load_state_dict(state.mlp_optimizer)
-    t.densifier.load_state_dict(state.densifier)
-    t.renderer.static_mask = state.static_mask
+    t.densifier.load_state_dict(state.densifier, device)
+    static = state.static_mask
+    t.renderer.static_mask = None if static is None else static.to(device)
     t.static_scene = state.static_scene
     t.progress.plateau.load_state_dict(state.early_stop)
     stats = t.progress.stats

@@ -15,25 +15,33 @@ from evsplat.losses.event import bayer_select, log_render
 from evsplat.losses.flow import linearized_brightness_change
 from evsplat.render import Renderer, RenderOut
 from evsplat.train.coarse import bin_events
+from evsplat.train.device_events import DeviceEvents
 
 
 @dataclass
 class Views:
     """Event windows of ``data`` and log renders of ``renderer`` (the full-resolution one; a
-    coarse renderer is passed as ``view`` where a method takes one)."""
+    coarse renderer is passed as ``view`` where a method takes one), on the renderer's device."""
 
     data: Dataset
     renderer: Renderer
     channel_map: torch.Tensor | None  # [h,w] Bayer channel per pixel; None for a mono sensor
+    # The events accumulated on the device (``train.device_events``); None: by the Rust core.
+    device_events: DeviceEvents | None = None
 
     @classmethod
     def of(cls, data: Dataset, renderer: Renderer) -> Views:
-        """The views of ``data``'s sensor: one channel, or each pixel's Bayer channel."""
+        """The views of ``data``'s sensor: one channel, or each pixel's Bayer channel. Off the
+        CPU the event windows are accumulated on the device (rectified recordings excepted)."""
+        device = renderer.K.device
         channel_map = None
         if data.bayer != "mono":
             cmap = bayer_channel_map(data.bayer, data.width, data.height)
-            channel_map = torch.from_numpy(cmap.astype(np.int64))
-        return cls(data, renderer, channel_map)
+            channel_map = torch.from_numpy(cmap.astype(np.int64)).to(device)
+        events = None
+        if device.type != "cpu" and not data.events.transforms:
+            events = DeviceEvents(data.events, data.c_pos, data.c_neg, device)
+        return cls(data, renderer, channel_map, events)
 
     def draw_times(
         self, rng: np.random.Generator, lc: LossConfig, moving: bool
@@ -80,12 +88,18 @@ class Views:
             return change
         return bayer_select(change.permute(1, 2, 0), self.channel_map)
 
+    def accumulate(self, i0: int, i1: int) -> tuple[torch.Tensor, torch.Tensor, int]:
+        """(ESI, event mask, event count) of the events [i0, i1) by index: on the device, or
+        streamed through the Rust core (L_e's windows span up to 30% of the recording)."""
+        if self.device_events is not None:
+            return self.device_events.accumulate(i0, i1)
+        data = self.data
+        esi, mask, count = data.events.accumulate(i0, i1, data.c_pos, data.c_neg)
+        return torch.from_numpy(esi), torch.from_numpy(mask), count
+
     def esi(self, t0: int, t1: int, coarse: bool = False) -> tuple[torch.Tensor, torch.Tensor, int]:
-        """(ESI, event mask, event count) of [t0, t1), 2x2-binned for a coarse render. The
-        events are streamed, not loaded: L_e's windows span up to 30% of the recording."""
-        data, store = self.data, self.data.events
-        esi, mask, count = store.accumulate(*store.window(t0, t1), data.c_pos, data.c_neg)
-        esi, mask = torch.from_numpy(esi), torch.from_numpy(mask)
+        """(ESI, event mask, event count) of [t0, t1), 2x2-binned for a coarse render."""
+        esi, mask, count = self.accumulate(*self.data.events.window(t0, t1))
         if coarse:
             esi, mask = bin_events(esi, mask, self.channel_map)
         return esi, mask, count
