@@ -42,6 +42,8 @@ SKIPS = {
     r"^(OMP_NUM_THREADS=1 )?evsplat bench raster\b": "minutes of 512x512 renders "
     "(tests/test_raster.py checks the rasterizer)",
     r"^evsplat bench decode\b": "20 M events per format (tests/test_bench_decode.py runs it small)",
+    r"--device cuda\b|^evsplat bench gpu\b": "needs a CUDA GPU",
+    r"^evsplat simulate (?!.*--tiny)": "a full-size scene: minutes of simulation (`--tiny` runs)",
 }
 # Long runs made short: (pattern, replacement) on the command's text.
 MAPS = [
@@ -79,24 +81,35 @@ def fenced_commands(path: Path) -> list[str]:
     return commands
 
 
-def skip_reason(command: str) -> str | None:
-    return next((why for pattern, why in SKIPS.items() if re.search(pattern, command)), None)
+def planned(doc: Path) -> list[tuple[str, str | None]]:
+    """Each command of ``doc`` with the reason it is skipped (None: it runs). A command that
+    names what a skipped command writes (its ``--out``) is skipped too: its input is missing."""
+    plan, missing = [], set()
+    for command in fenced_commands(doc):
+        why = next((why for pattern, why in SKIPS.items() if re.search(pattern, command)), None)
+        words = shlex.split(command.split("\n")[0], comments=True)
+        if why is None and missing & set(words):
+            why = f"uses {', '.join(sorted(missing & set(words)))}, which a skipped command makes"
+        if why is not None:
+            missing.update(w for a, w in zip(words, words[1:]) if a == "--out")
+        plan.append((command, why))
+    return plan
 
 
 DOCS = [ROOT / "README.md"] + sorted(
     p for p in (ROOT / "docs").rglob("*.md") if RECORDS not in p.parents
 )
-RUNNABLE = [d for d in DOCS if any(skip_reason(c) is None for c in fenced_commands(d))]
+RUNNABLE = [d for d in DOCS if any(why is None for _, why in planned(d))]
 
 
 def test_every_documented_command_is_run_or_skipped_with_a_reason():
-    run = [c for d in DOCS for c in fenced_commands(d) if skip_reason(c) is None]
+    run = [c for d in DOCS for c, why in planned(d) if why is None]
     assert any(c.startswith("evsplat train ") for c in run), "the parser found no commands"
     assert {ROOT / "README.md", ROOT / "docs/real-data.md"} <= set(RUNNABLE)
     # The walkthrough's heredocs are parsed whole (the JSON is the file the command writes).
     readme = fenced_commands(ROOT / "README.md")
     assert any(c.startswith("cat > data/meta.json") and c.endswith("JSON") for c in readme)
-    assert all(skip_reason(c) for c in fenced_commands(ROOT / "README.md")[:2])
+    assert all(why for _, why in planned(ROOT / "README.md")[:2])  # scripts/demo.sh, test.sh
 
 
 def _shell_tools(bin_dir: Path) -> dict[str, str]:
@@ -128,7 +141,7 @@ def _given(work: Path, commands: list[str], tiny_scene, env: dict[str, str]) -> 
 
 @pytest.mark.parametrize("doc", RUNNABLE, ids=lambda p: str(p.relative_to(ROOT)))
 def test_the_documented_commands_run(doc, tiny_scene, tmp_path, monkeypatch):
-    commands = [c for c in fenced_commands(doc) if skip_reason(c) is None]
+    commands = [c for c, why in planned(doc) if why is None]
     env = _shell_tools(tmp_path / "bin")
     work = tmp_path / "work"
     work.mkdir()
