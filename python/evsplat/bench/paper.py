@@ -24,10 +24,10 @@ from evsplat.bench.train import (
     plot_pareto,
     simulate_cases,
 )
-from evsplat.commands.train import add_device_argument
 from evsplat.data.atomic import write_text_atomic
 from evsplat.errors import EvsplatError
 from evsplat.sweep import SweepOptions, add_sweep_arguments, run_sweep
+from evsplat.train.device import add_device_argument
 
 HELP = "the paper's Tables 1-3 (scenes, speed factors, loss ablation) into docs/results.md"
 

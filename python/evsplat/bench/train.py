@@ -17,10 +17,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from evsplat.commands.train import add_device_argument
 from evsplat.data.atomic import write_atomic
 from evsplat.sweep import Cell, SweepOptions, add_sweep_arguments, run_sweep
 from evsplat.sweep.store import write_table
+from evsplat.train.device import add_device_argument
 
 HELP = "train + evaluate scenes x variants; CSV, JSON and a time-vs-PSNR Pareto plot"
 

@@ -12,6 +12,7 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     """--preset, --config, --iters, --device and --set (shared with `evsplat train-many` and
     `evsplat config show`)."""
     from evsplat.config import PRESETS
+    from evsplat.train.device import add_device_argument
 
     parser.add_argument("--preset", default="default", help=f"one of {', '.join(PRESETS)}")
     parser.add_argument(
@@ -26,19 +27,6 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="set one setting, e.g. --set loss.w_motion=0.2 --set mover.enabled=false "
         "(repeatable; `evsplat config show` lists them all)",
-    )
-
-
-def add_device_argument(parser: argparse.ArgumentParser, default: str | None) -> None:
-    """--device: where torch trains (shared with the training benchmarks)."""
-    from evsplat.train.device import DEVICES
-
-    shown = default or "the config's (auto)"
-    parser.add_argument(
-        "--device",
-        choices=DEVICES,
-        default=default,
-        help=f"where torch trains: auto (CUDA when torch sees a GPU), cpu or cuda; default {shown}",
     )
 
 

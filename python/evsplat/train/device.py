@@ -4,6 +4,8 @@ adapter) and the numpy parts (seeding, evaluation, export) take tensors at their
 
 from __future__ import annotations
 
+import argparse
+
 import torch
 
 from evsplat.errors import EvsplatError
@@ -43,3 +45,14 @@ def describe_device(name: str = "auto") -> str:
     tf32 = "TF32 matmuls" if major >= 8 else "no TF32 (before Ampere)"
     gpu = torch.cuda.get_device_name(device)
     return f"cuda ({gpu}, compute {major}.{minor}, {tf32}; torch {torch.__version__})"
+
+
+def add_device_argument(parser: argparse.ArgumentParser, default: str | None) -> None:
+    """--device: where torch trains (shared with the training benchmarks)."""
+    shown = default or "the config's (auto)"
+    parser.add_argument(
+        "--device",
+        choices=DEVICES,
+        default=default,
+        help=f"where torch trains: auto (CUDA when torch sees a GPU), cpu or cuda; default {shown}",
+    )
