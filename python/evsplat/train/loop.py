@@ -19,7 +19,7 @@ from evsplat.checkpoint import checkpoint_dir, latest_checkpoint
 from evsplat.config import TrainConfig
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset
-from evsplat.data.poses import read_tum
+from evsplat.data.poses import measured_poses
 from evsplat.errors import EvsplatError
 from evsplat.losses.event import event_loss
 from evsplat.losses.flow import gaussian_flow_features
@@ -93,7 +93,7 @@ class Trainer:
         )
         self.views = Views.of(data, self.renderer)
         # The measured poses travel with every checkpoint so renders need no dataset.
-        self.pose_samples = read_tum(data.root / "poses.txt")
+        self.pose_samples = measured_poses(data.root, data.meta)
         self.progress = Progress(cfg, self.views)
         self.start_iteration = 0
         self.static_scene = False  # set when the static classification finds no motion
