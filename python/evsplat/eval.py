@@ -19,6 +19,7 @@ import torch
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset, load_dataset
 from evsplat.data.images import read_exr, read_png
+from evsplat.event_prediction import event_headline, format_event_table, predict_events
 from evsplat.intensity import LUMA
 from evsplat.metrics import DISPLAY_GAMMA, Lpips, fit_log_linear, flat_fit, psnr, ssim, to_display
 from evsplat.motion_metrics import PERCENTILES, TrackView, track_object, track_region
@@ -231,7 +232,17 @@ def _tracking_lines(tr: dict) -> list[str]:
 
 
 def format_table(result: dict) -> str:
-    """Markdown: both protocols' tables, the margins over a flat image and the tracking."""
+    """Markdown: both protocols' tables, the margins over a flat image and the tracking; the
+    event prediction (``evsplat.event_prediction``) where it was scored; only that for a
+    dataset without test frames."""
+    events = result.get("event_prediction")
+    if "frames" not in result:
+        return format_event_table(events)
+    tail = "" if events is None else "\n" + format_event_table(events)
+    return _frames_table(result) + tail
+
+
+def _frames_table(result: dict) -> str:
     tr = result.get("tracking")
     track_col = None
     if tr is not None:
@@ -263,9 +274,13 @@ def format_table(result: dict) -> str:
 
 
 def headline(result: dict) -> str:
-    """One line: the moving object's PSNR against the flat image's, and the tracking error."""
+    """One line: the moving object's PSNR against the flat image's, the tracking error, and
+    the event prediction where it was scored."""
+    events = result.get("event_prediction")
+    parts = [] if events is None else [event_headline(events)]
+    if "frames" not in result:
+        return parts[0]
     m, tr = result["mean"], result.get("tracking")
-    parts = []
     if m["psnr_moving"] is not None:
         parts.append(
             f"moving object: PSNR {m['psnr_moving']:.2f} dB vs {m['psnr_moving_flat']:.2f} dB "
@@ -302,10 +317,15 @@ def write_track_plot(result: dict, data: Dataset, out: Path) -> bool:
 
 def evaluate_run(run_dir: Path, data_dir: Path, out_dir: Path | None = None) -> dict:
     """Evaluate a run folder on a dataset folder; writes eval.json, eval.md and (with a
-    tracked object) track.png atomically."""
-    renderer, _ = Renderer.from_run(run_dir)
+    tracked object) track.png atomically. The test frames are scored where the dataset has
+    them; the event prediction (``evsplat.event_prediction``) where the run held windows out
+    or there are no test frames."""
+    renderer, state = Renderer.from_run(run_dir)
     data = load_dataset(data_dir)
-    result = evaluate(renderer, data)
+    result = evaluate(renderer, data) if data.test_frames else {}
+    if state.heldout or not data.test_frames:
+        lambda_ssim = state.config.loss.lambda_ssim
+        result["event_prediction"] = predict_events(renderer, data, state.heldout, lambda_ssim)
     out = Path(out_dir or run_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "eval.json", json.dumps(result, indent=2))

@@ -31,6 +31,7 @@ from evsplat.run_state import RunState
 from evsplat.train.coarse import coarse_due, half_renderer
 from evsplat.train.depth_prior import DepthPrior
 from evsplat.train.gradients import first_nonfinite_grad, grad_norms_due, mlp_grad_norms
+from evsplat.train.heldout import heldout_intervals
 from evsplat.train.init import initial_gaussians, scene_extent
 from evsplat.train.mover import MoverTrack
 from evsplat.train.objective import (
@@ -91,7 +92,9 @@ class Trainer:
             t_end_us=data.t_end_us,
             background=cfg.background,
         )
-        self.views = Views.of(data, self.renderer)
+        # Never read in training; saved with the run for `evsplat eval` (``train.heldout``).
+        self.heldout = heldout_intervals(data.t_start_us, data.t_end_us, cfg.holdout, cfg.seed)
+        self.views = Views.of(data, self.renderer, self.heldout)
         # The measured poses travel with every checkpoint so renders need no dataset.
         self.pose_samples = measured_poses(data.root, data.meta)
         self.progress = Progress(cfg, self.views)

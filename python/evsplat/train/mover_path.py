@@ -182,6 +182,7 @@ def find_path(
     t_end_us: int,
     cfg: MoverConfig,
     converge: bool = True,
+    allowed: Callable[[int, int], bool] = lambda t0, t1: True,
 ) -> MoverPath:
     """The mover's path from ``cfg.windows`` evenly spread windows of ``cfg.window`` of the
     sequence; ``residual_of(t0, t1)`` is the unexplained event energy [H,W] of [t0, t1).
@@ -199,6 +200,7 @@ def find_path(
     duration = t_end_us - t_start_us
     length = max(int(cfg.window * duration), 1)
     starts = np.linspace(t_start_us, t_end_us - length, cfg.windows).astype(np.int64)
+    starts = starts[[allowed(int(t0), int(t0) + length) for t0 in starts]]  # held out: unread
     maps = torch.stack([residual_of(int(t0), int(t0) + length) for t0 in starts])
     # What the static model misses at a pixel in most windows is the model's own error, not a
     # mover (a mover passes by): the per-pixel median over the windows is taken away.

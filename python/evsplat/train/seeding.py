@@ -86,7 +86,8 @@ def seed_mover(
         return pooled(torch.from_numpy(ev.event_count(0, len(ev)).astype(np.float64)), mc.pool)
 
     with torch.no_grad():
-        path = find_path(residual_of, data.t_start_us, data.t_end_us, mc)
+        span = (data.t_start_us, data.t_end_us)
+        path = find_path(residual_of, *span, mc, allowed=views.allowed)
         # A mover whose texture is finer than its motion in a window fires events of both
         # signs at each pixel: they cancel in the ESI, and the static model, which cannot draw
         # that texture either, leaves no residual there. Their number does not cancel. Where
@@ -97,7 +98,7 @@ def seed_mover(
         # reads and ring fits cost seconds at 400x400.)
         found, by_counts = seen(path, mc), False
         if found + COUNTS_MARGIN < 1.0:
-            counted = find_path(counts_of, data.t_start_us, data.t_end_us, mc, converge=False)
+            counted = find_path(counts_of, *span, mc, converge=False, allowed=views.allowed)
             counted_found = seen(counted, mc)
             by_counts = counted_found > found + COUNTS_MARGIN
             if by_counts:
@@ -195,6 +196,7 @@ def mover_spin(
     centres = centres[(centres >= times[0]) & (centres <= times[-1])]
     r_px = float(np.median(path.radius_px[path.found]))
     centres = centres[disc_inside(path.at(centres), r_px, data.width, data.height)]
+    centres = centres[[views.allowed(int(c) - half, int(c) + half) for c in centres]]
     if len(centres) == 0:
         return None, {"spin_windows": 0.0}
 
