@@ -140,7 +140,7 @@ def _as_version_1(s: RunState) -> dict:
 def test_run_state_saves_and_loads_back_equal(tmp_path):
     state = _state()
     path = state.save(tmp_path, keep=2)
-    assert path.name == "ckpt_0000012.pt" and VERSION == 3
+    assert path.name == "ckpt_0000012.pt" and VERSION == 4
     _assert_same(RunState.load(path), state)
     _assert_same(RunState.load(tmp_path), state)  # a run folder: its newest checkpoint
 
@@ -234,3 +234,12 @@ def test_a_restored_trainer_is_the_one_that_saved_and_steps_on_alike(tiny_data, 
     _assert_same(snapshot(resumed, 10), snapshot(saved, 10))
     # The step's losses come before its update: the same windows and renders, equal values.
     assert resumed.step(10).losses == saved.step(10).losses
+
+
+def test_held_out_windows_are_saved_and_a_version_3_checkpoint_has_none(tmp_path):
+    state = dataclasses.replace(_state(), heldout=[(20_000, 25_000), (60_000, 65_000)])
+    _assert_same(RunState.load(state.save(tmp_path / "run", keep=2)), state)
+    v3 = _as_version_2(state) | {"version": 3}
+    del v3["heldout"]
+    torch.save(v3, tmp_path / "v3.pt")
+    _assert_same(RunState.load(tmp_path / "v3.pt"), dataclasses.replace(state, heldout=[]))
