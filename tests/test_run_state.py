@@ -261,3 +261,12 @@ def test_a_restored_trainer_is_the_one_that_saved_and_steps_on_alike(tiny_data, 
     _assert_same(snapshot(resumed, 10), snapshot(saved, 10))
     # The step's losses come before its update: the same windows and renders, equal values.
     assert resumed.step(10).losses == saved.step(10).losses
+
+
+def test_held_out_windows_are_saved_and_a_version_3_checkpoint_has_none(tmp_path):
+    state = dataclasses.replace(_state(), heldout=[(20_000, 25_000), (60_000, 65_000)])
+    _assert_same(RunState.load(state.save(tmp_path / "run", keep=2)), state)
+    v3 = _as_version_2(state) | {"version": 3}
+    del v3["heldout"]
+    torch.save(v3, tmp_path / "v3.pt")
+    _assert_same(RunState.load(tmp_path / "v3.pt"), dataclasses.replace(state, heldout=[]))

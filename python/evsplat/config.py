@@ -248,6 +248,16 @@ class SkipConfig:
 
 
 @dataclass
+class HoldoutConfig:
+    """Held-out event windows (``evsplat.train.heldout``; not in the paper): intervals that
+    training never reads, evenly spread and seeded, on which `evsplat eval` scores the model's
+    prediction of unseen events. Off by default: they take events away from training."""
+
+    windows: int = 0  # how many (0 = off)
+    length: float = 0.02  # each one's length, a fraction of the sequence
+
+
+@dataclass
 class ScheduleConfig:
     """Iterations and stage boundaries, as fractions so short runs keep the paper's proportions."""
 
@@ -290,6 +300,7 @@ class TrainConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     skips: SkipConfig = field(default_factory=SkipConfig)
     mover: MoverConfig = field(default_factory=MoverConfig)
+    holdout: HoldoutConfig = field(default_factory=HoldoutConfig)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -314,6 +325,8 @@ class TrainConfig:
             # Runs saved before the mover initialisation existed trained without it; settings
             # added to it later take their defaults.
             mover=_known(MoverConfig, d["mover"]) if "mover" in d else MoverConfig(enabled=False),
+            # Runs saved before held-out windows existed held none out.
+            holdout=HoldoutConfig(**d.get("holdout", {})),
         )
 
 

@@ -20,6 +20,7 @@ from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset, load_dataset
 from evsplat.data.images import read_png
 from evsplat.eval_objects import evaluate_objects, mask2d, object_table, worst_object_headline
+from evsplat.event_prediction import event_headline, format_event_table, predict_events
 from evsplat.intensity import LUMA
 from evsplat.metrics import DISPLAY_GAMMA, Lpips, fit_log_linear, flat_fit, psnr, ssim, to_display
 from evsplat.motion_metrics import PERCENTILES
@@ -206,7 +207,17 @@ def _tracking_lines(tr: dict, what: str = "the moving object") -> list[str]:
 
 def format_table(result: dict) -> str:
     """Markdown: both protocols' tables, the margins over a flat image, one row per moving
-    object and its tracking (a per-frame column too for a single object)."""
+    object and its tracking (a per-frame column too for a single object); the event prediction
+    (``evsplat.event_prediction``) where it was scored; only that for a dataset without test
+    frames."""
+    events = result.get("event_prediction")
+    if "frames" not in result:
+        return format_event_table(events)
+    tail = "" if events is None else "\n" + format_event_table(events)
+    return _frames_table(result) + tail
+
+
+def _frames_table(result: dict) -> str:
     tr, objects = result.get("tracking"), result.get("objects") or []
     track_col = None
     if tr is not None and len(objects) == 1:
@@ -241,13 +252,17 @@ def format_table(result: dict) -> str:
 
 
 def headline(result: dict) -> str:
-    """One line: the moving object's PSNR against the flat image's, and the tracking error;
-    with several objects, the worst object's mask margin and each one's tracking."""
+    """One line: the moving object's PSNR against the flat image's, and the tracking error
+    (with several objects, the worst object's mask margin and each one's tracking); the event
+    prediction where it was scored."""
+    events = result.get("event_prediction")
+    parts = [] if events is None else [event_headline(events)]
+    if "frames" not in result:
+        return parts[0]
     objects = result.get("objects") or []
     if len(objects) > 1:
-        return worst_object_headline(objects)
+        return "; ".join([*parts, worst_object_headline(objects)])
     m, tr = result["mean"], result.get("tracking")
-    parts = []
     if m["psnr_moving"] is not None:
         parts.append(
             f"moving object: PSNR {m['psnr_moving']:.2f} dB vs {m['psnr_moving_flat']:.2f} dB "
@@ -285,10 +300,15 @@ def write_track_plot(result: dict, data: Dataset, out: Path) -> bool:
 
 def evaluate_run(run_dir: Path, data_dir: Path, out_dir: Path | None = None) -> dict:
     """Evaluate a run folder on a dataset folder; writes eval.json, eval.md and (with a
-    tracked object) track.png atomically."""
-    renderer, _ = Renderer.from_run(run_dir)
+    tracked object) track.png atomically. The test frames are scored where the dataset has
+    them; the event prediction (``evsplat.event_prediction``) where the run held windows out
+    or there are no test frames."""
+    renderer, state = Renderer.from_run(run_dir)
     data = load_dataset(data_dir)
-    result = evaluate(renderer, data)
+    result = evaluate(renderer, data) if data.test_frames else {}
+    if state.heldout or not data.test_frames:
+        lambda_ssim = state.config.loss.lambda_ssim
+        result["event_prediction"] = predict_events(renderer, data, state.heldout, lambda_ssim)
     out = Path(out_dir or run_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "eval.json", json.dumps(result, indent=2))

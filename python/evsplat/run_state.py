@@ -26,7 +26,8 @@ from evsplat.model.gaussians import clamped_to_softplus
 
 # 2: the MLP saved once, with whether renders use it; counters beside the history; ``poses``.
 # 3: colour through a softplus (``model.gaussians.color_activation``), not a clamp at 0.
-# 4: the moving objects' rigid paths and each Gaussian's object (``model.motion``).
+# 4: the moving objects' rigid paths and each Gaussian's object (``model.motion``); ``heldout``,
+#    the event intervals training never read.
 VERSION = 4
 
 
@@ -79,6 +80,9 @@ class RunState:
     skipped_empty: int = 0  # steps without an update: no events in the windows
     seconds: float = 0.0  # training time so far
     history: list[dict] = field(default_factory=list)  # the loss log's lines (log.jsonl)
+    # [t0, t1) µs event intervals training never read (``train.heldout``): `evsplat eval`
+    # scores the model's prediction of their events.
+    heldout: list[tuple[int, int]] = field(default_factory=list)
 
     def save(self, run_dir: Path, keep: int) -> Path:
         """Write as the run's checkpoint of ``iteration``, atomically; keep the newest ``keep``."""
@@ -144,8 +148,8 @@ def _v2_to_v3(v2: dict[str, Any]) -> dict[str, Any]:
 
 def _v3_to_v4(v3: dict[str, Any]) -> dict[str, Any]:
     """Version 3 kept one mover's track prior (its motion lived in the MLP, which still loads);
-    version 4 keeps the objects' rigid paths."""
-    return {k: v for k, v in v3.items() if k != "mover_track"} | {"objects": None}
+    version 4 keeps the objects' rigid paths. Version 3 runs held no event windows out."""
+    return {k: v for k, v in v3.items() if k != "mover_track"} | {"objects": None, "heldout": []}
 
 
 UPGRADES: Upgrades = {1: _v1_to_v2, 2: _v2_to_v3, 3: _v3_to_v4}

@@ -54,8 +54,10 @@ def describe(store: EventStore) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     from evsplat.data.dataset import verify_dataset
     from evsplat.data.event_store import verify_store
+    from evsplat.data.poses import is_static_camera
 
     path = Path(args.path)
+    data = None
     if path.is_file() and path.suffix.lower() in (".h5", ".hdf5"):
         problems, store = verify_store(path)
     else:
@@ -63,6 +65,11 @@ def run(args: argparse.Namespace) -> int:
         store = data.events if data else None
     if store is not None:
         print("\n".join(describe(store)))
+    if data is not None and is_static_camera(data.meta):
+        print(
+            f"  static camera: identity pose over [{data.t_start_us}, {data.t_end_us}] µs "
+            "(meta.json; no poses.txt)"
+        )
     for p in problems:
         print(p, file=sys.stderr)
     if problems:

@@ -33,6 +33,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--poses", type=Path, default=None, help="also write the bag's PoseStamped poses (TUM)"
     )
     parser.add_argument("--pose-topic", default=None, help="pose topic (default: the only one)")
+    camera = parser.add_argument_group(
+        "static camera",
+        "--static-camera makes OUT's folder a dataset: meta.json (camera static, no poses "
+        "needed) and intrinsics.json beside OUT, which must be DIR/events.h5",
+    )
+    camera.add_argument("--static-camera", action="store_true", help="the camera never moved")
+    camera.add_argument("--fx", type=float, default=None, help="focal length px (default a guess)")
+    camera.add_argument("--fy", type=float, default=None, help="focal length y (default fx)")
+    camera.add_argument("--cx", type=float, default=None, help="principal point x (default w/2)")
+    camera.add_argument("--cy", type=float, default=None, help="principal point y (default h/2)")
+    camera.add_argument(
+        "--contrast", type=float, default=None, help="contrast threshold C (default: a guess)"
+    )
+    camera.add_argument("--bayer", default="mono", help="colour filter (default mono)")
     parser.add_argument(
         "--compression",
         default=DEFAULT_CODEC,
@@ -205,16 +219,34 @@ def convert(
 
 
 def run(args: argparse.Namespace) -> int:
+    from evsplat.data.event_store import open_store
     from evsplat.data.formats import rosbag
     from evsplat.data.poses import write_tum
+    from evsplat.data.static_folder import Lens, check_output, write_static_folder
     from evsplat.errors import EvsplatError
 
     if (args.poses is not None or args.pose_topic is not None) and not rosbag.is_bag(args.input):
         raise EvsplatError(f"{args.input}: --poses/--pose-topic read poses from ROS bags only")
+    lens = Lens(args.fx, args.fy, args.cx, args.cy)
+    camera_flags = [v for v in (*vars(lens).values(), args.contrast) if v is not None]
+    if args.static_camera:
+        if args.poses is not None:
+            raise EvsplatError(f"{args.poses}: --poses and --static-camera exclude each other")
+        check_output(args.output, lens, args.bayer, args.contrast)
+    elif camera_flags or args.bayer != "mono":
+        raise EvsplatError("--fx/--fy/--cx/--cy/--contrast/--bayer go with --static-camera")
     n, seconds = convert(args.input, args.output, topic=args.topic, compression=args.compression)
     print(
         f"wrote {n} events to {args.output} in {seconds:.2f} s ({n / max(seconds, 1e-9):,.0f} ev/s)"
     )
+    if args.static_camera:
+        with open_store(args.output) as store:
+            size, span = (store.width, store.height), (store.t_first_us, store.t_last_us)
+        folder = args.output.parent
+        notes = write_static_folder(folder, args.input, size, span, lens, args.bayer, args.contrast)
+        for note in notes:
+            print(f"warning: {note}", file=sys.stderr)
+        print(f"wrote {folder / 'meta.json'} (static camera) and {folder / 'intrinsics.json'}")
     if args.poses is not None:
         times, c2w = rosbag.read_bag_poses(args.input, topic=args.pose_topic)
         write_tum(args.poses, times, c2w)

@@ -1,5 +1,6 @@
 """`evsplat eval RUN DATA`: PSNR/SSIM/LPIPS on the held-out intermediate frames, next to a
-flat image's, under two colour-fit protocols, and the moving object's tracking error."""
+flat image's, under two colour-fit protocols, and the moving object's tracking error; without
+frames (or with held-out event windows), how well the run predicts events."""
 
 from __future__ import annotations
 
@@ -14,7 +15,9 @@ HELP = (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", type=Path, help="run folder written by `evsplat train`")
-    parser.add_argument("data", type=Path, help="dataset folder with test/frames.json")
+    parser.add_argument(
+        "data", type=Path, help="dataset folder (test/frames.json scored where it has one)"
+    )
     parser.add_argument("--out", type=Path, default=None, help="where eval.json/eval.md go")
 
 
@@ -25,6 +28,6 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(result), end="")
     print(headline(result))
     out = args.out or args.run
-    written = ["eval.json", "eval.md"] + (["track.png"] if result["tracking"] is not None else [])
+    written = ["eval.json", "eval.md"] + (["track.png"] if result.get("tracking") else [])
     print("written: " + ", ".join(str(out / name) for name in written))
     return 0

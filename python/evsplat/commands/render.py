@@ -1,4 +1,5 @@
-"""`evsplat render RUN --times a:b:step --out DIR`: images and depth over time."""
+"""`evsplat render RUN --times a:b:step --out DIR`: images and depth over time, and where
+the events saw anything (observed.png; ``evsplat.observed``)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
+    from evsplat.data.event_store import EventStore
     from evsplat.run_state import RunState
 
 HELP = "render a trained run at many times (PNG, depth EXR + colour-mapped PNG, MP4)"
@@ -54,6 +56,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(render | events around each time | depth)",
     )
     parser.add_argument("--fps", type=float, default=20.0, help="frame rate of the videos")
+    parser.add_argument(
+        "--show-unobserved",
+        action="store_true",
+        help="draw the pixels that saw no event as rendered (default: background grey, see "
+        "observed.png)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -63,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     from evsplat.data.poses import read_tum
     from evsplat.data.trajectory import Trajectory
     from evsplat.errors import EvsplatError
+    from evsplat.observed import masked, observed_map
     from evsplat.render import Renderer
     from evsplat.video import colour_depth
 
@@ -76,6 +85,16 @@ def run(args: argparse.Namespace) -> int:
     trajectory = Trajectory.fit(np.asarray(state.poses.times_us), np.asarray(state.poses.c2w))
     fixed = read_tum(args.pose)[1][0] if args.pose is not None else None
     args.out.mkdir(parents=True, exist_ok=True)
+    events = _run_events(state)
+    observed = None
+    if events is not None:
+        seen = observed_map(events, renderer.t_start_us, renderer.t_end_us, state.heldout)
+        write_png(args.out / "observed.png", seen.astype(np.float32))
+        print(
+            f"observed.png: {seen.mean():.1%} of the pixels saw events in training's data"
+            + ("" if args.show_unobserved else "; the others are drawn background grey")
+        )
+        observed = None if args.show_unobserved else seen
     frames = []
     for i, frac in enumerate(fractions):
         t_us = renderer.t_start_us + float(frac) * span
@@ -83,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
         with torch.no_grad():
             out = renderer.render(t_us, c2w)
         img = out.image.clamp(0, 1).numpy()
+        if observed is not None:
+            img = masked(img, observed, renderer.background)
         write_png(args.out / f"frame_{i:05d}.png", img[..., 0] if img.shape[-1] == 1 else img)
         depth = out.depth.numpy()
         write_exr(args.out / f"depth_{i:05d}.exr", depth)
@@ -91,8 +112,25 @@ def run(args: argparse.Namespace) -> int:
             frames.append((t_us, img, colour_depth(depth)))
     print(f"rendered {len(fractions)} frames to {args.out}")
     if args.video:
-        _write_videos(args, state, frames, span * _step(fractions))
+        _write_videos(args, events, frames, span * _step(fractions))
     return 0
+
+
+def _run_events(state: RunState) -> EventStore | None:
+    """The events of the run's dataset (for observed.png and render_events.mp4), or None
+    (said so) when its folder is no longer where training read it."""
+    from evsplat.data.dataset import load_dataset
+    from evsplat.errors import EvsplatError
+
+    data_dir = Path(state.dataset)
+    if not (data_dir / "events.h5").is_file():
+        print(f"no dataset at {data_dir}: no observed.png, no render_events.mp4")
+        return None
+    try:
+        return load_dataset(data_dir).events
+    except EvsplatError as e:
+        print(f"dataset {data_dir} does not load ({e}): no observed.png, no render_events.mp4")
+        return None
 
 
 def _step(fractions: np.ndarray) -> float:
@@ -101,24 +139,15 @@ def _step(fractions: np.ndarray) -> float:
 
 
 def _write_videos(
-    args: argparse.Namespace, state: RunState, frames: list, window_us: float
+    args: argparse.Namespace, events: EventStore | None, frames: list, window_us: float
 ) -> None:
     """render.mp4, and render_events.mp4 (render | events of each frame's interval | depth)
-    when the run's dataset folder is still where training read it."""
-    from evsplat.data.dataset import load_dataset
-    from evsplat.errors import EvsplatError
+    when the run's ``events`` were found."""
     from evsplat.video import event_frame, hstack_images, write_mp4
 
     n = write_mp4(args.out / "render.mp4", (img for _, img, _ in frames), args.fps)
     print(f"wrote {args.out / 'render.mp4'} ({n} frames, {args.fps:g} fps)")
-    data_dir = Path(state.dataset)
-    if not (data_dir / "events.h5").is_file():
-        print(f"no dataset at {data_dir}: skipped render_events.mp4")
-        return
-    try:
-        events = load_dataset(data_dir).events
-    except EvsplatError as e:
-        print(f"dataset {data_dir} does not load ({e}): skipped render_events.mp4")
+    if events is None:
         return
 
     def panels():

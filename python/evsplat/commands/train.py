@@ -70,6 +70,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="train on part of the recording: seconds from its start, either side may be "
         "empty (e.g. 2:5, 10:)",
     )
+    parser.add_argument(
+        "--holdout",
+        default=None,
+        metavar="N:LENGTH",
+        help="hold N evenly spread event windows of LENGTH (a fraction of the sequence) out of "
+        "training, for `evsplat eval` to score event prediction on (e.g. 8:0.02)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -91,6 +98,25 @@ def parse_time_range(text: str) -> tuple[float | None, float | None]:
     return ends
 
 
+def parse_holdout(text: str) -> tuple[int, float]:
+    """``N:LENGTH``: a window count and each window's length as a fraction of the sequence."""
+    import math
+
+    from evsplat.errors import EvsplatError
+
+    try:
+        count, length = text.split(":")
+        n, frac = int(count), float(length)
+    except ValueError:
+        n, frac = -1, math.nan
+    if n < 0 or not 0 < frac < 1:
+        raise EvsplatError(
+            f"--holdout {text!r}: expected N:LENGTH, N windows (0 = none) of LENGTH, a "
+            "fraction of the sequence in (0, 1), e.g. 8:0.02"
+        )
+    return n, frac
+
+
 def run(args: argparse.Namespace) -> int:
     from evsplat.train import train
 
@@ -101,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
         cfg.model.temporal_opacity = args.temporal_opacity
     if args.time_range is not None:
         cfg.time_range = parse_time_range(args.time_range)
+    if args.holdout is not None:
+        cfg.holdout.windows, cfg.holdout.length = parse_holdout(args.holdout)
     if args.checkpoint_every is not None:
         cfg.schedule.checkpoint_every = max(1, args.checkpoint_every)
     stats = train(

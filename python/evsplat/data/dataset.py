@@ -3,7 +3,8 @@
 Layout (docs/dataset.md describes every field):
     events.h5            events (x, y, t µs, p) with their millisecond index, written by
                          evsplat.data.event_writer and read by time window (event_store)
-    poses.txt            measured camera-to-world poses, TUM format (sparse, e.g. 100 Hz)
+    poses.txt            measured camera-to-world poses, TUM format (sparse, e.g. 100 Hz);
+                         none for a static camera (meta.json "camera": "static")
     poses_gt.txt         optional dense ground-truth poses, TUM format
     intrinsics.json      {"K": 3x3, "width", "height", "distortion": null or a lens model
                          (evsplat.data.distortion: radtan / equidistant, OpenCV order)}
@@ -28,12 +29,13 @@ from evsplat.data.distortion import LensDistortion, Rectifier
 from evsplat.data.event_index import MS
 from evsplat.data.event_store import EventStore, open_store, verify_store
 from evsplat.data.ground_truth import ObjectTrack, TestFrame, read_test_frames, read_tracks
-from evsplat.data.poses import read_tum
+from evsplat.data.poses import CAMERA_KEY, STATIC_CAMERA, is_static_camera, read_tum, static_poses
 from evsplat.data.simulator import BAYER_PATTERNS
 from evsplat.data.trajectory import Trajectory
 from evsplat.errors import EvsplatError
 
 REQUIRED_FILES = ("events.h5", "poses.txt", "intrinsics.json", "meta.json")
+POSES = "poses.txt"  # required unless meta.json says the camera is static
 
 
 @dataclass
@@ -156,6 +158,12 @@ def _meta(c: _Checker) -> dict | None:
             f"got {t0!r}, {t1!r}"
         )
         ok = False
+    if doc.get(CAMERA_KEY, STATIC_CAMERA) != STATIC_CAMERA:
+        c.fail(
+            f"{path}: '{CAMERA_KEY}' is {doc[CAMERA_KEY]!r}; the only value is "
+            f"{STATIC_CAMERA!r} (a camera that never moves: no poses.txt); remove it otherwise"
+        )
+        ok = False
     for key in ("width", "height"):
         if not _positive_int(doc.get(key)):
             c.fail(
@@ -163,6 +171,27 @@ def _meta(c: _Checker) -> dict | None:
             )
             ok = False
     return doc if ok else None
+
+
+def _camera(c: _Checker, meta: dict | None, t0: int | None, t1: int | None) -> Trajectory | None:
+    """The training trajectory: fitted to poses.txt, or a static camera's constant identity."""
+    path = c.root / POSES
+    if meta is not None and is_static_camera(meta):
+        if path.exists():
+            c.fail(
+                f"{path}: meta.json says the camera is static ('{CAMERA_KEY}': "
+                f"'{STATIC_CAMERA}') but poses are given; remove one of them"
+            )
+            return None
+        return c.attempt(Trajectory.fit, *static_poses(t0, t1), None, "static camera (meta.json)")
+    if not path.is_file():
+        what = "is a folder, not a file" if path.exists() else "missing"
+        c.fail(
+            f"{path}: {what} (a dataset folder needs {', '.join(REQUIRED_FILES)}; a static "
+            f'camera needs no poses: "{CAMERA_KEY}": "{STATIC_CAMERA}" in meta.json)'
+        )
+        return None
+    return _trajectory(c, POSES, t0, t1)
 
 
 def _trajectory(c: _Checker, name: str, t0: int | None, t1: int | None) -> Trajectory | None:
@@ -238,7 +267,7 @@ def _inspect(root: str | os.PathLike, verify: bool = False) -> tuple[list[str], 
     if not root.is_dir():
         return [f"{root}: not a directory (expected a dataset folder, see docs/dataset.md)"], None
     for name in REQUIRED_FILES:
-        if not (root / name).is_file():
+        if name != POSES and not (root / name).is_file():
             what = "is a folder, not a file" if (root / name).exists() else "missing"
             c.fail(f"{root / name}: {what} (a dataset folder needs {', '.join(REQUIRED_FILES)})")
     intr = _intrinsics(c) if (root / "intrinsics.json").is_file() else None
@@ -254,7 +283,7 @@ def _inspect(root: str | os.PathLike, verify: bool = False) -> tuple[list[str], 
     events = _events(c, root / "events.h5", size, intr, verify)
     if events is not None and meta is not None:
         _coverage(c, events, t0, t1)
-    traj = _trajectory(c, "poses.txt", t0, t1) if (root / "poses.txt").is_file() else None
+    traj = _camera(c, meta, t0, t1)
     gt = _trajectory(c, "poses_gt.txt", t0, t1) if (root / "poses_gt.txt").is_file() else None
     # With two different sensor sizes on record, image sizes cannot be judged (one line above).
     frames = read_test_frames(c, None if sizes_disagree else size, t0, t1)

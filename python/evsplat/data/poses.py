@@ -189,3 +189,27 @@ def write_transforms_json(
         doc["h"] = int(height)
     doc["frames"] = [{"time_us": int(ti), "transform_matrix": mi.tolist()} for ti, mi in zip(t, m)]
     write_text_atomic(path, json.dumps(doc, indent=1) + "\n")
+
+
+#: meta.json's key and value for a camera that never moves: the folder then needs no
+#: poses.txt, and the camera-to-world pose is the identity over the data's whole time range.
+CAMERA_KEY, STATIC_CAMERA = "camera", "static"
+
+
+def is_static_camera(meta: dict) -> bool:
+    """Whether a dataset's meta.json says its camera stands still."""
+    return meta.get(CAMERA_KEY) == STATIC_CAMERA
+
+
+def static_poses(t_start_us: int, t_end_us: int) -> tuple[np.ndarray, np.ndarray]:
+    """A still camera's poses: the identity at both ends of [t_start_us, t_end_us] (two
+    samples, the fewest a trajectory is fitted to), as (times_us int64[2], c2w float64[2,4,4])."""
+    return np.array([t_start_us, t_end_us], dtype=np.int64), np.stack([np.eye(4), np.eye(4)])
+
+
+def measured_poses(root: str | os.PathLike, meta: dict) -> tuple[np.ndarray, np.ndarray]:
+    """A dataset folder's measured camera-to-world poses: its poses.txt, or a static camera's
+    two identity samples over meta.json's time range."""
+    if is_static_camera(meta):
+        return static_poses(meta["t_start_us"], meta["t_end_us"])
+    return read_tum(Path(root) / "poses.txt")

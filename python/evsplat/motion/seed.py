@@ -73,6 +73,7 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
     span = data.t_end_us - data.t_start_us
     half = max(int(mc.window * span) // 2, 1)
     mids = np.linspace(data.t_start_us + half, data.t_end_us - half, mc.windows).astype(np.int64)
+    mids = mids[[views.allowed(int(m) - half, int(m) + half) for m in mids]]  # held out: unread
     blobs, depth, alpha = [], [], []
     for mid in mids:
         t0, t1 = int(mid) - half, int(mid) + half
@@ -141,6 +142,8 @@ def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
     for i, k in enumerate(sorted(track.blobs)):
         mask = track.blobs[k].mask
         h, w = mask.shape
+        if not views.allowed(int(times[i]) - half_us, int(times[i]) + half_us):
+            continue  # held out: never read in training
         ev = data.events.read(int(times[i]) - half_us, int(times[i]) + half_us, TURN_WINDOW_EVENTS)
         dt = (ev.t - times[i]) * 1e-6
         xy = np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5

@@ -19,7 +19,7 @@ from evsplat.checkpoint import checkpoint_dir, latest_checkpoint
 from evsplat.config import TrainConfig
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset
-from evsplat.data.poses import read_tum
+from evsplat.data.poses import measured_poses
 from evsplat.errors import EvsplatError
 from evsplat.losses.event import event_loss
 from evsplat.losses.flow import gaussian_flow_features
@@ -34,6 +34,7 @@ from evsplat.train.coarse import coarse_due, half_renderer
 from evsplat.train.depth_prior import DepthPrior
 from evsplat.train.device import training_device
 from evsplat.train.gradients import first_nonfinite_grad, grad_norms_due, mlp_grad_norms
+from evsplat.train.heldout import heldout_intervals
 from evsplat.train.init import initial_gaussians, scene_extent
 from evsplat.train.objective import (
     loss_weights,
@@ -92,9 +93,11 @@ class Trainer:
             t_end_us=data.t_end_us,
             background=cfg.background,
         )
-        self.views = Views.of(data, self.renderer)
+        # Never read in training; saved with the run for `evsplat eval` (``train.heldout``).
+        self.heldout = heldout_intervals(data.t_start_us, data.t_end_us, cfg.holdout, cfg.seed)
+        self.views = Views.of(data, self.renderer, self.heldout)
         # The measured poses travel with every checkpoint so renders need no dataset.
-        self.pose_samples = read_tum(data.root / "poses.txt")
+        self.pose_samples = measured_poses(data.root, data.meta)
         self.progress = Progress(cfg, self.views)
         self.start_iteration = 0
         self.static_scene = False  # set when the static classification finds no motion

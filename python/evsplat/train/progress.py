@@ -46,7 +46,13 @@ class Progress:
         if sk.early_stop:
             data = views.data
             self.holdout = holdout_windows(
-                views.esi, data.t_start_us, data.t_end_us, cfg.loss, sk.early_stop_windows, cfg.seed
+                views.esi,
+                data.t_start_us,
+                data.t_end_us,
+                cfg.loss,
+                sk.early_stop_windows,
+                cfg.seed,
+                allowed=views.allowed,
             )
 
     def account(self, iteration: int, result: StepResult, checkpoints: Path) -> None:

@@ -134,14 +134,16 @@ def evidence_windows(
     lc: LossConfig,
     cfg: SkipConfig,
     seed: int,
+    allowed: Callable[[int, int], bool] = lambda t0, t1: True,
 ) -> list[Window]:
     """``cfg.static_scene_windows`` fixed windows with lengths drawn uniformly from
     ``cfg.static_scene_window_lengths`` (fractions of the sequence), from their own seeded
-    stream; event-free ones are passed over (see ``holdout_windows``)."""
+    stream; event-free ones, and those not ``allowed``, are passed over (``holdout_windows``)."""
     lo, hi = cfg.static_scene_window_lengths
     lengths = dataclasses.replace(lc, window_min=lo, window_max=hi)
+    count = cfg.static_scene_windows
     return holdout_windows(
-        esi_of, t_start_us, t_end_us, lengths, cfg.static_scene_windows, seed, EVIDENCE_STREAM
+        esi_of, t_start_us, t_end_us, lengths, count, seed, EVIDENCE_STREAM, allowed
     )
 
 
@@ -214,9 +216,12 @@ def holdout_windows(
     count: int,
     seed: int,
     stream: int = HOLDOUT_STREAM,
+    allowed: Callable[[int, int], bool] = lambda t0, t1: True,
 ) -> list[Window]:
     """``count`` fixed windows with L_e's random lengths, drawn once from their own seeded
-    ``stream``; event-free ones are passed over. ``esi_of(t0, t1)`` gives (ESI, mask, events)."""
+    ``stream``; event-free ones are passed over, and those not ``allowed`` (overlapping the
+    held-out intervals of ``train.heldout``) are not read. ``esi_of(t0, t1)`` gives (ESI,
+    mask, events)."""
     rng = np.random.default_rng([seed, stream])
     duration = t_end_us - t_start_us
     windows: list[Window] = []
@@ -225,6 +230,8 @@ def holdout_windows(
             break
         dt = int(rng.uniform(lc.window_min, lc.window_max) * duration)
         t1 = int(rng.integers(t_start_us + dt, t_end_us + 1))
+        if not allowed(t1 - dt, t1):
+            continue
         esi, mask, events = esi_of(t1 - dt, t1)
         if events > 0:
             windows.append(Window(t1 - dt, t1, esi, mask))
@@ -318,7 +325,9 @@ def scene_unexplained(
     unexplained, seen from the poses at the window's ends (``unexplained_events``); 0 when no
     window has events."""
     data, renderer = views.data, views.renderer
-    windows = evidence_windows(views.esi, data.t_start_us, data.t_end_us, loss, cfg, seed)
+    windows = evidence_windows(
+        views.esi, data.t_start_us, data.t_end_us, loss, cfg, seed, views.allowed
+    )
 
     def log_image_at(t_scene: int, t_pose: int) -> Tensor:
         return views.log_image(renderer.render(t_scene, views.pose(t_pose)))

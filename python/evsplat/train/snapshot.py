@@ -47,6 +47,7 @@ def snapshot(trainer: Trainer, iteration: int) -> RunState:
         skipped_empty=stats.skipped_empty,
         seconds=stats.seconds,
         history=stats.history,
+        heldout=list(t.heldout),
     )
 
 

@@ -3,7 +3,7 @@ sensor's channels (one, or each pixel's Bayer channel of a colour render)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -16,6 +16,11 @@ from evsplat.losses.flow import linearized_brightness_change
 from evsplat.render import Renderer, RenderOut
 from evsplat.train.coarse import bin_events
 from evsplat.train.device_events import DeviceEvents
+from evsplat.train.heldout import Interval, free_spans, overlaps
+
+#: Draws of a step's windows before one that overlaps the held-out intervals is shortened to
+#: fit between them (``Views.draw_times``).
+DRAW_TRIES = 16
 
 
 @dataclass
@@ -28,11 +33,13 @@ class Views:
     channel_map: torch.Tensor | None  # [h,w] Bayer channel per pixel; None for a mono sensor
     # The events accumulated on the device (``train.device_events``); None: by the Rust core.
     device_events: DeviceEvents | None = None
+    heldout: list[Interval] = field(default_factory=list)  # never read (``train.heldout``)
 
     @classmethod
-    def of(cls, data: Dataset, renderer: Renderer) -> Views:
-        """The views of ``data``'s sensor: one channel, or each pixel's Bayer channel. Off the
-        CPU the event windows are accumulated on the device (rectified recordings excepted)."""
+    def of(cls, data: Dataset, renderer: Renderer, heldout: list[Interval] | None = None) -> Views:
+        """The views of ``data``'s sensor: one channel, or each pixel's Bayer channel; the
+        ``heldout`` intervals are kept out of every window training reads. Off the CPU the
+        event windows are accumulated on the device (rectified recordings excepted)."""
         device = renderer.K.device
         channel_map = None
         if data.bayer != "mono":
@@ -41,7 +48,11 @@ class Views:
         events = None
         if device.type != "cpu" and not data.events.transforms:
             events = DeviceEvents(data.events, data.c_pos, data.c_neg, device)
-        return cls(data, renderer, channel_map, events)
+        return cls(data, renderer, channel_map, events, list(heldout or []))
+
+    def allowed(self, t0: int, t1: int) -> bool:
+        """Whether training may read the events of [t0, t1): it overlaps no held-out interval."""
+        return not overlaps(self.heldout, t0, t1)
 
     def draw_times(
         self, rng: np.random.Generator, lc: LossConfig, moving: bool
@@ -54,17 +65,60 @@ class Views:
         inside it: a window placed wholly within would render the first and last instants only
         from one side, half as often as the middle, and the model's ends came out blurred
         (docs/experiments/training.md, "The MLP rate settles, and the windows reach the
-        sequence's ends")."""
+        sequence's ends"). Everything the step reads, [t_0, t_last + the motion
+        losses' reach), stays off the held-out intervals: a draw that overlaps one is drawn
+        again, up to ``DRAW_TRIES`` times, then shortened to fit between them
+        (``_between_heldout``); so with held-out windows the long L_e windows become rarer."""
         start, end = self.data.t_start_us, self.data.t_end_us
-        draw = [rng.uniform(lc.window_min, lc.window_max) for _ in range(lc.views - 1)]
-        gaps = [int(g * (end - start)) for g in draw]
+        reach = 0
+        if moving:  # L_ef's window and L_m's (``objective.motion_events``) follow t_last
+            reach = max(int(lc.flow_window * (end - start)), 1)
+            if lc.w_motion > 0:
+                reach = max(reach, int(lc.motion_window * (end - start)))
+        for _ in range(DRAW_TRIES if self.heldout else 1):
+            draw = [rng.uniform(lc.window_min, lc.window_max) for _ in range(lc.views - 1)]
+            gaps = [int(g * (end - start)) for g in draw]
+            drawn = self._placed(rng, gaps, moving, lc)
+            if drawn is None:
+                return None
+            if self.allowed(drawn[0][0], min(drawn[0][-1] + reach, end)):
+                return drawn
+        return self._between_heldout(rng, gaps, drawn[1], reach)
+
+    def _placed(
+        self, rng: np.random.Generator, gaps: list[int], moving: bool, lc: LossConfig
+    ) -> tuple[list[int], int] | None:
+        """Render times with consecutive ``gaps``, placed as ``draw_times`` says."""
+        start, end = self.data.t_start_us, self.data.t_end_us
         dtau = max(int(lc.flow_window * (end - start)), 1) if moving else 0
         span = sum(gaps)
         if span > end - start - dtau:
             return None
         t1 = int(rng.integers(start, end - dtau + span + 1))
         t1 = min(max(t1, start + span), end - dtau)
-        return [t1 - sum(gaps[k:]) for k in range(lc.views - 1)] + [t1], dtau
+        return [t1 - sum(gaps[k:]) for k in range(len(gaps))] + [t1], dtau
+
+    def _between_heldout(
+        self, rng: np.random.Generator, gaps: list[int], dtau: int, reach: int
+    ) -> tuple[list[int], int] | None:
+        """Render times with ``gaps`` scaled down to fit, with ``reach`` after them, inside
+        one of the spans between held-out intervals (drawn in proportion to their length);
+        None when none is long enough."""
+        data = self.data
+        spans = [
+            (a, b)
+            for a, b in free_spans(self.heldout, data.t_start_us, data.t_end_us)
+            if b - a > reach + len(gaps)
+        ]
+        if not spans:
+            return None
+        room = np.array([b - a - reach for a, b in spans], dtype=np.float64)
+        a, b = spans[int(rng.choice(len(spans), p=room / room.sum()))]
+        # Each gap keeps at least 1 µs, and all of them fit: b - a - reach > len(gaps).
+        scale = min(1.0, (b - a - reach - len(gaps)) / max(sum(gaps), 1))
+        gaps = [int(g * scale) + 1 for g in gaps]
+        t0 = int(rng.integers(a, b - reach - sum(gaps) + 1))
+        return [t0 + sum(gaps[:k]) for k in range(len(gaps) + 1)], dtau
 
     def log_image(self, out: RenderOut, coarse: bool = False) -> torch.Tensor:
         """Log intensity each pixel's sensor sees: its own Bayer channel, or the one channel.
