@@ -33,6 +33,7 @@ class ChangeOfEvents:
     def __init__(self, data, gain: float):
         self.data, self.gain = data, gain
         self.mlp = object()
+        self.K = torch.from_numpy(data.K.astype(np.float32))  # the device Views reads it on
 
     def render(self, t_us: float, c2w: np.ndarray) -> RenderOut:
         store = self.data.events
