@@ -131,54 +131,36 @@ class LossConfig:
 class MoverConfig:
     """Finding the moving objects in the events and starting their motion after the warm-up
     (``evsplat.motion``; not in the paper, which starts from a point cloud that event data does
-    not have). Values measured: docs/motion.md, "Tuning numbers"."""
+    not have). What each was measured on: docs/motion.md, "Tuning numbers"."""
 
-    enabled: bool = True
-    # Segmentation (``motion.segment``): short windows spread over the sequence, each a
-    # fraction of it long (9 ms of the tiny scenes' 0.6 s; documented choice).
-    windows: int = 48
-    window: float = 0.015
+    enabled: bool = True  # find moving objects after the warm-up and move each rigidly
+    windows: int = 48  # segmentation windows spread over the sequence
+    window: float = 0.015  # their length, a fraction of the sequence (9 ms of 0.6 s)
     pool: int = 3  # px box that averages the ESI's steps of C before the residual
     blur_px: float = 1.0  # spreads an object's edge events over its body (sigma, px)
-    # Hysteresis on the residual's own robust spread (MAD): regions above median + low sigmas
-    # that reach median + high sigmas somewhere. The still scene's model errors stay under it.
-    low: float = 3.0
-    high: float = 9.0
+    low: float = 3.0  # a region: residual above median + low robust sigmas (MAD) ...
+    high: float = 9.0  # ... that reaches median + high robust sigmas somewhere
     close_px: int = 2  # closing radius joining an object's pieces (px)
     min_area_px: int = 12  # smaller regions are noise: under a 4x4 px square
     join: float = 0.5  # regions within this many of the larger one's radii are one object
-    # Tracking (``motion.tracks``): a region joins a track within `gate` object radii (or
-    # steps at its speed) of its prediction; a track lives `coast` windows unseen (an object
-    # behind another); one seen in fewer than `min_windows` windows is noise; fragments are one
-    # object when their centres stay within `together` x their summed radii.
-    gate: float = 1.5
-    coast: int = 3
-    min_windows: int = 4
-    # A track is a mover when its regions' peaks above the `high` level sum to this many robust
-    # sigmas over its windows; less is the static model's error (docs/motion.md).
-    min_evidence: float = 30.0
-    together: float = 1.5
-    # Placement: the object's depth is this quantile of the static model's rendered depth in its
-    # regions (its front surface), median over them. It gets `fraction` of the Gaussians, split
-    # by area, at least `min_gaussians` each, at `opacity` (it occludes what is behind it).
-    depth_quantile: float = 0.25
-    fraction: float = 0.15
-    min_gaussians: int = 64
-    opacity: float = 0.5
-    # In-plane turn (``motion.turn``): per sighting, on its events of a window this fraction of
-    # the sequence long; used where it sharpens them by `turn_min_gain`, from at least
-    # `turn_min_events` events, in at least `turn_min_windows` windows.
-    turn: bool = True
-    turn_window: float = 0.05
-    turn_min_gain: float = 0.05
-    turn_min_events: int = 50
-    turn_min_windows: int = 3
-    # The rigid paths (``model.motion``): knots over the sequence, their learning rates, and the
-    # track prior holding them near the events' paths (squared object radii; 0 = off).
-    knots: int = 61
-    path_lr: float = 1e-3
-    turn_lr: float = 1e-3
-    track_weight: float = 1.0
+    gate: float = 1.5  # a region joins a track within this many radii (or steps) of its guess
+    coast: int = 3  # windows a track lives on unseen and not hidden in another's region
+    min_windows: int = 4  # a track seen in fewer windows is noise
+    min_evidence: float = 30.0  # a track's region peaks above `high`, summed: less is noise
+    together: float = 1.5  # tracks within this many summed radii in most windows are one object
+    depth_quantile: float = 0.25  # of the static render's depth in its regions: its front
+    fraction: float = 0.15  # of the Gaussians placed on the objects, split by area
+    min_gaussians: int = 64  # at least this many per object
+    opacity: float = 0.5  # their initial opacity: an object occludes what is behind it
+    turn: bool = True  # estimate each object's in-plane turn from its events
+    turn_window: float = 0.05  # the turn's windows, a fraction of the sequence
+    turn_min_gain: float = 0.05  # a turn is used where it sharpens the warped events this much
+    turn_min_events: int = 50  # ... from at least this many of the object's events
+    turn_min_windows: int = 3  # ... in at least this many windows
+    knots: int = 61  # knots of the objects' rigid paths over the sequence
+    path_lr: float = 1e-3  # Adam's rate on the paths' translations (world units)
+    turn_lr: float = 1e-3  # Adam's rate on the paths' rotation vectors (rad)
+    track_weight: float = 1.0  # the prior holding the paths near the events' (0 = off)
 
 
 @dataclass
