@@ -88,6 +88,10 @@ class StubRenderer:
     def gaussians_at(self, t_us: float) -> tuple[torch.Tensor]:
         return (torch.from_numpy(self.means_at[t_us]),)
 
+    def opacities(self, t_us: float) -> torch.Tensor:
+        """As ``Renderer.opacities``: the model's at the time (no objects here)."""
+        return self.model.opacities(self.time(t_us))
+
 
 def test_gaussians_moving_with_the_object_track_it_exactly():
     surface = front_cap(200, seed=0)
