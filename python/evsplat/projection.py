@@ -36,3 +36,14 @@ def project_points(points: torch.Tensor, w2c: torch.Tensor, K: torch.Tensor) -> 
     z = cam[:, 2:3].clamp(min=1e-6)
     uv = cam[:, :2] / z
     return uv * torch.stack([K[0, 0], K[1, 1]]) + torch.stack([K[0, 2], K[1, 2]])
+
+
+def back_project(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """World points [T,3] at camera ``depth`` [T] (z) along the rays of pixel coordinates ``uv``
+    [T,2] seen from ``c2w`` [T,4,4] (or one [4,4] for all): ``project_points``' inverse."""
+    rays = np.stack(
+        [(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(uv))], 1
+    )
+    cam = rays * np.asarray(depth, dtype=np.float64).reshape(-1, 1)
+    c2w = np.broadcast_to(c2w, (len(uv), 4, 4))
+    return np.einsum("tij,tj->ti", c2w[:, :3, :3], cam) + c2w[:, :3, 3]

@@ -19,11 +19,15 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 
 from evsplat.bench.train import Case, machine_info, simulate_cases
 from evsplat.data.atomic import write_text_atomic
+
+if TYPE_CHECKING:
+    from evsplat.train.loop import Trainer
 
 HELP = "training it/s and a per-phase step profile with torch on CUDA against the CPU"
 PAPER_ITERATIONS = 30_000
@@ -142,24 +146,11 @@ def measure(data: Path, preset_name: str, device: str, args: argparse.Namespace)
         dev = trainer.device
         # The motion stage, past the one-off seeding: what most of a schedule's steps do.
         it = cfg.schedule.warmup_end + 1
-        for _ in range(args.warm):
-            trainer.step(it)
-            it += 1
-        _sync(dev)
-        start = time.perf_counter()
-        for _ in range(args.iters):
-            trainer.step(it)
-            it += 1
-        _sync(dev)
-        seconds = time.perf_counter() - start
+        it, _ = _steps(trainer, it, args.warm)
+        it, seconds = _steps(trainer, it, args.iters)
         timer = PhaseTimer(dev)
         with phases_timed(timer):
-            start = time.perf_counter()
-            for _ in range(args.profile_steps):
-                trainer.step(it)
-                it += 1
-            _sync(dev)
-            total = time.perf_counter() - start
+            it, total = _steps(trainer, it, args.profile_steps)
     finally:
         torch.set_num_threads(callers_threads)
     steps = max(args.profile_steps, 1)
@@ -231,3 +222,14 @@ def print_table(results: dict[str, dict[str, dict | None]]) -> None:
             other = cuda and (cuda["ms_per_step"] if name == "step" else cuda["phases"].get(name))
             ratio = _ratio(cpu and row[0], other)
             print(f"{name:<26}" + "".join(f"{v:>10.1f}" for v in row) + f"{ratio:>10}")
+
+
+def _steps(trainer: Trainer, it: int, count: int) -> tuple[int, float]:
+    """Run ``count`` training steps from iteration ``it``: (the next iteration, seconds until
+    the device finished them)."""
+    start = time.perf_counter()
+    for _ in range(count):
+        trainer.step(it)
+        it += 1
+    _sync(trainer.device)
+    return it, time.perf_counter() - start

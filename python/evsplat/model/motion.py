@@ -86,10 +86,6 @@ class ObjectMotion(nn.Module):
         self.register_buffer("prior_rotvecs", rotvecs.float().clone())
 
     @property
-    def num_objects(self) -> int:
-        return int(self.centres.shape[0])
-
-    @property
     def knots(self) -> int:
         return int(self.translations.shape[1])
 

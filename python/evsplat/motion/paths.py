@@ -5,7 +5,7 @@ front of what it passes, and a near quantile of the rendered depth in the object
 its front surface (a median of the regions' depth lay up to 1.1 m behind the tiny ball and put it
 behind the wall: docs/experiments/motion.md). Beyond its first and last sightings an object is
 held where it was seen (a still object makes no events); one that came in or went out through
-the image border is hidden there instead (``seed.spans``).
+the image border is hidden there instead (``seed.span``).
 """
 
 from __future__ import annotations
@@ -20,17 +20,6 @@ def hold_path(times_us: np.ndarray, points: np.ndarray, query_us: np.ndarray) ->
     q = np.asarray(query_us, dtype=np.float64).reshape(-1)
     t = times_us.astype(np.float64)
     return np.stack([np.interp(q, t, points[:, k]) for k in range(3)], 1)
-
-
-def lift(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """World points [T,3] at camera ``depth`` [T] (z) along the rays of pixels ``uv`` [T,2]
-    seen from ``c2w`` [T,4,4] (or one [4,4] for all)."""
-    rays = np.stack(
-        [(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(uv))], 1
-    )
-    cam = rays * np.asarray(depth, dtype=np.float64).reshape(-1, 1)
-    c2w = np.broadcast_to(c2w, (len(uv), 4, 4))
-    return np.einsum("tij,tj->ti", c2w[:, :3, :3], cam) + c2w[:, :3, 3]
 
 
 def turn_angles(

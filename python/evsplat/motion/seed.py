@@ -29,10 +29,11 @@ from evsplat.config import MoverConfig
 from evsplat.model.densify import update_params
 from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
 from evsplat.model.motion import ObjectMotion
-from evsplat.motion.paths import hold_path, lift, near_path, turn_angles
+from evsplat.motion.paths import hold_path, near_path, turn_angles
 from evsplat.motion.segment import Blob, SegmentSettings, regions, unexplained
 from evsplat.motion.tracks import Track, TrackSettings, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
+from evsplat.projection import back_project
 from evsplat.train.views import Views
 
 #: Most events a turn window reads, evenly thinned past it (a 500 M-event recording's windows
@@ -236,7 +237,7 @@ def seed_objects(
         radius = track.radius * depth / focal
         ks = sorted(track.blobs)
         poses = data.trajectory.pose(track.times_us.astype(np.float64))
-        path = lift(track.centres, np.full(len(ks), depth), poses, data.K)
+        path = back_project(track.centres, np.full(len(ks), depth), poses, data.K)
         swept = np.flatnonzero(near_path(means, path, radius) & free)
         share = max(int(mc.fraction * n * areas[k] / areas.sum()), mc.min_gaussians)
         rest = faintest[free[faintest]]
@@ -249,7 +250,7 @@ def seed_objects(
         j = rng.integers(len(xs), size=len(pick))
         uv = np.stack([xs[j], ys[j]], 1) + rng.random((len(pick), 2))
         pose_ref = data.trajectory.pose(float(t_ref))
-        placed = lift(uv, depth + radius * rng.random(len(pick)), pose_ref, data.K)
+        placed = back_project(uv, depth + radius * rng.random(len(pick)), pose_ref, data.K)
         volume = blob.area * (depth / focal) ** 2 * radius
         rows.append(pick)
         points.append(placed)

@@ -45,8 +45,6 @@ class Blob:
     mask: np.ndarray  # [H,W] bool, the closed region
     area: float  # px
     contrast: float  # the region's peak residual above the median, in robust sigmas
-    axis: float  # principal axis angle (rad, mod pi) of the region's second moments
-    elongation: float  # 1 - minor/major axis ratio: 0 for a disc, near 1 for a stick
 
     @property
     def radius(self) -> float:
@@ -126,15 +124,9 @@ def _joined(parts: list[tuple[np.ndarray, float]], join: float) -> list[tuple[np
 
 
 def _blob(mask: np.ndarray, weight: np.ndarray, t_us: int, contrast: float) -> Blob:
+    """The region ``mask`` as a Blob, its centre weighted by the residual ``weight``."""
     ys, xs = np.nonzero(mask)
     w = weight[ys, xs]
     w = w / max(float(w.sum()), EPS)
-    cx, cy = float((w * (xs + 0.5)).sum()), float((w * (ys + 0.5)).sum())
-    # The shape's moments are the region's own (unweighted): edges weigh more in the residual.
-    dx, dy = xs + 0.5 - xs.mean() - 0.5, ys + 0.5 - ys.mean() - 0.5
-    cov = np.array([[np.mean(dx * dx), np.mean(dx * dy)], [np.mean(dx * dy), np.mean(dy * dy)]])
-    evals, evecs = np.linalg.eigh(cov)
-    major = evecs[:, 1]
-    axis = float(np.arctan2(major[1], major[0]) % np.pi)
-    ratio = float(np.sqrt(max(evals[0], 0.0) / max(evals[1], EPS)))
-    return Blob(t_us, np.array([cx, cy]), mask, float(mask.sum()), contrast, axis, 1.0 - ratio)
+    centre = np.array([float((w * (xs + 0.5)).sum()), float((w * (ys + 0.5)).sum())])
+    return Blob(t_us, centre, mask, float(mask.sum()), contrast)

@@ -45,10 +45,6 @@ class Track:
     missed: int = 0  # windows since the last sighting
 
     @property
-    def windows(self) -> np.ndarray:
-        return np.array(sorted(self.blobs), dtype=np.int64)
-
-    @property
     def times_us(self) -> np.ndarray:
         return np.array([self.blobs[k].t_us for k in sorted(self.blobs)], dtype=np.int64)
 
@@ -195,6 +191,4 @@ def _union(a: Blob, b: Blob) -> Blob:
         a.mask | b.mask,
         wa + wb,
         max(a.contrast, b.contrast),
-        a.axis if wa >= wb else b.axis,
-        a.elongation if wa >= wb else b.elongation,
     )

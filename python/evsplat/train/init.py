@@ -9,6 +9,7 @@ import torch
 from evsplat.config import TrainConfig
 from evsplat.data.dataset import Dataset
 from evsplat.model.gaussians import GaussianModel
+from evsplat.projection import back_project
 
 
 def _init_points(data: Dataset, n: int, rng: np.random.Generator, depth_range: tuple[float, float]):
@@ -22,10 +23,7 @@ def _init_points(data: Dataset, n: int, rng: np.random.Generator, depth_range: t
     px = np.stack([rng.uniform(0, data.width, n), rng.uniform(0, data.height, n)], axis=1)
     near, far = depth_range
     depth = 1.0 / rng.uniform(1.0 / far, 1.0 / near, size=n)
-    kinv = np.linalg.inv(data.K)
-    rays = (np.concatenate([px, np.ones((n, 1))], axis=1) @ kinv.T) * depth[:, None]
-    points = np.einsum("nij,nj->ni", c2w[:, :3, :3], rays) + c2w[:, :3, 3]
-    return points, depth
+    return back_project(px, depth, c2w, data.K), depth
 
 
 def scene_extent(data: Dataset, depth_range: tuple[float, float]) -> float:
