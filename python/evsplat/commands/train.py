@@ -37,9 +37,9 @@ def config_from_args(args: argparse.Namespace):
     from evsplat.config_fields import apply
 
     cfg = load_config(args.config) if args.config is not None else preset(args.preset)
-    if getattr(args, "device", None) is not None:
+    if args.device is not None:
         cfg.device = args.device
-    return apply(cfg, getattr(args, "set", []))
+    return apply(cfg, args.set)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
