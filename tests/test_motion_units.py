@@ -134,6 +134,25 @@ def test_tracks_keep_two_crossing_objects_apart_and_drop_noise():
     assert sum(len(t.blobs) for t in tracks) >= 2 * 30 - 2 - 6  # hidden twice, merged a few
 
 
+def test_an_object_leaving_the_image_is_centred_by_its_whole_shape():
+    shape, radius = (96, 128), 10.0
+    per_window, truth = [], []
+    for k in range(36):
+        centre = np.array([60.0 + 2.0 * k, 48.0])  # out through the right border from k = 29
+        truth.append(centre)
+        per_window.append(regions(_ring_residual(shape, [(centre, radius)], seed=k), k, SEGMENT))
+    (track,) = chain(per_window, TRACKS)
+    cut = 0
+    for k, centre in zip(sorted(track.blobs), track.centres):
+        visible = _disc(shape, truth[k], radius).sum() / (np.pi * radius**2)
+        if visible < 0.3:
+            continue  # a sliver: its shape says little
+        cut += visible < 0.8
+        assert np.linalg.norm(centre - truth[k]) < 1.5, (k, centre, truth[k])
+    assert cut >= 3  # where the visible part's centre lies 2-5 px inwards
+    assert track.radius >= radius
+
+
 def test_turn_rate_recovers_the_spin_of_a_translating_textured_card():
     rng = np.random.default_rng(3)
     rate, velocity = 12.0, np.array([300.0, -100.0])  # rad/s, px/s

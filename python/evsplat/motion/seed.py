@@ -29,6 +29,7 @@ from evsplat.config import MoverConfig
 from evsplat.model.densify import update_params
 from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
 from evsplat.model.motion import ObjectMotion
+from evsplat.motion.border import touches_border
 from evsplat.motion.paths import hold_path, near_path, turn_angles
 from evsplat.motion.segment import Blob, SegmentSettings, regions, unexplained
 from evsplat.motion.tracks import Track, TrackSettings, chain
@@ -97,10 +98,6 @@ def object_depth(track: Track, sightings: Sightings, quantile: float) -> float |
         if seen.any():
             found.append(float(np.quantile(sightings.depth[k][seen], quantile)))
     return float(np.median(found)) if found else None
-
-
-def touches_border(mask: np.ndarray) -> bool:
-    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
 
 
 def span(track: Track, sightings: Sightings, t_start_us: int, t_end_us: int) -> list[float]:

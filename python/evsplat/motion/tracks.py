@@ -7,7 +7,8 @@ starts a track; a track no region takes coasts on its prediction, for a few wind
 long as that prediction lies inside another object's region (it passes behind that object or
 merges with it in the image), then ends. Fragments of one object (regions that move together in
 most windows they share) are joined; a track seen in too few windows, or only faintly, was
-noise. Nothing here assumes a number, size or shape of objects.
+noise. A region cut by the image border is centred where the object's whole shape puts it.
+Nothing here assumes a number, size or shape of objects.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from evsplat.motion.border import touches_border, uncut
 from evsplat.motion.segment import Blob
 
 UNASSIGNED = 1e9  # cost of a pair outside the gate
@@ -63,9 +65,12 @@ class Track:
 
     @property
     def radius(self) -> float:
-        """The object's size in the image (px): the median of its own regions' disc radii."""
-        own = [b.radius for k, b in self.blobs.items() if k not in self.shared]
-        return float(np.median(own or [b.radius for b in self.blobs.values()]))
+        """The object's size in the image (px): the median of its own regions' disc radii, of
+        those clear of the image border where there are any (a cut region looks smaller)."""
+        own = [b for k, b in self.blobs.items() if k not in self.shared]
+        own = own or list(self.blobs.values())
+        whole = [b for b in own if not touches_border(b.mask)] or own
+        return float(np.median([b.radius for b in whole]))
 
     def _motion(self) -> tuple[int, np.ndarray, np.ndarray]:
         """(window, centre, velocity px per window) of its last own sighting."""
@@ -114,6 +119,8 @@ def chain(per_window: list[list[Blob]], s: TrackSettings) -> list[Track]:
             for k, blob in track.blobs.items()
             if any(o.hidden.get(k) is blob for o in tracks if o is not track)
         }
+    for track in tracks:
+        track.blobs = uncut(track.blobs, set(track.blobs) - track.shared)
     kept = [
         t
         for t in tracks

@@ -1,0 +1,73 @@
+"""Objects cut by the image border: where their whole shape stands.
+
+A region that touches the border shows only the object's visible part, and that part's centre
+lies inwards of the object's (by up to its radius as it leaves the image). The object's whole
+shape is known from a sighting clear of the border: that region, moved so that its part
+inside the image matches the cut region best (intersection over union), puts the object's
+centre where the cut region says, beyond the border if need be.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from evsplat.motion.segment import Blob
+
+
+def touches_border(mask: np.ndarray) -> bool:
+    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+
+
+def whole_centre(shape: Blob, cut: Blob) -> np.ndarray:
+    """[2] (x, y) px: the centre of the object whose whole region is ``shape`` (seen clear of
+    the border) where its cut region ``cut`` shows it. Searched over whole-pixel shifts up to
+    the shape's diameter from the cut region's centre (the object overlaps its visible part),
+    then quarter pixels about the best. The cut region's own centre where the shape there
+    lies wholly inside the image (a blur's rim touched the border, not the object)."""
+    ys, xs = np.nonzero(shape.mask)
+    offsets = np.stack([xs + 0.5, ys + 0.5], 1) - shape.centre[None]  # [M,2] about its centre
+    reach = int(np.ceil(2.0 * shape.radius))
+    centre = _best(offsets, cut, cut.centre, np.arange(-reach, reach + 1, dtype=np.float64))
+    centre = _best(offsets, cut, centre, np.arange(-4, 5, dtype=np.float64) / 4)
+    h, w = cut.mask.shape
+    pixels = np.floor(centre[None] + offsets)
+    if (pixels.min(0) >= 0).all() and pixels[:, 0].max() < w and pixels[:, 1].max() < h:
+        return cut.centre  # all of it in view there: its region's own centre is unbiased
+    return centre
+
+
+def _best(offsets: np.ndarray, cut: Blob, around: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Of the centres ``around`` + every (dx, dy) in ``steps``², the one whose shape
+    ``offsets`` [M,2] inside the image best matches ``cut``'s region (intersection over
+    union); of equal ones, the nearest to ``around`` (a shape beyond the border moves
+    unseen)."""
+    shifts = np.stack(np.meshgrid(steps, steps, indexing="ij"), -1).reshape(-1, 2)  # [S,2]
+    centres = around[None] + shifts
+    pixels = np.floor(centres[:, None] + offsets[None]).astype(np.int64)  # [S,M,2]
+    h, w = cut.mask.shape
+    inside = (
+        (pixels[..., 0] >= 0) & (pixels[..., 0] < w) & (pixels[..., 1] >= 0) & (pixels[..., 1] < h)
+    )
+    hit = np.zeros_like(inside)
+    hit[inside] = cut.mask[pixels[..., 1][inside], pixels[..., 0][inside]]
+    overlap = hit.sum(1).astype(np.float64)
+    score = overlap / np.maximum(inside.sum(1) + cut.area - overlap, 1.0)
+    return centres[np.lexsort((np.abs(shifts).sum(1), -score))[0]]
+
+
+def uncut(blobs: dict[int, Blob], own: set[int]) -> dict[int, Blob]:
+    """The regions by window, those cut by the border given their whole shape's centre; the
+    shape is that of the nearest window in time whose region is the object's alone (``own``)
+    and clear of the border (an object's region changes as it turns). Unchanged where no
+    region is clear."""
+    clear = [k for k in sorted(own) if not touches_border(blobs[k].mask)]
+    if not clear:
+        return blobs
+    out = dict(blobs)
+    for k in own:
+        if touches_border(blobs[k].mask):
+            near = min(clear, key=lambda c: abs(c - k))
+            out[k] = replace(blobs[k], centre=whole_centre(blobs[near], blobs[k]))
+    return out
