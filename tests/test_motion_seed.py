@@ -36,7 +36,7 @@ def test_the_balls_seeded_gaussians_follow_its_true_path(tiny_scene, tmp_path):
     ids = renderer.object_id
     assert ids is not None and torch.equal(renderer.static_mask, ids < 0)
     track = data.track
-    errors, truth_px = [], []
+    errors, truth_px, times = [], [], []
     with torch.no_grad():
         for t in np.linspace(data.t_start_us, data.t_end_us, 25):
             pose = data.trajectory.pose(float(t))
@@ -56,11 +56,30 @@ def test_the_balls_seeded_gaussians_follow_its_true_path(tiny_scene, tmp_path):
             )
             errors.append(best)
             truth_px.append(uv_true)
+            times.append(t)
     span = float(np.linalg.norm(np.ptp(np.stack(truth_px), axis=0)))
     # The ball (20 px radius) crosses ~60+ px of the image; a model whose Gaussians stood still
     # would be off by tens of pixels.
     assert span > 60.0
     assert float(np.median(errors)) < 6.0, errors
+    # Looking again against the objects found: the ball is not found a second time (a new
+    # object, if any, is the model's leftover elsewhere), and the objects keep their paths.
+    first = renderer.motion.centres.shape[0]
+    before = renderer.motion.translations.detach().clone()
+    again = trainer.seed_objects(again=True)
+    motion = trainer.renderer.motion
+    assert motion.centres.shape[0] == first + int(again["objects"])
+    assert torch.equal(motion.translations[:first].detach(), before)
+    with torch.no_grad():
+        for k in range(first, motion.centres.shape[0]):
+            off = []
+            for t, uv_true in zip(times, truth_px):
+                at = motion.centres[k] + motion.at(trainer.renderer.time(t))[1][k]
+                pose = data.trajectory.pose(float(t))
+                off.append(
+                    np.linalg.norm(_project(at.double().numpy()[None], pose, data.K)[0] - uv_true)
+                )
+            assert np.median(off) > 20.0  # farther than the ball's radius from it
 
 
 def test_nothing_is_seeded_in_a_static_scene(tiny_scene, tmp_path):

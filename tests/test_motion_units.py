@@ -191,6 +191,24 @@ def test_hold_path_is_linear_between_sightings_and_held_beyond():
     assert np.allclose(got, [[1, 0, 0], [2.5, 0, 0], [4, 0, 0]])
 
 
+def test_joined_objects_keep_their_refined_paths_and_priors():
+    first = ObjectMotion(
+        torch.zeros(1, 3), torch.ones(1), torch.zeros(1, 3, 3), torch.zeros(1, 3, 3)
+    )
+    with torch.no_grad():
+        first.translations += 1.0  # refined since its start
+    later = ObjectMotion(
+        torch.ones(1, 3), 2 * torch.ones(1), torch.full((1, 3, 3), 5.0), torch.zeros(1, 3, 3)
+    )
+    both = first.joined(later)
+    means = torch.zeros(2, 3)
+    quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2)
+    moved, _ = both.apply(means, quats, torch.tensor([0, 1]), 0.5)
+    assert torch.allclose(moved, torch.tensor([[1.0, 1.0, 1.0], [5.0, 5.0, 5.0]]))
+    # Each keeps its own prior: the first object's refinement costs, the second's start not.
+    assert torch.allclose(both.prior_loss(), torch.tensor(0.5 * 3.0))
+
+
 def test_an_object_is_visible_only_inside_its_span():
     motion = ObjectMotion(
         torch.zeros(2, 3),

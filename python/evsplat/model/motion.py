@@ -134,6 +134,22 @@ class ObjectMotion(nn.Module):
         turn = self.rotvecs - self.prior_rotvecs
         return (off**2).sum(-1).mean() + (turn**2).sum(-1).mean()
 
+    def joined(self, more: ObjectMotion) -> ObjectMotion:
+        """These objects, their paths as refined so far, followed by ``more``'s (found later);
+        each keeps its own track prior. On these objects' device, with this one's fade."""
+        more = more.to(self.centres.device)
+        out = ObjectMotion(
+            torch.cat([self.centres, more.centres]),
+            torch.cat([self.radii, more.radii]),
+            torch.cat([self.translations.detach(), more.translations.detach()]),
+            torch.cat([self.rotvecs.detach(), more.rotvecs.detach()]),
+            torch.cat([self.spans, more.spans]),
+            float(self.fade),
+        )
+        out.prior_translations.copy_(torch.cat([self.prior_translations, more.prior_translations]))
+        out.prior_rotvecs.copy_(torch.cat([self.prior_rotvecs, more.prior_rotvecs]))
+        return out.to(self.centres.device)
+
     def state(self) -> dict[str, Tensor]:
         """Everything ``from_state`` needs, detached on the CPU."""
         return {k: v.detach().cpu().clone() for k, v in self.state_dict().items()}

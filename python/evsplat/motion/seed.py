@@ -66,8 +66,8 @@ class Sightings:
 
 @torch.no_grad()
 def sight(views: Views, mc: MoverConfig) -> Sightings:
-    """Segment ``mc.windows`` short windows spread over the sequence (the renderer must draw the
-    static model)."""
+    """Segment ``mc.windows`` short windows spread over the sequence against what the renderer
+    draws (after the warm-up, the static model; later, everything found so far)."""
     data, renderer = views.data, views.renderer
     settings = SegmentSettings(
         mc.pool, mc.blur_px, mc.low, mc.high, mc.close_px, mc.min_area_px, mc.join
@@ -193,6 +193,24 @@ def place(
     update_params(model, optimizer, transform)
 
 
+def known_object(track: Track, motion: ObjectMotion, views: Views, sightings: Sightings) -> bool:
+    """Whether ``track`` follows an object already found (what its model leaves unexplained
+    beside it): in most of the track's windows its centre lies within the two radii of one
+    object's centre on its path."""
+    data, renderer = views.data, views.renderer
+    focal = float(data.K[0, 0])
+    near = np.zeros(motion.centres.shape[0])
+    for i, k in enumerate(sorted(track.blobs)):
+        t_us = float(track.blobs[k].t_us)
+        centres = (motion.centres + motion.at(renderer.time(t_us))[1]).detach().cpu().numpy()
+        cam = (centres - data.trajectory.pose(t_us)[:3, 3]) @ data.trajectory.pose(t_us)[:3, :3]
+        z = np.maximum(cam[:, 2], 1e-6)
+        uv = cam[:, :2] / z[:, None] * focal + data.K[:2, 2][None]
+        reach = track.radius + motion.radii.cpu().numpy() * focal / z
+        near += np.linalg.norm(uv - track.centres[i][None], axis=1) <= reach
+    return bool(near.size) and float(near.max()) >= 0.5 * len(track.blobs)
+
+
 def seed_objects(
     views: Views,
     model: GaussianModel,
@@ -200,32 +218,40 @@ def seed_objects(
     mc: MoverConfig,
     seed: int,
     depth_range: tuple[float, float],
+    known: tuple[ObjectMotion, torch.Tensor] | None = None,
 ) -> Seeded:
     """Find the moving objects (``sight``, ``tracks.chain``) and start each one's motion: the
     Gaussians that smear it along its path (the warm-up drew it there as a static smear), then
     the faintest, re-placed on its shape at its reference window; its path and turn on the
-    knots of an ``ObjectMotion``. See the module's docstring."""
+    knots of an ``ObjectMotion``. See the module's docstring.
+
+    ``known``: the objects found before and each Gaussian's object. Only tracks of new objects
+    are seeded then, from the scene's Gaussians, and the motion returned holds all objects."""
     data = views.data
-    views.renderer.mlp = None  # the warm-up's static model
     sightings = sight(views, mc)
     settings = TrackSettings(
         mc.gate, mc.coast, mc.min_windows, mc.high, mc.min_evidence, mc.together
     )
     tracks = chain(sightings.blobs, settings)
+    if known is not None:
+        tracks = [t for t in tracks if not known_object(t, known[0], views, sightings)]
     stats = {
         "objects": float(len(tracks)),
         "windows_with_motion": float(np.mean([len(b) > 0 for b in sightings.blobs])),
     }
     if not tracks:
-        return Seeded(stats, None, None)
+        return Seeded(
+            stats, None if known is None else known[0], None if known is None else known[1]
+        )
     rng = np.random.default_rng(seed)
     n, focal = model.num_gaussians, float(data.K[0, 0])
     means = model.means.detach().cpu().numpy().astype(np.float64)
-    free = np.ones(n, dtype=bool)
+    object_id = np.full(n, -1, dtype=np.int64) if known is None else known[1].cpu().numpy().copy()
+    first = 0 if known is None else known[0].centres.shape[0]  # the new objects' first id
+    free = object_id < 0
     faintest = np.argsort(model.opacities().detach().cpu().numpy(), kind="stable")
     areas = np.array([np.median([b.area for b in t.blobs.values()]) for t in tracks])
     knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
-    object_id = np.full(n, -1, dtype=np.int64)
     rows, points, spacing, centres, radii, translations, rotvecs, spans = ([] for _ in range(8))
     for k, track in enumerate(tracks):
         depth = object_depth(track, sightings, mc.depth_quantile) or float(np.mean(depth_range))
@@ -241,7 +267,7 @@ def seed_objects(
         rest = rest[~np.isin(rest, swept)][: max(share - len(swept), 0)]
         pick = np.concatenate([swept, rest])
         free[pick] = False
-        object_id[pick] = k
+        object_id[pick] = first + k
         # On its shape: its reference region's pixels, from its front surface one radius deep.
         ys, xs = np.nonzero(blob.mask)
         j = rng.integers(len(xs), size=len(pick))
@@ -264,12 +290,12 @@ def seed_objects(
             angles = turn_angles(track.times_us[used], rates[used], knots, t_ref)
         rotvecs.append(angles[:, None] * pose_ref[:3, 2][None])  # about the viewing axis
         stats |= {
-            f"object{k}_windows": float(len(ks)),
-            f"object{k}_depth": depth,
-            f"object{k}_radius_px": track.radius,
-            f"object{k}_gaussians": float(len(pick)),
-            f"object{k}_turn_windows": float(used.sum()),
-            f"object{k}_turn_rate": float(np.nanmedian(rates)) if used.any() else 0.0,
+            f"object{first + k}_windows": float(len(ks)),
+            f"object{first + k}_depth": depth,
+            f"object{first + k}_radius_px": track.radius,
+            f"object{first + k}_gaussians": float(len(pick)),
+            f"object{first + k}_turn_windows": float(used.sum()),
+            f"object{first + k}_turn_rate": float(np.nanmedian(rates)) if used.any() else 0.0,
         }
     place(
         model,
@@ -288,4 +314,5 @@ def seed_objects(
         fade=1.0 / mc.windows,  # one window spacing
     )
     device = model.means.device
-    return Seeded(stats, motion.to(device), torch.from_numpy(object_id).to(device))
+    motion = motion.to(device) if known is None else known[0].joined(motion)
+    return Seeded(stats, motion, torch.from_numpy(object_id).to(device))

@@ -52,7 +52,7 @@ from evsplat.train.skips import (
     update_static,
 )
 from evsplat.train.snapshot import restore, snapshot
-from evsplat.train.stages import Stage, stage_at
+from evsplat.train.stages import Stage, look_again_at, stage_at
 from evsplat.train.views import Views
 
 
@@ -116,9 +116,14 @@ class Trainer:
             if static_due(cfg.skips, iteration, cfg.schedule.iterations):
                 self._classify_static()  # may find the whole scene static
         seeded = {}
-        # Right after the warm-up (none: no static model to find the objects against).
+        # Right after the warm-up (none: no static model to find the objects against), and
+        # once more against all found by then.
         if motion_stage and cfg.mover.enabled and iteration == cfg.schedule.warmup_end > 0:
+            self.renderer.mlp = None  # the warm-up's static model
             seeded = self.seed_objects()
+        again = iteration == look_again_at(cfg) and not self.static_scene
+        if motion_stage and cfg.mover.enabled and again:
+            seeded = {f"again_{k}": v for k, v in self.seed_objects(again=True).items()}
         moving = motion_stage and not self.static_scene
         self.renderer.mlp = self.mlp if moving else None
         coarse = coarse_due(cfg, iteration, stage)
@@ -225,18 +230,28 @@ class Trainer:
         values["gaussians"] = float(self.model.means.shape[0])
         return StepResult(values, stage)
 
-    def seed_objects(self) -> dict[str, float]:
-        """After the warm-up: find the moving objects and start their motion
-        (``motion.seed.seed_objects``); the scene's Gaussians skip the MLP from then on.
-        Numbers for the log."""
+    def seed_objects(self, again: bool = False) -> dict[str, float]:
+        """Find the moving objects and start their motion (``motion.seed.seed_objects``); the
+        scene's Gaussians skip the MLP from then on. ``again``: look once more against all
+        that the model draws, objects found before included, and start the new ones from the
+        scene's Gaussians (their static decision reversed). Numbers for the log."""
         start = time.perf_counter()
+        r = self.renderer
+        known = (r.motion, r.object_id) if again and r.motion is not None else None
         found = seed_objects(
-            self.views, self.model, self.optimizer, self.cfg.mover, self.cfg.seed, self.depth_range
+            self.views,
+            self.model,
+            self.optimizer,
+            self.cfg.mover,
+            self.cfg.seed,
+            self.depth_range,
+            known,
         )
-        if found.motion is not None:
+        if found.stats["objects"] > 0 and found.motion is not None:
             motion, object_id = found.motion.to(self.device), found.object_id.to(self.device)
-            self.renderer.motion, self.renderer.object_id = motion, object_id
-            self.renderer.static_mask = object_id < 0
+            static = r.static_mask
+            r.motion, r.object_id = motion, object_id
+            r.static_mask = object_id < 0 if static is None else static & (object_id < 0)
             self.mlp_optimizer = self.mlp_adam(motion)  # the paths train beside the MLP
         return found.stats | {"seed_seconds": time.perf_counter() - start}
 

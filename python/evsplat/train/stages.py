@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import enum
 
-from evsplat.config import ScheduleConfig
+from evsplat.config import ScheduleConfig, TrainConfig
 
 
 class Stage(enum.Enum):
@@ -20,3 +20,10 @@ def stage_at(iteration: int, schedule: ScheduleConfig) -> Stage:
     if iteration < schedule.refine_start:
         return Stage.MOTION
     return Stage.REFINE
+
+
+def look_again_at(cfg: TrainConfig) -> int:
+    """The iteration at which the objects are looked for once more (``MoverConfig.again``);
+    -1 for never (off, or not after the warm-up's own look)."""
+    at = int(round(cfg.mover.again * cfg.schedule.iterations))
+    return at if cfg.mover.again > 0 and at > cfg.schedule.warmup_end else -1
