@@ -4,6 +4,8 @@ rate the events were made with, the path's ends against straight-line motion."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -11,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion.paths import hold_path, near_path, turn_angles
-from evsplat.motion.segment import SegmentSettings, regions
+from evsplat.motion.segment import SegmentSettings, floor, regions
 from evsplat.motion.tracks import TrackSettings, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project
@@ -93,6 +95,22 @@ def test_regions_finds_every_object_at_its_place_and_none_in_noise():
         assert np.linalg.norm(blob.centre - centre) < 1.0
         assert radius <= blob.radius <= radius + 3  # the whole disc, and a blur's rim
     assert regions(_ring_residual(shape, []), 0, SEGMENT) == []
+
+
+def test_a_still_cameras_empty_background_does_not_swell_the_regions():
+    # Under a still camera only the movers fire: the residual is exactly zero elsewhere, its
+    # MAD is zero, and the one-event floor keeps the blur's faint tails out of the regions.
+    shape, c = (96, 96), 0.2
+    residual = np.zeros(shape)
+    discs = [((28.0, 48.0), 10.0), ((62.0, 48.0), 10.0)]
+    for centre, radius in discs:
+        residual += 2 * c * (_disc(shape, centre, radius) & ~_disc(shape, centre, radius - 2))
+    settings = dataclasses.replace(SEGMENT, floor=floor(c, c, SEGMENT.pool))
+    blobs = sorted(regions(residual, 0, settings), key=lambda b: b.centre[0])
+    assert len(blobs) == 2
+    for blob, (centre, radius) in zip(blobs, discs):
+        assert np.linalg.norm(blob.centre - centre) < 1.0
+        assert radius <= blob.radius <= radius + 3
 
 
 def test_pieces_of_one_object_are_one_region():

@@ -31,7 +31,7 @@ from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
 from evsplat.model.motion import ObjectMotion
 from evsplat.motion.border import touches_border
 from evsplat.motion.paths import hold_path, near_path, turn_angles
-from evsplat.motion.segment import Blob, SegmentSettings, regions, unexplained
+from evsplat.motion.segment import Blob, SegmentSettings, floor, regions, unexplained
 from evsplat.motion.tracks import Track, TrackSettings, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project
@@ -70,7 +70,14 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
     draws (after the warm-up, the static model; later, everything found so far)."""
     data, renderer = views.data, views.renderer
     settings = SegmentSettings(
-        mc.pool, mc.blur_px, mc.low, mc.high, mc.close_px, mc.min_area_px, mc.join
+        mc.pool,
+        mc.blur_px,
+        mc.low,
+        mc.high,
+        mc.close_px,
+        mc.min_area_px,
+        mc.join,
+        floor(data.c_pos, data.c_neg, mc.pool),
     )
     span = data.t_end_us - data.t_start_us
     half = max(int(mc.window * span) // 2, 1)

@@ -34,6 +34,7 @@ class SegmentSettings:
     close_px: int  # closing radius joining an object's pieces into one region
     min_area_px: int  # smaller regions are noise
     join: float  # regions closer than this many of the larger one's radii are one object
+    floor: float = 0.0  # least robust sigma: one event's step per pool box (see ``floor``)
 
 
 @dataclass
@@ -71,6 +72,14 @@ def robust_level(values: np.ndarray) -> tuple[float, float]:
     return med, max(MAD_TO_SIGMA * float(np.median(np.abs(values - med))), EPS)
 
 
+def floor(c_pos: float, c_neg: float, pool: int) -> float:
+    """The least robust sigma the residual is measured in: one event's log step spread over a
+    ``pool`` px box. Under a still camera the background makes no events and its residual's MAD
+    is zero; without a floor, any blurred trace of an event would pass the thresholds and the
+    regions would swell into one another."""
+    return 0.5 * (c_pos + c_neg) / pool**2
+
+
 def _disc(radius: int) -> np.ndarray:
     r = np.arange(-radius, radius + 1)
     return (r[:, None] ** 2 + r[None, :] ** 2) <= radius**2
@@ -80,6 +89,7 @@ def regions(residual: np.ndarray, t_us: int, s: SegmentSettings) -> list[Blob]:
     """The moving regions of one window's ``residual`` [H,W], largest first."""
     energy = ndimage.gaussian_filter(residual, s.blur_px) if s.blur_px > 0 else residual
     med, sigma = robust_level(energy)
+    sigma = max(sigma, s.floor)
     hot = energy > med + s.low * sigma
     if s.close_px > 0:
         pad = s.close_px  # padded so regions touching the border are not eroded away
