@@ -200,6 +200,26 @@ def place(
     update_params(model, optimizer, transform)
 
 
+def in_front(
+    means: np.ndarray, track: Track, poses: np.ndarray, depth: float, K: np.ndarray
+) -> np.ndarray:
+    """[N] bool: the Gaussians seen inside one of the track's regions nearer than the object.
+    Its events say it is in view there, so they are its smear or an occluder that nothing
+    constrained (under a still camera the warm-up cannot move the scene's random Gaussians:
+    its render does not change)."""
+    out = np.zeros(len(means), dtype=bool)
+    for blob, c2w in zip((track.blobs[k] for k in sorted(track.blobs)), poses):
+        cam = (means - c2w[:3, 3]) @ c2w[:3, :3]
+        near = (cam[:, 2] > 1e-6) & (cam[:, 2] < depth)
+        z = np.where(near, cam[:, 2], 1.0)
+        u = np.floor(cam[:, 0] / z * K[0, 0] + K[0, 2]).astype(np.int64)
+        v = np.floor(cam[:, 1] / z * K[1, 1] + K[1, 2]).astype(np.int64)
+        h, w = blob.mask.shape
+        near &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        out[near] |= blob.mask[v[near], u[near]]
+    return out
+
+
 def known_object(track: Track, motion: ObjectMotion, views: Views, sightings: Sightings) -> bool:
     """Whether ``track`` follows an object already found (what its model leaves unexplained
     beside it): in most of the track's windows its centre lies within the two radii of one
@@ -268,7 +288,8 @@ def seed_objects(
         ks = sorted(track.blobs)
         poses = data.trajectory.pose(track.times_us.astype(np.float64))
         path = back_project(track.centres, np.full(len(ks), depth), poses, data.K)
-        swept = np.flatnonzero(near_path(means, path, radius) & free)
+        smear = near_path(means, path, radius) | in_front(means, track, poses, depth, data.K)
+        swept = np.flatnonzero(smear & free)
         share = max(int(mc.fraction * n * areas[k] / areas.sum()), mc.min_gaussians)
         rest = faintest[free[faintest]]
         rest = rest[~np.isin(rest, swept)][: max(share - len(swept), 0)]
