@@ -162,6 +162,7 @@ class MoverConfig:
     turn_lr: float = 1e-3  # Adam's rate on the paths' rotation vectors (rad)
     track_weight: float = 1.0  # the prior holding the paths near the events' (0 = off)
     again: float = 0.3  # look again at this fraction of the run, against all found (0 = off)
+    residual: bool = True  # the MLP adds a non-rigid residual to the objects' rigid motion
 
 
 @dataclass

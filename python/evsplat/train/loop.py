@@ -232,7 +232,8 @@ class Trainer:
 
     def seed_objects(self, again: bool = False) -> dict[str, float]:
         """Find the moving objects and start their motion (``motion.seed.seed_objects``); the
-        scene's Gaussians skip the MLP from then on. ``again``: look once more against all
+        scene's Gaussians skip the MLP from then on, and so do the objects' without
+        ``mover.residual``. ``again``: look once more against all
         that the model draws, objects found before included, and start the new ones from the
         scene's Gaussians (their static decision reversed). Numbers for the log."""
         start = time.perf_counter()
@@ -251,7 +252,8 @@ class Trainer:
             motion, object_id = found.motion.to(self.device), found.object_id.to(self.device)
             static = r.static_mask
             r.motion, r.object_id = motion, object_id
-            r.static_mask = object_id < 0 if static is None else static & (object_id < 0)
+            scene = object_id < 0 if self.cfg.mover.residual else torch.ones_like(object_id < 0)
+            r.static_mask = scene if static is None else static & scene
             self.mlp_optimizer = self.mlp_adam(motion)  # the paths train beside the MLP
         return found.stats | {"seed_seconds": time.perf_counter() - start}
 
