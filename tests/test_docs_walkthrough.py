@@ -34,6 +34,8 @@ SKIPS = {
     r"^bash scripts/demo\.sh": "installs packages (apt, uv, maturin) and trains for minutes; "
     "`evsplat demo`'s steps are the commands below it",
     r"^bash scripts/test\.sh": "runs this test suite",
+    r"^bash scripts/(fetch_samples|davis_example)\.sh": "downloads the aedat sdist from the "
+    "package registry (the DAVIS346 sample) and trains for minutes",
     r"^evsplat view\b": "serves the viewer until stopped (tests/test_viewer.py)",
     r"--ray\b": "needs a Ray cluster (tests/test_sweep_ray.py runs a local one)",
     r"^evsplat train-many 'recordings/\*'": "trains every recording a user has, 6000 iterations "
