@@ -17,7 +17,7 @@ from evsplat.motion.seed import in_front
 from evsplat.motion.segment import Blob, SegmentSettings, floor, regions
 from evsplat.motion.tracks import Track, TrackSettings, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
-from evsplat.projection import back_project
+from evsplat.projection import back_project, project, project_points, world_to_camera
 
 SEGMENT = SegmentSettings(
     pool=3, blur_px=1.0, low=3.0, high=9.0, close_px=2, min_area_px=12, join=0.5
@@ -271,6 +271,12 @@ def test_back_project_inverts_the_projection():
     cam = (world - c2w[:3, 3]) @ c2w[:3, :3]
     assert np.allclose(cam[:, 2], [2.0, 3.0])
     assert np.allclose((K @ (cam / cam[:, 2:]).T).T[:, :2], uv)
+    # project, the numpy projection, against the rasterizer's (torch) one and back.
+    uv_np, z = project(world, c2w, K)
+    uv_torch = project_points(
+        torch.from_numpy(world), torch.from_numpy(world_to_camera(c2w)), torch.from_numpy(K)
+    )
+    assert np.allclose(uv_np, uv) and np.allclose(uv_torch.numpy(), uv) and np.allclose(z, [2, 3])
 
 
 @pytest.mark.parametrize("radius, inside", [(0.5, [True, True, False]), (2.0, [True, True, True])])

@@ -47,3 +47,14 @@ def back_project(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray, K: np.ndarr
     cam = rays * np.asarray(depth, dtype=np.float64).reshape(-1, 1)
     c2w = np.broadcast_to(c2w, (len(uv), 4, 4))
     return np.einsum("tij,tj->ti", c2w[:, :3, :3], cam) + c2w[:, :3, 3]
+
+
+def project(points: np.ndarray, c2w: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(pixel coordinates [N,2], camera depths z [N]) of world points [N,3] seen from ``c2w``
+    [4,4]: ``project_points`` in numpy. Points at z <= 0 get finite, meaningless pixels: callers
+    test z."""
+    cam = (np.asarray(points, dtype=np.float64) - c2w[:3, 3]) @ c2w[:3, :3]
+    z = cam[:, 2]
+    safe = np.where(z > 1e-9, z, 1.0)
+    uv = cam[:, :2] / safe[:, None] * np.array([K[0, 0], K[1, 1]]) + np.array([K[0, 2], K[1, 2]])
+    return uv, z

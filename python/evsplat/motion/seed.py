@@ -34,7 +34,7 @@ from evsplat.motion.paths import hold_path, near_path, turn_angles
 from evsplat.motion.segment import Blob, SegmentSettings, floor, regions, unexplained
 from evsplat.motion.tracks import Track, TrackSettings, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
-from evsplat.projection import back_project
+from evsplat.projection import back_project, project
 from evsplat.train.views import Views
 
 #: Most events a turn window reads, evenly thinned past it (a 500 M-event recording's windows
@@ -209,32 +209,27 @@ def in_front(
     its render does not change)."""
     out = np.zeros(len(means), dtype=bool)
     for blob, c2w in zip((track.blobs[k] for k in sorted(track.blobs)), poses):
-        cam = (means - c2w[:3, 3]) @ c2w[:3, :3]
-        near = (cam[:, 2] > 1e-6) & (cam[:, 2] < depth)
-        z = np.where(near, cam[:, 2], 1.0)
-        u = np.floor(cam[:, 0] / z * K[0, 0] + K[0, 2]).astype(np.int64)
-        v = np.floor(cam[:, 1] / z * K[1, 1] + K[1, 2]).astype(np.int64)
+        uv, z = project(means, c2w, K)
+        u, v = np.floor(uv).astype(np.int64).T
         h, w = blob.mask.shape
-        near &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        near = (z > 0) & (z < depth) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
         out[near] |= blob.mask[v[near], u[near]]
     return out
 
 
-def known_object(track: Track, motion: ObjectMotion, views: Views, sightings: Sightings) -> bool:
+def known_object(track: Track, motion: ObjectMotion, views: Views) -> bool:
     """Whether ``track`` follows an object already found (what its model leaves unexplained
     beside it): in most of the track's windows its centre lies within the two radii of one
     object's centre on its path."""
     data, renderer = views.data, views.renderer
-    focal = float(data.K[0, 0])
+    radii = motion.radii.cpu().numpy() * float(data.K[0, 0])
     near = np.zeros(motion.centres.shape[0])
-    for i, k in enumerate(sorted(track.blobs)):
+    for centre, k in zip(track.centres, sorted(track.blobs)):
         t_us = float(track.blobs[k].t_us)
-        centres = (motion.centres + motion.at(renderer.time(t_us))[1]).detach().cpu().numpy()
-        cam = (centres - data.trajectory.pose(t_us)[:3, 3]) @ data.trajectory.pose(t_us)[:3, :3]
-        z = np.maximum(cam[:, 2], 1e-6)
-        uv = cam[:, :2] / z[:, None] * focal + data.K[:2, 2][None]
-        reach = track.radius + motion.radii.cpu().numpy() * focal / z
-        near += np.linalg.norm(uv - track.centres[i][None], axis=1) <= reach
+        at = (motion.centres + motion.at(renderer.time(t_us))[1]).detach().cpu().numpy()
+        uv, z = project(at, data.trajectory.pose(t_us), data.K)
+        reach = track.radius + radii / np.maximum(z, 1e-6)
+        near += np.linalg.norm(uv - centre[None], axis=1) <= reach
     return bool(near.size) and float(near.max()) >= 0.5 * len(track.blobs)
 
 
@@ -261,15 +256,13 @@ def seed_objects(
     )
     tracks = chain(sightings.blobs, settings)
     if known is not None:
-        tracks = [t for t in tracks if not known_object(t, known[0], views, sightings)]
+        tracks = [t for t in tracks if not known_object(t, known[0], views)]
     stats = {
         "objects": float(len(tracks)),
         "windows_with_motion": float(np.mean([len(b) > 0 for b in sightings.blobs])),
     }
     if not tracks:
-        return Seeded(
-            stats, None if known is None else known[0], None if known is None else known[1]
-        )
+        return Seeded(stats, *(known or (None, None)))
     rng = np.random.default_rng(seed)
     n, focal = model.num_gaussians, float(data.K[0, 0])
     means = model.means.detach().cpu().numpy().astype(np.float64)
