@@ -13,9 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion.paths import hold_path, near_path, turn_angles
-from evsplat.motion.seed import in_front
-from evsplat.motion.segment import Blob, SegmentSettings, floor, regions
-from evsplat.motion.tracks import Track, TrackSettings, chain
+from evsplat.motion.segment import SegmentSettings, floor, regions
+from evsplat.motion.tracks import TrackSettings, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project, project, project_points, world_to_camera
 
@@ -208,23 +207,6 @@ def test_hold_path_is_linear_between_sightings_and_held_beyond():
     pts = np.stack([np.array([1.0, 0.0, 0.0]) * s for s in (1, 2, 3, 4)])
     got = hold_path(t, pts, np.array([0, 250, 500]))
     assert np.allclose(got, [[1, 0, 0], [2.5, 0, 0], [4, 0, 0]])
-
-
-def test_in_front_takes_what_is_seen_nearer_than_the_object_inside_its_regions():
-    K = np.array([[100.0, 0.0, 48.0], [0.0, 100.0, 48.0], [0.0, 0.0, 1.0]])
-    mask = _disc((96, 96), (48.0, 48.0), 10.0)
-    track = Track({0: Blob(0, np.array([48.0, 48.0]), mask, float(mask.sum()), 20.0)})
-    poses = np.eye(4)[None]
-    means = np.array(
-        [
-            [0.0, 0.0, 1.0],  # on the region's ray, nearer than the object at 3 m: taken
-            [0.05, 0.0, 2.0],  # 2.5 px off the centre, nearer: taken
-            [0.0, 0.0, 4.0],  # behind the object: not
-            [0.5, 0.0, 1.0],  # nearer but 50 px aside, outside the region: not
-            [0.0, 0.0, -1.0],  # behind the camera: not
-        ]
-    )
-    assert in_front(means, track, poses, 3.0, K).tolist() == [True, True, False, False, False]
 
 
 def test_joined_objects_keep_their_refined_paths_and_priors():

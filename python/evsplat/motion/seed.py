@@ -200,23 +200,6 @@ def place(
     update_params(model, optimizer, transform)
 
 
-def in_front(
-    means: np.ndarray, track: Track, poses: np.ndarray, depth: float, K: np.ndarray
-) -> np.ndarray:
-    """[N] bool: the Gaussians seen inside one of the track's regions nearer than the object.
-    Its events say it is in view there, so they are its smear or an occluder that nothing
-    constrained (under a still camera the warm-up cannot move the scene's random Gaussians:
-    its render does not change)."""
-    out = np.zeros(len(means), dtype=bool)
-    for blob, c2w in zip((track.blobs[k] for k in sorted(track.blobs)), poses):
-        uv, z = project(means, c2w, K)
-        u, v = np.floor(uv).astype(np.int64).T
-        h, w = blob.mask.shape
-        near = (z > 0) & (z < depth) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        out[near] |= blob.mask[v[near], u[near]]
-    return out
-
-
 def known_object(track: Track, motion: ObjectMotion, views: Views) -> bool:
     """Whether ``track`` follows an object already found (what its model leaves unexplained
     beside it): in most of the track's windows its centre lies within the two radii of one
@@ -281,8 +264,7 @@ def seed_objects(
         ks = sorted(track.blobs)
         poses = data.trajectory.pose(track.times_us.astype(np.float64))
         path = back_project(track.centres, np.full(len(ks), depth), poses, data.K)
-        smear = near_path(means, path, radius) | in_front(means, track, poses, depth, data.K)
-        swept = np.flatnonzero(smear & free)
+        swept = np.flatnonzero(near_path(means, path, radius) & free)
         share = max(int(mc.fraction * n * areas[k] / areas.sum()), mc.min_gaussians)
         rest = faintest[free[faintest]]
         rest = rest[~np.isin(rest, swept)][: max(share - len(swept), 0)]
