@@ -147,9 +147,12 @@ def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
     for i, k in enumerate(sorted(track.blobs)):
         mask = track.blobs[k].mask
         h, w = mask.shape
-        if not views.allowed(int(times[i]) - half_us, int(times[i]) + half_us):
+        # Inside the data's time range (a run on part of a recording reads nothing beyond it).
+        t0 = max(int(times[i]) - half_us, data.t_start_us)
+        t1 = min(int(times[i]) + half_us, data.t_end_us)
+        if t1 <= t0 or not views.allowed(t0, t1):
             continue  # held out: never read in training
-        ev = data.events.read(int(times[i]) - half_us, int(times[i]) + half_us, TURN_WINDOW_EVENTS)
+        ev = data.events.read(t0, t1, TURN_WINDOW_EVENTS)
         dt = (ev.t - times[i]) * 1e-6
         xy = np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5
         back = np.floor(xy - velocity[i][None] * dt[:, None]).astype(np.int64)

@@ -24,6 +24,7 @@ def stage_at(iteration: int, schedule: ScheduleConfig) -> Stage:
 
 def look_again_at(cfg: TrainConfig) -> int:
     """The iteration at which the objects are looked for once more (``MoverConfig.again``);
-    -1 for never (off, or not after the warm-up's own look)."""
+    -1 for never (off, no first look without a warm-up, or not after the first look)."""
     at = int(round(cfg.mover.again * cfg.schedule.iterations))
-    return at if cfg.mover.again > 0 and at > cfg.schedule.warmup_end else -1
+    first = cfg.schedule.warmup_end
+    return at if cfg.mover.again > 0 and first > 0 and at > first else -1
