@@ -136,7 +136,8 @@ class ObjectMotion(nn.Module):
 
     def joined(self, more: ObjectMotion) -> ObjectMotion:
         """These objects, their paths as refined so far, followed by ``more``'s (found later);
-        each keeps its own track prior. On these objects' device, with this one's fade."""
+        each keeps its own track prior. Built from these objects' tensors, so on their device;
+        with this one's fade."""
         more = more.to(self.centres.device)
         out = ObjectMotion(
             torch.cat([self.centres, more.centres]),
@@ -148,7 +149,7 @@ class ObjectMotion(nn.Module):
         )
         out.prior_translations.copy_(torch.cat([self.prior_translations, more.prior_translations]))
         out.prior_rotvecs.copy_(torch.cat([self.prior_rotvecs, more.prior_rotvecs]))
-        return out.to(self.centres.device)
+        return out
 
     def state(self) -> dict[str, Tensor]:
         """Everything ``from_state`` needs, detached on the CPU."""

@@ -31,11 +31,17 @@ def whole_centre(shape: Blob, cut: Blob) -> np.ndarray:
     reach = int(np.ceil(2.0 * shape.radius))
     centre = _best(offsets, cut, cut.centre, np.arange(-reach, reach + 1, dtype=np.float64))
     centre = _best(offsets, cut, centre, np.arange(-4, 5, dtype=np.float64) / 4)
-    h, w = cut.mask.shape
-    pixels = np.floor(centre[None] + offsets)
-    if (pixels.min(0) >= 0).all() and pixels[:, 0].max() < w and pixels[:, 1].max() < h:
+    pixels = np.floor(centre[None] + offsets).astype(np.int64)
+    if _inside(pixels, cut.mask.shape).all():
         return cut.centre  # all of it in view there: its region's own centre is unbiased
     return centre
+
+
+def _inside(pixels: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """[...] bool: which (x, y) ``pixels`` [...,2] lie in an image of ``shape`` (H, W)."""
+    h, w = shape
+    x, y = pixels[..., 0], pixels[..., 1]
+    return (x >= 0) & (x < w) & (y >= 0) & (y < h)
 
 
 def _best(offsets: np.ndarray, cut: Blob, around: np.ndarray, steps: np.ndarray) -> np.ndarray:
@@ -46,10 +52,7 @@ def _best(offsets: np.ndarray, cut: Blob, around: np.ndarray, steps: np.ndarray)
     shifts = np.stack(np.meshgrid(steps, steps, indexing="ij"), -1).reshape(-1, 2)  # [S,2]
     centres = around[None] + shifts
     pixels = np.floor(centres[:, None] + offsets[None]).astype(np.int64)  # [S,M,2]
-    h, w = cut.mask.shape
-    inside = (
-        (pixels[..., 0] >= 0) & (pixels[..., 0] < w) & (pixels[..., 1] >= 0) & (pixels[..., 1] < h)
-    )
+    inside = _inside(pixels, cut.mask.shape)
     hit = np.zeros_like(inside)
     hit[inside] = cut.mask[pixels[..., 1][inside], pixels[..., 0][inside]]
     overlap = hit.sum(1).astype(np.float64)

@@ -119,14 +119,14 @@ def chain(per_window: list[list[Blob]], s: TrackSettings) -> list[Track]:
             for k, blob in track.blobs.items()
             if any(o.hidden.get(k) is blob for o in tracks if o is not track)
         }
-    for track in tracks:
-        track.blobs = uncut(track.blobs, set(track.blobs) - track.shared)
     kept = [
         t
         for t in tracks
         if len(t.blobs) >= s.min_windows
         and sum(max(b.contrast - s.high, 0.0) for b in t.blobs.values()) >= s.min_evidence
     ]
+    for track in kept:  # only the objects kept (the shape fit is the costly part)
+        track.blobs = uncut(track.blobs, set(track.blobs) - track.shared)
     return sorted(kept, key=lambda t: -len(t.blobs))
 
 

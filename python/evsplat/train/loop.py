@@ -252,7 +252,7 @@ class Trainer:
             motion, object_id = found.motion.to(self.device), found.object_id.to(self.device)
             static = r.static_mask
             r.motion, r.object_id = motion, object_id
-            scene = object_id < 0 if self.cfg.mover.residual else torch.ones_like(object_id < 0)
+            scene = (object_id < 0) | (not self.cfg.mover.residual)  # rigid objects skip it too
             r.static_mask = scene if static is None else static & scene
             self.mlp_optimizer = self.mlp_adam(motion)  # the paths train beside the MLP
         return found.stats | {"seed_seconds": time.perf_counter() - start}
