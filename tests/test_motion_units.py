@@ -12,6 +12,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
+from evsplat.motion.align import align
 from evsplat.motion.paths import hold_path, near_path, turn_angles
 from evsplat.motion.segment import SegmentSettings, floor, regions
 from evsplat.motion.tracks import TrackSettings, chain
@@ -169,6 +170,36 @@ def test_an_object_leaving_the_image_is_centred_by_its_whole_shape():
         assert np.linalg.norm(centre - truth[k]) < 1.5, (k, centre, truth[k])
     assert cut >= 3  # where the visible part's centre lies 2-5 px inwards
     assert track.radius >= radius
+
+
+def test_align_gives_a_one_sided_objects_true_displacements():
+    # A shaded ball: its outline fires mostly on one side, and that side turns from window to
+    # window, so each region's residual-weighted centre leans 2-4 px a different way. Only
+    # the displacements matter to the path: after the alignment they are the true ones.
+    shape, radius = (96, 128), 12.0
+    ys, xs = np.mgrid[0 : shape[0], 0 : shape[1]] + 0.5
+    per_window, energy, truth = [], [], []
+    for k in range(24):
+        centre = np.array([24.0 + 3.3 * k, 40.0 + 0.6 * k])
+        lit = 0.9 * k  # the side that fires most (rad)
+        side = np.cos(np.arctan2(ys - centre[1], xs - centre[0]) - lit)
+        edge = _disc(shape, centre, radius) & ~_disc(shape, centre, radius - 2)
+        residual = _ring_residual(shape, [], seed=k) + edge * (0.1 + 0.6 * np.maximum(side, 0))
+        per_window.append(regions(residual, k, SEGMENT))
+        energy.append(residual)
+        truth.append(centre)
+    (track,) = chain(per_window, TRACKS)
+    ks = sorted(track.blobs)
+    truth = np.array([truth[k] for k in ks])
+
+    def spread(centres):  # how far each offset from the truth lies from their median
+        off = centres - truth
+        return np.linalg.norm(off - np.median(off, 0), axis=1)
+
+    assert np.median(spread(track.centres)) > 1.5  # the leaning centres
+    aligned = align(track, energy, 0.5).centres
+    assert np.median(spread(aligned)) < 0.5
+    assert spread(aligned).max() < 1.0
 
 
 def test_turn_rate_recovers_the_spin_of_a_translating_textured_card():

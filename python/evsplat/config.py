@@ -148,6 +148,7 @@ class MoverConfig:
     min_windows: int = 4  # a track seen in fewer windows is noise
     min_evidence: float = 30.0  # a track's region peaks above `high`, summed: less is noise
     together: float = 1.5  # tracks within this many summed radii in most windows are one object
+    align: float = 0.5  # a centre moves at most this many radii to match the object's template
     depth_quantile: float = 0.25  # of the static render's depth in its regions: its front
     fraction: float = 0.15  # of the Gaussians placed on the objects, split by area
     min_gaussians: int = 64  # at least this many per object

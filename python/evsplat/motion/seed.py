@@ -29,9 +29,17 @@ from evsplat.config import MoverConfig
 from evsplat.model.densify import update_params
 from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
 from evsplat.model.motion import ObjectMotion
+from evsplat.motion.align import align
 from evsplat.motion.border import touches_border
 from evsplat.motion.paths import hold_path, near_path, turn_angles
-from evsplat.motion.segment import Blob, SegmentSettings, floor, regions, unexplained
+from evsplat.motion.segment import (
+    Blob,
+    SegmentSettings,
+    blurred,
+    floor,
+    regions,
+    unexplained,
+)
 from evsplat.motion.tracks import Track, TrackSettings, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project, project
@@ -55,11 +63,12 @@ class Seeded:
 
 @dataclass
 class Sightings:
-    """The segmentation's output: per window, its middle time, regions, and the static model's
-    rendered depth and alpha at its end."""
+    """The segmentation's output: per window, its middle time, regions, residual, and the
+    static model's rendered depth and alpha at its end."""
 
     times_us: np.ndarray  # [W]
     blobs: list[list[Blob]]
+    residual: list[np.ndarray]
     depth: list[np.ndarray]
     alpha: list[np.ndarray]
 
@@ -83,7 +92,7 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
     half = max(int(mc.window * span) // 2, 1)
     mids = np.linspace(data.t_start_us + half, data.t_end_us - half, mc.windows).astype(np.int64)
     mids = mids[[views.allowed(int(m) - half, int(m) + half) for m in mids]]  # held out: unread
-    blobs, depth, alpha = [], [], []
+    blobs, residuals, depth, alpha = [], [], [], []
     for mid in mids:
         t0, t1 = int(mid) - half, int(mid) + half
         start = renderer.render(t0, views.pose(t0))
@@ -91,9 +100,10 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
         change = views.log_image(end) - views.log_image(start)
         residual = unexplained(views.esi(t0, t1)[0], change, mc.pool)
         blobs.append(regions(residual, int(mid), settings))
+        residuals.append(residual)
         depth.append(end.depth.cpu().numpy())
         alpha.append(end.alpha.cpu().numpy())
-    return Sightings(mids, blobs, depth, alpha)
+    return Sightings(mids, blobs, residuals, depth, alpha)
 
 
 def object_depth(track: Track, sightings: Sightings, quantile: float) -> float | None:
@@ -241,6 +251,8 @@ def seed_objects(
         mc.gate, mc.coast, mc.min_windows, mc.high, mc.min_evidence, mc.together
     )
     tracks = chain(sightings.blobs, settings)
+    energy = [blurred(r, mc.blur_px) for r in sightings.residual]
+    tracks = [align(t, energy, mc.align) for t in tracks]
     if known is not None:
         tracks = [t for t in tracks if not known_object(t, known[0], views)]
     stats = {

@@ -80,6 +80,12 @@ def floor(c_pos: float, c_neg: float, pool: int) -> float:
     return 0.5 * (c_pos + c_neg) / pool**2
 
 
+def blurred(residual: np.ndarray, blur_px: float) -> np.ndarray:
+    """The residual with an object's edge events spread over its body (Gaussian, ``blur_px``
+    sigma; none at 0)."""
+    return ndimage.gaussian_filter(residual, blur_px) if blur_px > 0 else residual
+
+
 def _disc(radius: int) -> np.ndarray:
     r = np.arange(-radius, radius + 1)
     return (r[:, None] ** 2 + r[None, :] ** 2) <= radius**2
@@ -87,7 +93,7 @@ def _disc(radius: int) -> np.ndarray:
 
 def regions(residual: np.ndarray, t_us: int, s: SegmentSettings) -> list[Blob]:
     """The moving regions of one window's ``residual`` [H,W], largest first."""
-    energy = ndimage.gaussian_filter(residual, s.blur_px) if s.blur_px > 0 else residual
+    energy = blurred(residual, s.blur_px)
     med, sigma = robust_level(energy)
     sigma = max(sigma, s.floor)
     hot = energy > med + s.low * sigma
