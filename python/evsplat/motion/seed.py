@@ -40,6 +40,7 @@ from evsplat.motion.segment import (
     regions,
     unexplained,
 )
+from evsplat.motion.still import behind_objects, is_still
 from evsplat.motion.tracks import Track, TrackSettings, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project, project
@@ -271,6 +272,7 @@ def seed_objects(
     areas = np.array([np.median([b.area for b in t.blobs.values()]) for t in tracks])
     knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
     rows, points, spacing, centres, radii, translations, rotvecs, spans = ([] for _ in range(8))
+    swept_masks, backs = [], []
     for k, track in enumerate(tracks):
         depth = object_depth(track, sightings, mc.depth_quantile) or float(np.mean(depth_range))
         ref = reference(track)
@@ -293,6 +295,8 @@ def seed_objects(
         pose_ref = data.trajectory.pose(float(t_ref))
         placed = back_project(uv, depth + radius * rng.random(len(pick)), pose_ref, data.K)
         volume = blob.area * (depth / focal) ** 2 * radius
+        swept_masks.append(np.any([track.blobs[w].mask for w in ks], axis=0))
+        backs.append(depth + 2.0 * radius)  # its front surface is at depth, its body one radius
         rows.append(pick)
         points.append(placed)
         spacing.append(np.full(len(pick), (volume / max(len(pick), 1)) ** (1 / 3)))
@@ -323,6 +327,11 @@ def seed_objects(
         np.concatenate(spacing),
         mc.opacity,
     )
+    poses = data.trajectory.pose(sightings.times_us.astype(np.float64))
+    if is_still(poses):
+        stats["moved_behind"] = float(
+            behind_objects(model, optimizer, object_id < 0, swept_masks, backs, poses[0], data.K)
+        )
     motion = ObjectMotion(
         torch.from_numpy(np.stack(centres)),
         torch.tensor(radii),
