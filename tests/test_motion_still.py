@@ -45,13 +45,16 @@ def test_a_still_camera_sees_the_scene_unchanged_with_the_object_unveiled():
     mask = np.zeros((H, W), dtype=bool)
     mask[10:30, 14:40] = True  # where the object moved
     back = 3.5
+    with torch.no_grad():  # one nearer than the near plane: culled, and left so
+        model.means[299] = torch.tensor([0.1, -0.2, -0.5 + 0.005])
     uv, z = project(model.means.detach().numpy().astype(np.float64), c2w, K)
     px = np.floor(uv).astype(int)
     inside = (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H) & (z > 0)
     inside[inside] = mask[px[inside, 1], px[inside, 0]]
     scene = np.ones(len(z), dtype=bool)
     scene[:20] = False  # an object's own Gaussians stay where they are
-    veil = inside & scene & (z < back)
+    veil = inside & scene & (z > 0.01) & (z < back)
+    assert inside[299] and not veil[299]
     before = [_render(model, c2w, rows) for rows in (veil, ~veil)]
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
     moved = behind_objects(model, optimizer, scene, [mask], [back], c2w, K)

@@ -27,6 +27,9 @@ MAX_FEATURES = 32
 _GAUSSIANS = ("means", "quats", "scales", "opacities", "features", "background")
 
 
+NEAR, FAR = 0.01, 1e4  # default clip planes (camera z): nearer or farther Gaussians are culled
+
+
 @dataclass(frozen=True)
 class _Camera:
     """One render's settings, and its inputs on the host (``host``: flat float32 arrays under
@@ -209,8 +212,8 @@ def rasterize(
     K: torch.Tensor,
     width: int,
     height: int,
-    near: float = 0.01,
-    far: float = 1e4,
+    near: float = NEAR,
+    far: float = FAR,
     background: torch.Tensor | None = None,
     *,
     atomics: str | None = None,
@@ -251,8 +254,8 @@ def rasterize_async(
     K: torch.Tensor,
     width: int,
     height: int,
-    near: float = 0.01,
-    far: float = 1e4,
+    near: float = NEAR,
+    far: float = FAR,
     background: torch.Tensor | None = None,
     *,
     atomics: str | None = None,

@@ -18,6 +18,7 @@ import torch
 from evsplat.model.densify import update_params
 from evsplat.model.gaussians import GaussianModel
 from evsplat.projection import project
+from evsplat.raster import NEAR
 
 STILL = 1e-9  # largest spread of the poses' entries of a camera that stands still
 
@@ -47,7 +48,7 @@ def behind_objects(
     factor = np.ones(len(z))
     for mask, back in zip(masks, backs):
         h, w = mask.shape
-        ok = scene & (z > 0) & (z < back)
+        ok = scene & (z > NEAR) & (z < back)  # a culled Gaussian moved would be drawn
         ok &= (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
         ok[ok] = mask[px[ok, 1], px[ok, 0]]
         if ok.any():  # shifted in depth, not flattened onto one: their own order is kept
