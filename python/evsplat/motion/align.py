@@ -70,14 +70,15 @@ def align(track: Track, energy: list[np.ndarray], search: float) -> Track:
     start = {k: track.blobs[k].centre.astype(np.float64) for k in own}
     centres = dict(start)
     for _ in range(ROUNDS):
-        patches = {k: _unit(_patch(energy[k], centres[k], half)) for k in own}
+        # Each window's search area about its centre; the object's view is its middle.
+        wide = {k: _patch(energy[k], centres[k], half + reach) for k in own}
+        patches = {k: _unit(wide[k][reach:-reach, reach:-reach]) for k in own}
         total = sum(patches.values())
         moved = {}
         for k in own:
             template = total - patches[k]  # the other windows' view of the object
             template = template - template.mean()  # a uniform background scores nothing
-            wide = _patch(energy[k], centres[k], half + reach)
-            score = signal.correlate(wide, template, mode="valid")
+            score = signal.correlate(wide[k], template, mode="valid")
             off = centres[k] + _peak(score) - start[k]
             moved[k] = start[k] + off * min(1.0, reach / max(float(np.linalg.norm(off)), EPS))
         shift = max(float(np.linalg.norm(moved[k] - centres[k])) for k in own)

@@ -17,6 +17,7 @@ import torch
 
 from evsplat.model.densify import update_params
 from evsplat.model.gaussians import GaussianModel
+from evsplat.motion.border import in_image
 from evsplat.projection import project
 from evsplat.raster import NEAR
 
@@ -46,10 +47,10 @@ def behind_objects(
     uv, z = project(means, c2w, K)
     px = np.floor(uv).astype(np.int64)
     factor = np.ones(len(z))
+    # A culled Gaussian (nearer than the near plane) moved would be drawn: it stays.
+    seen = scene & (z > NEAR) & in_image(px, masks[0].shape) if masks else scene
     for mask, back in zip(masks, backs):
-        h, w = mask.shape
-        ok = scene & (z > NEAR) & (z < back)  # a culled Gaussian moved would be drawn
-        ok &= (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+        ok = seen & (z < back)
         ok[ok] = mask[px[ok, 1], px[ok, 0]]
         if ok.any():  # shifted in depth, not flattened onto one: their own order is kept
             to = back + z[ok] - z[ok].min()
