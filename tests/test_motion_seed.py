@@ -8,6 +8,7 @@ import torch
 
 from evsplat.config import preset
 from evsplat.data.dataset import load_dataset
+from evsplat.projection import project
 from evsplat.train.loop import Trainer
 
 WARMUP = 200  # the tiny preset's warm-up (10% of 2000 iterations)
@@ -87,3 +88,33 @@ def test_nothing_is_seeded_in_a_static_scene(tiny_scene, tmp_path):
     logged = trainer.seed_objects()
     assert logged["objects"] == 0
     assert trainer.renderer.motion is None and trainer.renderer.static_mask is None
+
+
+def test_a_still_cameras_objects_are_not_veiled_by_the_scene(tiny_scene, tmp_path):
+    trainer = _warmed_up(tiny_scene("watch"), tmp_path / "run")
+    logged = trainer.seed_objects()
+    assert logged["objects"] >= 1 and logged["moved_behind"] > 0
+    renderer, data = trainer.renderer, trainer.data
+    ids = renderer.object_id.cpu().numpy()
+    pose = data.trajectory.pose(float(data.t_start_us))  # the one pose
+    _, z = project(renderer.model.means.detach().double().numpy(), pose, data.K)
+    with torch.no_grad():
+        for k in range(int(logged["objects"])):
+            nearer = (ids < 0) & (z < np.median(z[ids == k]))
+            for t in np.linspace(data.t_start_us, data.t_end_us, 5):
+                # Oracle: the rasterizer's coverage, the object's and that of what lies before it.
+                cover = [_alone(renderer, rows, t, pose) for rows in (ids == k, nearer)]
+                drawn = cover[0] > 0.5
+                if drawn.sum() > 10:
+                    assert float(np.quantile(cover[1][drawn], 0.9)) < 0.1, (k, t)
+
+
+def _alone(renderer, rows: np.ndarray, t: float, pose: np.ndarray) -> np.ndarray:
+    """The alpha of the Gaussians ``rows`` (bool [N]) alone at time ``t``."""
+    logits = renderer.model.opacity_logits
+    kept = logits.clone()
+    logits[torch.from_numpy(~rows)] = -30.0
+    try:
+        return renderer.render(int(t), pose).alpha.numpy()
+    finally:
+        logits.copy_(kept)

@@ -330,9 +330,9 @@ def seed_objects(
     poses = data.trajectory.pose(sightings.times_us.astype(np.float64))
     if is_still(poses):
         drawn = views.renderer.render(int(sightings.times_us[0]), poses[0])
-        radii = drawn.meta["radii"].cpu().numpy().reshape(-1)
+        reach = drawn.meta["radii"].cpu().numpy().reshape(-1)
         scene = object_id < 0
-        moved = behind_objects(model, optimizer, scene, swept_masks, backs, poses[0], data.K, radii)
+        moved = behind_objects(model, optimizer, scene, swept_masks, backs, poses[0], data.K, reach)
         stats["moved_behind"] = float(moved)
     motion = ObjectMotion(
         torch.from_numpy(np.stack(centres)),
