@@ -38,6 +38,25 @@ def update_params(
         setattr(model, name, new)
 
 
+def set_rows(
+    model: GaussianModel,
+    optimizer: torch.optim.Optimizer,
+    rows: Tensor,
+    values: dict[str, Tensor | float],
+) -> None:
+    """Set the parameters named in ``values`` at ``rows`` (long [M]) to their values (one per
+    row, or one for all); their optimizer state there starts afresh."""
+
+    def transform(name: str, old: Tensor, is_state: bool) -> Tensor:
+        if name not in values:
+            return old
+        new = old.clone()
+        new[rows] = 0.0 if is_state else values[name]
+        return new
+
+    update_params(model, optimizer, transform)
+
+
 class Densifier:
     """Gradient statistics and the 3DGS density-control schedule.
 

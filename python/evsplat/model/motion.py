@@ -33,17 +33,9 @@ def rotvec_to_quat(v: Tensor) -> Tensor:
 
 def quat_multiply(a: Tensor, b: Tensor) -> Tensor:
     """Hamilton products a ⊗ b of quaternions [...,4] (w, x, y, z)."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        -1,
-    )
+    aw, av, bw, bv = a[..., :1], a[..., 1:], b[..., :1], b[..., 1:]
+    w = aw * bw - (av * bv).sum(-1, keepdim=True)
+    return torch.cat([w, aw * bv + bw * av + torch.linalg.cross(av, bv, dim=-1)], -1)
 
 
 class ObjectMotion(nn.Module):
@@ -128,28 +120,19 @@ class ObjectMotion(nn.Module):
     def prior_loss(self) -> Tensor:
         """Mean squared distance of the paths from their starting values, translations in
         object radii and rotations in radians."""
-        off = (self.translations - self.prior_translations) / self.radii.clamp_min(1e-6)[
-            :, None, None
-        ]
+        scale = self.radii.clamp_min(1e-6)[:, None, None]
+        off = (self.translations - self.prior_translations) / scale
         turn = self.rotvecs - self.prior_rotvecs
         return (off**2).sum(-1).mean() + (turn**2).sum(-1).mean()
 
     def joined(self, more: ObjectMotion) -> ObjectMotion:
         """These objects, their paths as refined so far, followed by ``more``'s (found later);
-        each keeps its own track prior. Built from these objects' tensors, so on their device;
-        with this one's fade."""
-        more = more.to(self.centres.device)
-        out = ObjectMotion(
-            torch.cat([self.centres, more.centres]),
-            torch.cat([self.radii, more.radii]),
-            torch.cat([self.translations.detach(), more.translations.detach()]),
-            torch.cat([self.rotvecs.detach(), more.rotvecs.detach()]),
-            torch.cat([self.spans, more.spans]),
-            float(self.fade),
+        each keeps its own track prior. On this one's device, with its fade."""
+        extra = more.to(self.centres.device).state_dict()
+        state = self.state_dict()  # detached
+        return ObjectMotion.from_state(
+            {k: torch.cat([v, extra[k]]) if v.dim() else v for k, v in state.items()}
         )
-        out.prior_translations.copy_(torch.cat([self.prior_translations, more.prior_translations]))
-        out.prior_rotvecs.copy_(torch.cat([self.prior_rotvecs, more.prior_rotvecs]))
-        return out
 
     def state(self) -> dict[str, Tensor]:
         """Everything ``from_state`` needs, detached on the CPU."""
@@ -157,13 +140,7 @@ class ObjectMotion(nn.Module):
 
     @classmethod
     def from_state(cls, state: dict[str, Tensor]) -> ObjectMotion:
-        motion = cls(
-            state["centres"],
-            state["radii"],
-            state["translations"],
-            state["rotvecs"],
-            state["spans"],
-            float(state["fade"]),
-        )
+        names = ("centres", "radii", "translations", "rotvecs", "spans")
+        motion = cls(*(state[k] for k in names), float(state["fade"]))
         motion.load_state_dict(state)
         return motion

@@ -20,6 +20,7 @@ import numpy as np
 from scipy import ndimage, signal
 
 from evsplat.motion.tracks import Track
+from evsplat.motion.turn import vertex
 
 EPS = 1e-12  # guards normalisations of empty patches
 # Template, align, repeat: each round moves the centres part of the way, as the template is
@@ -38,22 +39,11 @@ def _patch(image: np.ndarray, centre: np.ndarray, half: int) -> np.ndarray:
     return ndimage.map_coordinates(image, [ys, xs], order=1, mode="constant", cval=0.0)
 
 
-def _unit(patch: np.ndarray) -> np.ndarray:
-    return patch / max(float(np.linalg.norm(patch)), EPS)
-
-
 def _peak(score: np.ndarray) -> np.ndarray:
     """[2] (dx, dy) of ``score``'s maximum about its middle, refined by a parabola per axis."""
     iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
-    out = []
-    for i, line in ((ix, score[iy, :]), (iy, score[:, ix])):
-        d = 0.0
-        if 0 < i < len(line) - 1:
-            a, b, c = line[i - 1], line[i], line[i + 1]
-            curve = a - 2 * b + c
-            d = float(np.clip(0.5 * (a - c) / curve, -0.5, 0.5)) if curve < -EPS else 0.0
-        out.append(i + d - (len(line) - 1) / 2)
-    return np.array(out)
+    lines = ((ix, score[iy, :]), (iy, score[:, ix]))
+    return np.array([i + vertex(line, i) - (len(line) - 1) / 2 for i, line in lines])
 
 
 def align(track: Track, energy: list[np.ndarray], search: float) -> Track:
@@ -72,7 +62,8 @@ def align(track: Track, energy: list[np.ndarray], search: float) -> Track:
     for _ in range(ROUNDS):
         # Each window's search area about its centre; the object's view is its middle.
         wide = {k: _patch(energy[k], centres[k], half + reach) for k in own}
-        patches = {k: _unit(wide[k][reach:-reach, reach:-reach]) for k in own}
+        patches = {k: wide[k][reach:-reach, reach:-reach] for k in own}
+        patches = {k: v / max(float(np.linalg.norm(v)), EPS) for k, v in patches.items()}
         total = sum(patches.values())
         moved = {}
         for k in own:

@@ -32,12 +32,12 @@ def whole_centre(shape: Blob, cut: Blob) -> np.ndarray:
     centre = _best(offsets, cut, cut.centre, np.arange(-reach, reach + 1, dtype=np.float64))
     centre = _best(offsets, cut, centre, np.arange(-4, 5, dtype=np.float64) / 4)
     pixels = np.floor(centre[None] + offsets).astype(np.int64)
-    if _in_image(pixels, cut.mask.shape).all():
+    if in_image(pixels, cut.mask.shape).all():
         return cut.centre  # all of it in view there: its region's own centre is unbiased
     return centre
 
 
-def _in_image(pixels: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+def in_image(pixels: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """[...] bool: which (x, y) ``pixels`` [...,2] lie in an image of ``shape`` (H, W)."""
     h, w = shape
     x, y = pixels[..., 0], pixels[..., 1]
@@ -52,7 +52,7 @@ def _best(offsets: np.ndarray, cut: Blob, around: np.ndarray, steps: np.ndarray)
     shifts = np.stack(np.meshgrid(steps, steps, indexing="ij"), -1).reshape(-1, 2)  # [S,2]
     centres = around[None] + shifts
     pixels = np.floor(centres[:, None] + offsets[None]).astype(np.int64)  # [S,M,2]
-    inside = _in_image(pixels, cut.mask.shape)
+    inside = in_image(pixels, cut.mask.shape)
     hit = np.zeros_like(inside)
     hit[inside] = cut.mask[pixels[..., 1][inside], pixels[..., 0][inside]]
     overlap = hit.sum(1).astype(np.float64)

@@ -26,22 +26,21 @@ import numpy as np
 import torch
 
 from evsplat.config import MoverConfig
-from evsplat.model.densify import update_params
+from evsplat.model.densify import set_rows
 from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
 from evsplat.model.motion import ObjectMotion
 from evsplat.motion.align import align
-from evsplat.motion.border import touches_border
+from evsplat.motion.border import in_image, touches_border
 from evsplat.motion.paths import hold_path, near_path, turn_angles
 from evsplat.motion.segment import (
     Blob,
-    SegmentSettings,
     blurred,
     floor,
     regions,
     unexplained,
 )
 from evsplat.motion.still import behind_objects, is_still
-from evsplat.motion.tracks import Track, TrackSettings, chain
+from evsplat.motion.tracks import Track, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project, project
 from evsplat.train.views import Views
@@ -79,16 +78,7 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
     """Segment ``mc.windows`` short windows spread over the sequence against what the renderer
     draws (after the warm-up, the static model; later, everything found so far)."""
     data, renderer = views.data, views.renderer
-    settings = SegmentSettings(
-        mc.pool,
-        mc.blur_px,
-        mc.low,
-        mc.high,
-        mc.close_px,
-        mc.min_area_px,
-        mc.join,
-        floor(data.c_pos, data.c_neg, mc.pool),
-    )
+    least = floor(data.c_pos, data.c_neg, mc.pool)
     span = data.t_end_us - data.t_start_us
     half = max(int(mc.window * span) // 2, 1)
     mids = np.linspace(data.t_start_us + half, data.t_end_us - half, mc.windows).astype(np.int64)
@@ -100,7 +90,7 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
         end = renderer.render(t1, views.pose(t1))
         change = views.log_image(end) - views.log_image(start)
         residual = unexplained(views.esi(t0, t1)[0], change, mc.pool)
-        blobs.append(regions(residual, int(mid), settings))
+        blobs.append(regions(residual, int(mid), mc, least))
         residuals.append(residual)
         depth.append(end.depth.cpu().numpy())
         alpha.append(end.alpha.cpu().numpy())
@@ -157,7 +147,6 @@ def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
     out = np.full(len(times), np.nan)
     for i, k in enumerate(sorted(track.blobs)):
         mask = track.blobs[k].mask
-        h, w = mask.shape
         # Inside the data's time range (a run on part of a recording reads nothing beyond it).
         t0 = max(int(times[i]) - half_us, data.t_start_us)
         t1 = min(int(times[i]) + half_us, data.t_end_us)
@@ -167,7 +156,7 @@ def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
         dt = (ev.t - times[i]) * 1e-6
         xy = np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5
         back = np.floor(xy - velocity[i][None] * dt[:, None]).astype(np.int64)
-        inside = (back[:, 0] >= 0) & (back[:, 0] < w) & (back[:, 1] >= 0) & (back[:, 1] < h)
+        inside = in_image(back, mask.shape)
         inside[inside] = mask[back[inside, 1], back[inside, 0]]
         if inside.sum() < mc.turn_min_events:
             continue
@@ -193,25 +182,17 @@ def place(
     afresh."""
     o = min(max(opacity, 1e-4), 1.0 - 1e-4)
     device = model.means.device
-    rows = rows.to(device)
+    scales = torch.from_numpy(np.log(np.maximum(spacing, 1e-12)).astype(np.float32))
     values = {
         "means": torch.from_numpy(points.astype(np.float32)).to(device),
-        "log_scales": torch.from_numpy(np.log(np.maximum(spacing, 1e-12)).astype(np.float32))
-        .to(device)
-        .unsqueeze(1),
+        "log_scales": scales.to(device).unsqueeze(1),
         "quats": torch.tensor([1.0, 0.0, 0.0, 0.0], device=device),
         "opacity_logits": math.log(o / (1.0 - o)),
         "sh": 0.0,
         "t_mean": 0.5,
         "t_log_scale": T_LOG_SCALE_RANGE[1],
     }
-
-    def transform(name: str, old: torch.Tensor, is_state: bool) -> torch.Tensor:
-        new = old.clone()
-        new[rows] = 0.0 if is_state else values[name]
-        return new
-
-    update_params(model, optimizer, transform)
+    set_rows(model, optimizer, rows.to(device), values)
 
 
 def known_object(track: Track, motion: ObjectMotion, views: Views) -> bool:
@@ -248,10 +229,7 @@ def seed_objects(
     are seeded then, from the scene's Gaussians, and the motion returned holds all objects."""
     data = views.data
     sightings = sight(views, mc)
-    settings = TrackSettings(
-        mc.gate, mc.coast, mc.min_windows, mc.high, mc.min_evidence, mc.together
-    )
-    tracks = chain(sightings.blobs, settings)
+    tracks = chain(sightings.blobs, mc)
     energy = [blurred(r, mc.blur_px) for r in sightings.residual]
     tracks = [align(t, energy, mc.align) for t in tracks]
     if known is not None:

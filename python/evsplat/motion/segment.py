@@ -19,22 +19,10 @@ import torch.nn.functional as F
 from scipy import ndimage
 from torch import Tensor
 
+from evsplat.config import MoverConfig
+
 EPS = 1e-12  # guards divisions by energies and spreads
 MAD_TO_SIGMA = 1.4826  # a normal distribution's sigma per median absolute deviation
-
-
-@dataclass
-class SegmentSettings:
-    """The segmentation's knobs; ``MoverConfig`` holds their values and their reasons."""
-
-    pool: int  # px box averaging the ESI's quantisation before the residual
-    blur_px: float  # Gaussian sigma spreading an object's edge events over its body
-    low: float  # a region: residual above median + low x robust sigma ...
-    high: float  # ... holding a pixel above median + high x robust sigma (hysteresis)
-    close_px: int  # closing radius joining an object's pieces into one region
-    min_area_px: int  # smaller regions are noise
-    join: float  # regions closer than this many of the larger one's radii are one object
-    floor: float = 0.0  # least robust sigma: one event's step per pool box (see ``floor``)
 
 
 @dataclass
@@ -91,11 +79,12 @@ def _disc(radius: int) -> np.ndarray:
     return (r[:, None] ** 2 + r[None, :] ** 2) <= radius**2
 
 
-def regions(residual: np.ndarray, t_us: int, s: SegmentSettings) -> list[Blob]:
-    """The moving regions of one window's ``residual`` [H,W], largest first."""
+def regions(residual: np.ndarray, t_us: int, s: MoverConfig, least: float = 0.0) -> list[Blob]:
+    """The moving regions of one window's ``residual`` [H,W], largest first; ``least``: the
+    least robust sigma (``floor``)."""
     energy = blurred(residual, s.blur_px)
     med, sigma = robust_level(energy)
-    sigma = max(sigma, s.floor)
+    sigma = max(sigma, least)
     hot = energy > med + s.low * sigma
     if s.close_px > 0:
         pad = s.close_px  # padded so regions touching the border are not eroded away

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from evsplat.model.densify import update_params
+from evsplat.model.densify import set_rows
 from evsplat.model.gaussians import GaussianModel
 from evsplat.projection import project
 
@@ -61,22 +61,10 @@ def behind_objects(
     rows = np.flatnonzero(factor > 1.0)
     if rows.size == 0:
         return 0
-    device = model.means.device
-    idx = torch.from_numpy(rows).to(device)
-    f = torch.from_numpy(factor[rows]).to(device=device, dtype=model.means.dtype)
-    eye = torch.from_numpy(c2w[:3, 3]).to(device=device, dtype=model.means.dtype)
-
-    def transform(name: str, old: torch.Tensor, is_state: bool) -> torch.Tensor:
-        if name not in ("means", "log_scales"):
-            return old
-        new = old.clone()
-        if is_state:
-            new[idx] = 0.0
-        elif name == "means":
-            new[idx] = eye + (old[idx] - eye) * f[:, None]
-        else:
-            new[idx] = old[idx] + torch.log(f)[:, None]
-        return new
-
-    update_params(model, optimizer, transform)
+    means, log_scales = model.means.detach(), model.log_scales.detach()
+    idx = torch.from_numpy(rows).to(means.device)
+    f = torch.from_numpy(factor[rows]).to(means)
+    eye = torch.from_numpy(c2w[:3, 3]).to(means)
+    moved = {"means": eye + (means[idx] - eye) * f[:, None]}
+    set_rows(model, optimizer, idx, moved | {"log_scales": log_scales[idx] + torch.log(f)[:, None]})
     return int(rows.size)

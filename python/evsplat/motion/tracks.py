@@ -18,22 +18,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from evsplat.motion.border import touches_border, uncut
+from evsplat.config import MoverConfig
+from evsplat.motion.border import in_image, touches_border, uncut
 from evsplat.motion.segment import Blob
 
 UNASSIGNED = 1e9  # cost of a pair outside the gate
-
-
-@dataclass
-class TrackSettings:
-    """The tracker's knobs; ``MoverConfig`` holds their values and their reasons."""
-
-    gate: float  # a region joins a track within this many object radii of its prediction
-    coast: int  # windows a track lives on unseen and not hidden by another region
-    min_windows: int  # a track seen in fewer windows is noise ...
-    high: float  # ... or one whose regions' peaks above this level (robust sigmas) ...
-    min_evidence: float  # ... sum to less than this over its windows
-    together: float  # fragments: centres within this many summed radii in most shared windows
 
 
 @dataclass
@@ -90,7 +79,7 @@ class Track:
         return float(np.linalg.norm(self._motion()[2]))
 
 
-def chain(per_window: list[list[Blob]], s: TrackSettings) -> list[Track]:
+def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
     """Tracks through the windows' regions (``per_window[k]``: window k's), noise dropped and
     fragments joined; the longest first."""
     live: list[Track] = []
@@ -133,15 +122,11 @@ def chain(per_window: list[list[Blob]], s: TrackSettings) -> list[Track]:
 def _host(guess: np.ndarray, blobs: list[Blob]) -> Blob | None:
     """The region an unseen object's predicted centre lies in, if any: it passes behind that
     object or merges with it in the image, and lives on while it does."""
-    for blob in blobs:
-        h, w = blob.mask.shape
-        x, y = int(np.floor(guess[0])), int(np.floor(guess[1]))
-        if 0 <= x < w and 0 <= y < h and blob.mask[y, x]:
-            return blob
-    return None
+    px = np.floor(guess).astype(np.int64)
+    return next((b for b in blobs if in_image(px, b.mask.shape) and b.mask[px[1], px[0]]), None)
 
 
-def _assign(live: list[Track], blobs: list[Blob], k: int, s: TrackSettings) -> set[int]:
+def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set[int]:
     """Give window ``k``'s ``blobs`` to the ``live`` tracks; the indices of the blobs taken."""
     if not live or not blobs:
         return set()
@@ -162,7 +147,7 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: TrackSettings) -> s
     return taken
 
 
-def _together(a: Track, b: Track, s: TrackSettings) -> bool:
+def _together(a: Track, b: Track, s: MoverConfig) -> bool:
     """Whether ``a`` and ``b`` are pieces of one object: they share windows, and in most of
     them (all but one in five) their centres lie within ``s.together`` x their summed radii."""
     shared = sorted(set(a.blobs) & set(b.blobs))
@@ -174,7 +159,7 @@ def _together(a: Track, b: Track, s: TrackSettings) -> bool:
     return bool(shared) and np.mean(near) >= 0.8
 
 
-def _join_fragments(tracks: list[Track], s: TrackSettings) -> list[Track]:
+def _join_fragments(tracks: list[Track], s: MoverConfig) -> list[Track]:
     """Tracks with the pieces of one object merged: per shared window, one region (the two
     masks' union, its centre area-weighted)."""
     out: list[Track] = []
@@ -191,11 +176,5 @@ def _join_fragments(tracks: list[Track], s: TrackSettings) -> list[Track]:
 
 def _union(a: Blob, b: Blob) -> Blob:
     """One region of two pieces of one object in one window."""
-    wa, wb = a.area, b.area
-    return Blob(
-        a.t_us,
-        (wa * a.centre + wb * b.centre) / (wa + wb),
-        a.mask | b.mask,
-        wa + wb,
-        max(a.contrast, b.contrast),
-    )
+    centre = (a.area * a.centre + b.area * b.centre) / (a.area + b.area)
+    return Blob(a.t_us, centre, a.mask | b.mask, a.area + b.area, max(a.contrast, b.contrast))

@@ -53,13 +53,23 @@ def iwe_variance(
     r = len(rates)
     images = torch.zeros(r, 2, h + 2, w + 2, dtype=torch.float64)
     flat = images.view(r, -1)
-    corners = ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy))
-    for dx, dy, weight in (*corners, (1, 1, fx * fy)):
+    for dx, dy, weight in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
+                           (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):  # fmt: skip
         # A one-pixel frame takes the votes that fall off the image (clamped into it).
         xi = (x0 + dx + 1).clamp(0, w + 1).long()
         yi = (y0 + dy + 1).clamp(0, h + 1).long()
         flat.scatter_add_(1, channel[None] * (h + 2) * (w + 2) + yi * (w + 2) + xi, weight)
     return images[:, :, 1:-1, 1:-1].reshape(r, -1).var(dim=1).numpy()
+
+
+def vertex(line: np.ndarray, i: int) -> float:
+    """The offset (in samples, within ±0.5) of the top of the parabola through ``line``'s
+    samples i - 1, i, i + 1 from i, where ``i`` is the maximum; 0 at an end or on a flat top."""
+    if not 0 < i < len(line) - 1:
+        return 0.0
+    a, b, c = line[i - 1], line[i], line[i + 1]
+    bend = a - 2 * b + c
+    return float(np.clip(0.5 * (a - c) / bend, -0.5, 0.5)) if bend < -EPS else 0.0
 
 
 def turn_rate(
@@ -77,11 +87,6 @@ def turn_rate(
     rates[GRID // 2] = 0.0
     score = iwe_variance(ev, centre, velocity, rates, shape)
     k = int(np.argmax(score))
-    best = float(rates[k])
-    if 0 < k < GRID - 1:  # the parabola through the best and its neighbours
-        a, b, c = score[k - 1], score[k], score[k + 1]
-        bend = a - 2 * b + c
-        if bend < 0:
-            best += 0.5 * (a - c) / bend * (rates[1] - rates[0])
+    best = float(rates[k]) + vertex(score, k) * (rates[1] - rates[0])
     top = float(iwe_variance(ev, centre, velocity, np.array([best]), shape)[0])
     return best, max(top, float(score[k])) / max(float(score[GRID // 2]), EPS) - 1.0
