@@ -250,7 +250,7 @@ def seed_objects(
     areas = np.array([np.median([b.area for b in t.blobs.values()]) for t in tracks])
     knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
     rows, points, spacing, centres, radii, translations, rotvecs, spans = ([] for _ in range(8))
-    swept_masks, backs = [], []
+    backs = []
     for k, track in enumerate(tracks):
         depth = object_depth(track, sightings, mc.depth_quantile) or float(np.mean(depth_range))
         ref = reference(track)
@@ -273,7 +273,6 @@ def seed_objects(
         pose_ref = data.trajectory.pose(float(t_ref))
         placed = back_project(uv, depth + radius * rng.random(len(pick)), pose_ref, data.K)
         volume = blob.area * (depth / focal) ** 2 * radius
-        swept_masks.append(np.any([track.blobs[w].mask for w in ks], axis=0))
         backs.append(depth + 2.0 * radius)  # its front surface is at depth, its body one radius
         rows.append(pick)
         points.append(placed)
@@ -307,10 +306,12 @@ def seed_objects(
     )
     poses = data.trajectory.pose(sightings.times_us.astype(np.float64))
     if is_still(poses):
-        drawn = views.renderer.render(int(sightings.times_us[0]), poses[0])
-        reach = drawn.meta["radii"].cpu().numpy().reshape(-1)
-        scene = object_id < 0
-        moved = behind_objects(model, optimizer, scene, swept_masks, backs, poses[0], data.K, reach)
+        drawn = views.renderer.render(int(sightings.times_us[0]), poses[0]).meta["radii"] > 0
+        z = project(model.means.detach().cpu().numpy().astype(np.float64), poses[0], data.K)[1]
+        back = max(max(backs), float(z[object_id >= 0].max()))  # the objects found before too
+        moved = behind_objects(
+            model, optimizer, object_id < 0, back, poses[0], data.K, drawn.cpu().numpy().reshape(-1)
+        )
         stats["moved_behind"] = float(moved)
     motion = ObjectMotion(
         torch.from_numpy(np.stack(centres)),
