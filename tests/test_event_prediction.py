@@ -28,16 +28,17 @@ def test_pearson_equals_numpys_corrcoef_and_is_undefined_for_a_constant() -> Non
 class ChangeOfEvents:
     """A stand-in renderer whose log image at t is ``gain`` times the ESI from the start to t
     (plus 1): its log change over any window is exactly gain x the window's ESI. With
-    the MLP off (``mlp`` None, as the static model is drawn) it draws a constant image."""
+    the MLP or the objects' motion off (None, as the static model is drawn) it draws a constant
+    image."""
 
     def __init__(self, data, gain: float):
         self.data, self.gain = data, gain
-        self.mlp = object()
+        self.mlp, self.motion = object(), object()
         self.K = torch.from_numpy(data.K.astype(np.float32))  # the device Views reads it on
 
     def render(self, t_us: float, c2w: np.ndarray) -> RenderOut:
         store = self.data.events
-        if self.mlp is None:
+        if self.mlp is None or self.motion is None:
             esi = np.zeros((self.data.height, self.data.width), np.float32)
         else:
             window = store.window(self.data.t_start_us, int(t_us))

@@ -9,8 +9,9 @@ and L_e itself (``losses.event.event_loss``). The windows are the ones the run h
 (``train.heldout``: training never read them), else ``FALLBACK_WINDOWS`` fixed windows that
 training did read.
 
-Beside the model: the static model (the same Gaussians with the deformation MLP off, so only
-what training baked into them moves) and a flat image, which predicts no change anywhere: its
+Beside the model: the static model (the same Gaussians with the deformation MLP and the
+objects' rigid motion off, each object held where it was placed, so only what training baked
+into them moves) and a flat image, which predicts no change anywhere: its
 correlation is 0 by construction (a prediction without any change is given correlation 0: it
 has none to give), its L_e is the loss of predicting nothing."""
 
@@ -67,7 +68,7 @@ def predict_events(
             f"dataset's time range [{data.t_start_us}, {data.t_end_us}] µs; evaluate on the "
             "dataset the run was trained on"
         )
-    mlp = renderer.mlp
+    mlp, motion = renderer.mlp, renderer.motion
     rows = []
     for t0, t1 in windows:
         esi, mask, count = views.esi(t0, t1)
@@ -79,7 +80,7 @@ def predict_events(
             if name == "flat":
                 delta = torch.zeros_like(esi)
             else:
-                renderer.mlp = mlp if name == "model" else None
+                renderer.mlp, renderer.motion = (mlp, motion) if name == "model" else (None, None)
                 delta = views.log_image_at(t1) - views.log_image_at(t0)
             corr = pearson(delta.numpy(), esi.numpy())
             if corr is None and bool((delta == delta.flatten()[0]).all()):
@@ -87,7 +88,7 @@ def predict_events(
             loss = float(event_loss(delta, esi, mask, lambda_ssim))
             row[name] = {"correlation": corr, "l_e": loss}
         rows.append(row)
-    renderer.mlp = mlp
+    renderer.mlp, renderer.motion = mlp, motion
     return {
         "t_start_us": data.t_start_us,
         "windows_source": "held out (training never read them)"
@@ -134,7 +135,8 @@ def format_event_table(result: dict) -> str:
     lines.append("| **mean** | | " + " | ".join(f"**{c}**" for c in corr + loss) + " |")
     lines += [
         "",
-        f"Static model: the same Gaussians with the deformation MLP off; {result['flat_note']}.",
+        f"Static model: the same Gaussians with the deformation MLP and the objects' motion off; "
+        f"{result['flat_note']}.",
     ]
     return "\n".join(lines) + "\n"
 
