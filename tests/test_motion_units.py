@@ -11,9 +11,10 @@ from scipy.spatial.transform import Rotation
 
 from evsplat.config import MoverConfig
 from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
+from evsplat.motion import border
 from evsplat.motion.align import align
 from evsplat.motion.paths import hold_path, near_path, turn_angles
-from evsplat.motion.segment import floor, regions
+from evsplat.motion.segment import Blob, floor, regions
 from evsplat.motion.tracks import chain
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project, project, project_points, world_to_camera
@@ -294,3 +295,24 @@ def test_near_path_is_the_swept_volume(radius, inside):
     path = np.array([[0.0, 0, 0], [2.0, 0, 0]])
     pts = np.array([[1.0, 0.4, 0], [2.3, 0, 0], [1.0, 1.5, 0]])
     assert near_path(pts, path, radius).tolist() == inside
+
+
+def test_a_cut_regions_whole_pixel_search_matches_pixel_by_pixel_overlaps():
+    # Oracle: every shift's intersection over union counted pixel by pixel (``border._best``).
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[:48, :64]
+    for _ in range(40):
+        r, cx, cy = rng.uniform(3, 10), rng.uniform(-5, 69), rng.uniform(-5, 53)
+        centre = np.array([rng.uniform(r, 64 - r), rng.uniform(r, 48 - r)])
+        whole = (xx + 0.5 - centre[0]) ** 2 / 1.5 + (yy + 0.5 - centre[1]) ** 2 < r * r
+        cut = (xx + 0.5 - cx) ** 2 / 1.5 + (yy + 0.5 - cy) ** 2 < r * r
+        if not cut.any():
+            continue
+        shape = Blob(0, centre + rng.uniform(-0.5, 0.5, 2), whole, float(whole.sum()), 1.0)
+        seen = Blob(0, np.array([cx, cy]) + rng.uniform(-2, 2, 2), cut, float(cut.sum()), 1.0)
+        ys, xs = np.nonzero(whole)
+        offsets = np.stack([xs + 0.5, ys + 0.5], 1) - shape.centre[None]
+        reach = int(np.ceil(2.0 * shape.radius))
+        steps = np.arange(-reach, reach + 1, dtype=np.float64)
+        want = border._best(offsets, seen, seen.centre, steps)
+        np.testing.assert_allclose(border._coarse(shape, seen, reach), want)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from scipy import signal
 
 from evsplat.motion.segment import Blob
 
@@ -28,8 +29,7 @@ def whole_centre(shape: Blob, cut: Blob) -> np.ndarray:
     lies wholly inside the image (a blur's rim touched the border, not the object)."""
     ys, xs = np.nonzero(shape.mask)
     offsets = np.stack([xs + 0.5, ys + 0.5], 1) - shape.centre[None]  # [M,2] about its centre
-    reach = int(np.ceil(2.0 * shape.radius))
-    centre = _best(offsets, cut, cut.centre, np.arange(-reach, reach + 1, dtype=np.float64))
+    centre = _coarse(shape, cut, int(np.ceil(2.0 * shape.radius)))
     centre = _best(offsets, cut, centre, np.arange(-4, 5, dtype=np.float64) / 4)
     pixels = np.floor(centre[None] + offsets).astype(np.int64)
     if in_image(pixels, cut.mask.shape).all():
@@ -42,6 +42,24 @@ def in_image(pixels: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     h, w = shape
     x, y = pixels[..., 0], pixels[..., 1]
     return (x >= 0) & (x < w) & (y >= 0) & (y < h)
+
+
+def _coarse(shape: Blob, cut: Blob, reach: int) -> np.ndarray:
+    """``_best`` over the whole-pixel shifts up to ``reach`` from ``cut``'s centre, at once: a
+    whole-pixel shift moves the shape's pixels as one, so each shift's overlap and in-image
+    count are correlations of the masks (by FFT; pixel by pixel, the DAVIS346 sample's 52-px
+    region took 24 GB)."""
+    h, w = cut.mask.shape
+    image = np.stack([cut.mask, np.ones((h, w), dtype=bool)]).astype(np.float64)
+    counts = signal.correlate(image, shape.mask[None].astype(np.float64), "full", "fft")
+    steps = np.arange(-reach, reach + 1)
+    shifts = np.stack(np.meshgrid(steps, steps, indexing="ij"), -1).reshape(-1, 2)  # [S,2]
+    lag = np.floor(cut.centre - shape.centre + 0.5).astype(np.int64) + shifts  # of the pixels
+    ok = (np.abs(lag[:, 0]) < w) & (np.abs(lag[:, 1]) < h)
+    hit, inside = np.rint(counts[:, lag[ok, 1] + h - 1, lag[ok, 0] + w - 1])
+    score = np.zeros(len(shifts))
+    score[ok] = hit / np.maximum(inside + cut.area - hit, 1.0)
+    return (cut.centre + shifts)[np.lexsort((np.abs(shifts).sum(1), -score))[0]]
 
 
 def _best(offsets: np.ndarray, cut: Blob, around: np.ndarray, steps: np.ndarray) -> np.ndarray:

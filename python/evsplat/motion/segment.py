@@ -41,17 +41,12 @@ class Blob:
         return float(np.sqrt(self.area / np.pi))
 
 
-def pooled(energy: Tensor, pool: int) -> Tensor:
-    """[H,W]: ``energy`` averaged over ``pool`` px boxes (stride 1), then its magnitude; a
-    [C,H,W] input sums its channels' magnitudes."""
-    x = energy.double().reshape(-1, 1, *energy.shape[-2:])
-    smooth = F.avg_pool2d(x, pool, stride=1, padding=pool // 2, count_include_pad=False)
-    return smooth.abs().sum((0, 1))[: energy.shape[-2], : energy.shape[-1]]
-
-
 def unexplained(esi: Tensor, predicted: Tensor, pool: int) -> np.ndarray:
-    """[H,W] float64 residual |ESI - predicted log change| after ``pool`` px box averaging."""
-    return pooled(esi - predicted, pool).cpu().numpy()
+    """[H,W] float64 residual |ESI - predicted log change| after ``pool`` px box averaging
+    (stride 1); of [C,H,W] inputs, the sum of the channels' magnitudes."""
+    x = (esi - predicted).double().reshape(-1, 1, *esi.shape[-2:])
+    smooth = F.avg_pool2d(x, pool, stride=1, padding=pool // 2, count_include_pad=False)
+    return smooth.abs().sum((0, 1))[: esi.shape[-2], : esi.shape[-1]].cpu().numpy()
 
 
 def robust_level(values: np.ndarray) -> tuple[float, float]:

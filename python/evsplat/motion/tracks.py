@@ -61,7 +61,7 @@ class Track:
         whole = [b for b in own if not touches_border(b.mask)] or own
         return float(np.median([b.radius for b in whole]))
 
-    def _motion(self) -> tuple[int, np.ndarray, np.ndarray]:
+    def last_motion(self) -> tuple[int, np.ndarray, np.ndarray]:
         """(window, centre, velocity px per window) of its last own sighting."""
         ks = [k for k in sorted(self.blobs) if k not in self.shared] or sorted(self.blobs)
         last = self.blobs[ks[-1]].centre
@@ -71,12 +71,8 @@ class Track:
 
     def predict(self, window: int) -> np.ndarray:
         """The object's centre at ``window`` at the velocity of its last own sightings."""
-        k, centre, velocity = self._motion()
+        k, centre, velocity = self.last_motion()
         return centre + velocity * (window - k)
-
-    def speed(self) -> float:
-        """Its last speed in px per window (0 with one sighting)."""
-        return float(np.linalg.norm(self._motion()[2]))
 
 
 def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
@@ -133,7 +129,8 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
     cost = np.full((len(live), len(blobs)), UNASSIGNED)
     for i, track in enumerate(live):
         guess = track.predict(k)
-        reach = s.gate * max(track.radius, track.speed() * (track.missed + 1))
+        speed = float(np.linalg.norm(track.last_motion()[2]))  # px per window
+        reach = s.gate * max(track.radius, speed * (track.missed + 1))
         for j, blob in enumerate(blobs):
             d = float(np.linalg.norm(blob.centre - guess))
             if d <= reach + blob.radius * s.gate:
