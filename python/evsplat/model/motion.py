@@ -117,16 +117,6 @@ class ObjectMotion(nn.Module):
         out[rows] = seen[object_id[rows]]
         return out
 
-    @torch.no_grad()
-    def cap_scales(self, log_scales: Tensor, object_id: Tensor) -> None:
-        """Clamp, in place, the ``log_scales`` [N,3] of the objects' Gaussians at their object's
-        radius: a Gaussian wider than its object is not a part of it (on the DAVIS346 sample,
-        unclamped, they grew to 11 units against radii of 0.1-0.5, and drew the objects as
-        glows over the image)."""
-        rows = object_id >= 0
-        cap = torch.log(self.radii.clamp_min(1e-6))[object_id[rows]]
-        log_scales[rows] = torch.minimum(log_scales[rows], cap[:, None])
-
     def prior_loss(self) -> Tensor:
         """Mean squared distance of the paths from their starting values, translations in
         object radii and rotations in radians."""

@@ -212,8 +212,6 @@ class Trainer:
             out1.meta["means2d_grad"], out1.meta["radii"], view.width, view.height
         )
         self.optimizer.step()
-        if self.renderer.motion is not None:
-            self.renderer.motion.cap_scales(self.model.log_scales, self.renderer.object_id)
         if moving:
             self.mlp_optimizer.step()
         self._zero_grads()
