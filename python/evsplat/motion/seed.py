@@ -306,12 +306,11 @@ def seed_objects(
     )
     poses = data.trajectory.pose(sightings.times_us.astype(np.float64))
     if is_still(poses):
-        drawn = views.renderer.render(int(sightings.times_us[0]), poses[0]).meta["radii"] > 0
+        footprint = views.renderer.render(int(sightings.times_us[0]), poses[0]).meta["radii"]
+        drawn = footprint.cpu().numpy().reshape(-1) > 0
         z = project(model.means.detach().cpu().numpy().astype(np.float64), poses[0], data.K)[1]
         back = max(max(backs), float(z[object_id >= 0].max()))  # the objects found before too
-        moved = behind_objects(
-            model, optimizer, object_id < 0, back, poses[0], data.K, drawn.cpu().numpy().reshape(-1)
-        )
+        moved = behind_objects(model, optimizer, object_id < 0, back, poses[0], data.K, drawn)
         stats["moved_behind"] = float(moved)
     motion = ObjectMotion(
         torch.from_numpy(np.stack(centres)),
