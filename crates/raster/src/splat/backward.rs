@@ -10,24 +10,31 @@ use crate::context::{AtomicMode, GpuContext, GpuError};
 use crate::host;
 use crate::Kernel;
 
-/// Differentiate band `band` of `render` (of inputs `g`), rendered as `id`, in `st` (`grads`: the
-/// band's rows), rendering it again first when another render replaced its per-pixel state there.
+/// Differentiate band `band` of `render` (of inputs `g`), rendered as `id` with `pairs` tile
+/// pairs, in `st` (`grads`: the band's rows), rendering it again first when another render
+/// replaced its per-pixel state there.
 pub fn run(
     ctx: &GpuContext,
     st: &mut State,
     (render, g): (&Render, &Gaussians),
-    (id, band): (u64, Band),
+    (id, band, pairs): (u64, Band, u32),
     grads: &OutputGrads,
     mode: AtomicMode,
     profile: Option<&mut PassTimes>,
 ) -> Result<Gradients, GpuError> {
+    let rerender = st.current != Some(id);
+    if rerender {
+        // The state may last have held a render with fewer tile pairs: without room for all of
+        // this band's, emit_keys would drop the excess and the lists would differ from the
+        // forward's (a re-render reads no counters back to notice).
+        forward::reserve(ctx, st, pairs);
+    }
     let p = host::time("prepare buffers", || {
         st.prepare(ctx, render.n, render.d, &render.cam, band)
     })?;
     let mut rec = Recorder::new(ctx, profile);
     // One upload: the inputs when the render must be redone, then the three output gradients,
     // back to back as they lie in `grad_in`.
-    let rerender = st.current != Some(id);
     let mut parts = Vec::with_capacity(9);
     if rerender {
         parts.extend(g.parts());

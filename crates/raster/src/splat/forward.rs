@@ -216,6 +216,14 @@ fn isect_capacity(m: u32) -> u64 {
         .max(MIN_ISECT_CAP)
 }
 
+/// Grow `st`'s intersection capacity to hold `pairs` tile pairs (those a render had when it was
+/// read back), as `read` grows it after an overflow: for a render done again without a readback.
+pub fn reserve(ctx: &GpuContext, st: &mut State, pairs: u32) {
+    if pairs as u64 > st.isect_cap {
+        st.isect_cap = isect_capacity(pairs).min(ctx.binding_limit() / 4);
+    }
+}
+
 /// A band of a forward render submitted to the device and not yet read back.
 #[derive(Debug)]
 pub struct Submitted {
