@@ -112,10 +112,16 @@ impl Camera {
         (self.width.div_ceil(TILE), self.height.div_ceil(TILE))
     }
 
-    /// Bands of whole tile rows, each with at most `max_rows` pixel rows (a multiple of TILE).
+    /// Bands of whole tile rows, each with at most `max_rows` pixel rows (a multiple of TILE);
+    /// one band when the whole image fits, even when its height is not a multiple of TILE (the
+    /// partial last tile row on its own would take a second render state).
     pub(super) fn bands(&self, max_rows: u32) -> Vec<Band> {
-        let step = (max_rows / TILE).max(1);
         let tiles_y = self.tiles().1;
+        let step = if max_rows >= self.height {
+            tiles_y.max(1)
+        } else {
+            (max_rows / TILE).max(1)
+        };
         (0..tiles_y)
             .step_by(step as usize)
             .map(|ty0| Band {

@@ -506,12 +506,23 @@ mod tests {
     /// whose intersection capacity a render with fewer tile pairs last sized (before the fix, the
     /// re-render dropped the tile pairs past that capacity: 0.63 relative error here).
     #[test]
+    fn an_image_that_fits_is_one_band_whatever_its_height() {
+        // 260 rows are 32 whole tile rows and a partial one: still one band (as two, each render
+        // took two of the pool's states, and a training step's views evicted one another).
+        let cam = camera(346, 260, 0.0);
+        assert_eq!(cam.bands(260), [Band { ty0: 0, rows: 260 }]);
+        let rows: Vec<u32> = cam.bands(100).iter().map(|b| b.rows).collect();
+        let step = 100 / TILE * TILE;
+        assert!(rows[..rows.len() - 1].iter().all(|&r| r == step));
+        assert_eq!(rows.iter().sum::<u32>(), 260);
+    }
+
+    #[test]
     fn gradients_do_not_depend_on_the_renders_between_forward_and_backward() {
         let ctx = GpuContext::global().expect("a Vulkan adapter (lavapipe in CI) is required");
         let (big, few) = (scene(1500, 1, 0.03), scene(10, 1, 0.03));
         let (g, other) = (gaussians(&big, 1), gaussians(&few, 1));
-        // DAVIS346's size: its last, partial tile row is a band of its own (a render takes two
-        // states of the pool).
+        // DAVIS346's size (its last tile row partial).
         let cam = camera(346, 260, 0.0);
         let px = 346 * 260;
         let wave = |k: usize, s: f32| -> Vec<f32> {
@@ -544,8 +555,8 @@ mod tests {
         let small = camera(96, 96, 0.0);
         let cases = [
             ("kept (one small image between)", vec![small]),
-            ("one band taken (one render between)", vec![cam]),
-            ("all taken (four renders between)", vec![cam; 4]),
+            ("kept (one render of its size between)", vec![cam]),
+            ("taken (four renders between: rendered again)", vec![cam; 4]),
         ];
         for (case, between) in cases {
             let (_, got) = differentiate(&between);
