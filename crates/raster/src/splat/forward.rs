@@ -216,8 +216,9 @@ fn isect_capacity(m: u32) -> u64 {
         .max(MIN_ISECT_CAP)
 }
 
-/// Grow `st`'s intersection capacity to hold `pairs` tile pairs (those a render had when it was
-/// read back), as `read` grows it after an overflow: for a render done again without a readback.
+/// Grow `st`'s intersection capacity to hold `pairs` tile pairs (at most the binding limit's):
+/// after an overflow in `read`, and before a render done again without a readback (the pairs
+/// it had when it was read back).
 pub fn reserve(ctx: &GpuContext, st: &mut State, pairs: u32) {
     if pairs as u64 > st.isect_cap {
         st.isect_cap = isect_capacity(pairs).min(ctx.binding_limit() / 4);
@@ -294,7 +295,7 @@ pub fn read(
         }
         // Render again with room for every intersection (rare: the capacity follows the
         // counts of earlier renders).
-        st.isect_cap = isect_capacity(m).min(max_cap);
+        reserve(ctx, st, m);
         return Ok(None);
     }
     // The tile sort's histograms are laid out, cleared and scanned over the whole capacity:

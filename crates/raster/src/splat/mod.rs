@@ -501,10 +501,6 @@ mod tests {
         assert_same(&got, &want);
     }
 
-    /// A render's gradients do not depend on the renders made between its forward and its
-    /// backward: with its per-pixel state kept, or taken by them and rendered again in a state
-    /// whose intersection capacity a render with fewer tile pairs last sized (before the fix, the
-    /// re-render dropped the tile pairs past that capacity: 0.63 relative error here).
     #[test]
     fn an_image_that_fits_is_one_band_whatever_its_height() {
         // 260 rows are 32 whole tile rows and a partial one: still one band (as two, each render
@@ -517,6 +513,10 @@ mod tests {
         assert_eq!(rows.iter().sum::<u32>(), 260);
     }
 
+    /// A render's gradients do not depend on the renders made between its forward and its
+    /// backward: with its per-pixel state kept, or taken by them and rendered again in a state
+    /// whose intersection capacity a render with fewer tile pairs last sized (before 5d81a83 the
+    /// re-render dropped the tile pairs past that capacity).
     #[test]
     fn gradients_do_not_depend_on_the_renders_between_forward_and_backward() {
         let ctx = GpuContext::global().expect("a Vulkan adapter (lavapipe in CI) is required");
