@@ -170,6 +170,53 @@ def test_an_object_leaving_the_image_is_centred_by_its_whole_shape():
     assert track.radius >= radius
 
 
+def test_a_track_keeps_its_object_when_a_new_region_starts_beside_it():
+    # The disc turns sharply at window 20 (as the demo's ball bounces) just as a small region
+    # starts a track next to where it goes: nearer in pixels than the disc's own prediction,
+    # but tentative, so the disc's track keeps the disc.
+    shape, radius = (96, 128), 10.0
+    per_window, truth = [], []
+    for k in range(30):
+        centre = np.array(
+            [20.0 + 2 * k, 48.0] if k < 20 else [58.0 + 2 * (k - 20), 64.0 + 2 * (k - 20)]
+        )
+        discs = [(centre, radius)] + ([((58.0, 78.0), 4.0)] if k == 19 else [])
+        truth.append(centre)
+        per_window.append(regions(_ring_residual(shape, discs, seed=k), k, SEGMENT))
+    (track,) = chain(per_window, TRACKS)
+    assert sorted(track.blobs) == list(range(30))
+    assert all(np.linalg.norm(c - truth[k]) < 1.0 for k, c in zip(range(30), track.centres))
+
+
+@pytest.mark.parametrize("back_radius", [10.0, 20.0])
+def test_an_object_that_leaves_and_comes_back_through_the_same_border_is_one_track(back_radius):
+    # A disc leaves through the right border and comes back through it lower down 8 windows
+    # later, while another enters through the left border. Only a returning object of the
+    # same size is the one that left; one twice as large is another.
+    shape = (96, 128)
+    per_window, truth = [], {}
+    for k in range(30):
+        out = np.array([84.0 + 4 * k, 40.0])  # gone from window 13
+        back = np.array([136.0 - 4 * (k - 20), 70.0])  # in from window 20
+        other = np.array([-6.0 + 4 * (k - 22), 20.0])  # in from window 22
+        discs = [(out, 10.0)] if k < 15 else [(back, back_radius)] if k >= 20 else []
+        discs += [(other, 8.0)] if k >= 22 else []
+        truth[k] = (out if k < 15 else back, other)
+        per_window.append(regions(_ring_residual(shape, discs, seed=k), k, SEGMENT))
+    tracks = chain(per_window, TRACKS)
+    left = [t for t in tracks if min(t.blobs) < 15]
+    assert len(left) == 1 and len(tracks) == (2 if back_radius == 10.0 else 3)
+    (mover,) = left
+    if back_radius == 10.0:
+        assert min(mover.blobs) <= 1 and max(mover.blobs) == 29
+        for k, centre in zip(sorted(mover.blobs), mover.centres):
+            visible = _disc(shape, truth[k][0], 10.0).sum() / (np.pi * 10.0**2)
+            if visible >= 0.3:
+                assert np.linalg.norm(centre - truth[k][0]) < 1.5, (k, centre, truth[k][0])
+    else:
+        assert max(mover.blobs) < 15
+
+
 def test_align_gives_a_one_sided_objects_true_displacements():
     # A shaded ball: its outline fires mostly on one side, and that side turns from window to
     # window, so each region's residual-weighted centre leans 2-4 px a different way. Only

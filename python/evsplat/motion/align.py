@@ -19,6 +19,7 @@ from dataclasses import replace
 import numpy as np
 from scipy import ndimage, signal
 
+from evsplat.motion.border import touches_border
 from evsplat.motion.tracks import Track
 from evsplat.motion.turn import vertex
 
@@ -50,10 +51,14 @@ def align(track: Track, energy: list[np.ndarray], search: float) -> Track:
     """``track`` with its own windows' centres moved to where their residual ``energy``
     (per window, [H,W]) best matches the object's template, at most ``search`` x its radius
     from where they were. Windows shared with another object keep theirs (their centre is
-    interpolated from the object's own, ``Track.centres``)."""
+    interpolated from the object's own, ``Track.centres``). The template is the mean of the
+    windows whose region is clear of the image border, where there are enough: a cut view
+    shows only part of the object, and an object seen leaving and coming back is mostly cut."""
     own = [k for k in sorted(track.blobs) if k not in track.shared]
     if len(own) < MIN_WINDOWS:
         return track
+    whole = [k for k in own if not touches_border(track.blobs[k].mask)]
+    whole = whole if len(whole) >= MIN_WINDOWS else own
     radius = track.radius
     half = int(np.ceil(2.0 * radius))  # an elongated object reaches beyond its disc radius
     reach = max(int(np.ceil(search * radius)), 1)
@@ -64,10 +69,10 @@ def align(track: Track, energy: list[np.ndarray], search: float) -> Track:
         wide = {k: _patch(energy[k], centres[k], half + reach) for k in own}
         patches = {k: wide[k][reach:-reach, reach:-reach] for k in own}
         patches = {k: v / max(float(np.linalg.norm(v)), EPS) for k, v in patches.items()}
-        total = sum(patches.values())
+        total = sum(patches[k] for k in whole)
         moved = {}
         for k in own:
-            template = total - patches[k]  # the other windows' view of the object
+            template = total - patches[k] if k in whole else total  # the others' view
             template = template - template.mean()  # a uniform background scores nothing
             score = signal.correlate(wide[k], template, mode="valid")
             off = centres[k] + _peak(score) - start[k]
@@ -77,8 +82,8 @@ def align(track: Track, energy: list[np.ndarray], search: float) -> Track:
         if shift < SETTLED:
             break
     # The windows' displacements are what the alignment finds; where the template sits is
-    # arbitrary, so the centres keep their mean (the regions' own).
-    drift = np.mean([centres[k] - start[k] for k in own], axis=0)
+    # arbitrary, so the centres keep their mean (the whole regions' own).
+    drift = np.mean([centres[k] - start[k] for k in whole], axis=0)
     blobs = dict(track.blobs)
     for k in own:
         blobs[k] = replace(blobs[k], centre=centres[k] - drift)

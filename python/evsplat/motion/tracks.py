@@ -2,12 +2,14 @@
 
 Window by window, each live track predicts where its object is (constant velocity from its
 last two sightings) and the regions are assigned to the tracks by the Hungarian method on the
-distance from those predictions, gated by the object's size and speed. A region no track takes
-starts a track; a track no region takes coasts on its prediction, for a few windows, or for as
-long as that prediction lies inside another object's region (it passes behind that object or
-merges with it in the image), then ends. Fragments of one object (regions that move together in
-most windows they share) are joined; a track seen in too few windows, or only faintly, was
-noise. A region cut by the image border is centred where the object's whole shape puts it.
+distance from those predictions, gated by the object's size and speed; the tracks seen in a few
+windows choose first, the tentative ones from what is left. A region no track takes starts a
+track; a track no region takes coasts on its prediction, for a few windows, or (once seen in a
+few) for as long as that prediction lies inside another object's region (it passes behind that
+object or merges with it in the image), then ends. Fragments of one object (regions that move
+together in most windows they share) are joined; a track seen in too few windows, or only
+faintly, was noise; an object that left through a border and came back through it is one
+track. A region cut by the image border is centred where the object's whole shape puts it.
 Nothing here assumes a number, size or shape of objects.
 """
 
@@ -86,7 +88,10 @@ def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
             if k in track.blobs:
                 track.missed = 0
                 continue
-            host = _host(track.predict(k), blobs)
+            # Only a confirmed track lives on inside another's region (a tentative one, noise
+            # until seen in `min_windows` windows, would mark an object's regions as shared).
+            confirmed = len(track.blobs) >= s.min_windows
+            host = _host(track.predict(k), blobs) if confirmed else None
             if host is None:
                 track.missed += 1
                 continue
@@ -97,19 +102,19 @@ def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
         done += [t for t in live if t.missed > s.coast]
         live = [t for t in live if t.missed <= s.coast]
         live += [Track({k: b}) for j, b in enumerate(blobs) if j not in taken]
-    tracks = _join_fragments(done + live, s)
-    for track in tracks:  # shared with another object, not with a piece of its own
-        track.shared = {
-            k
-            for k, blob in track.blobs.items()
-            if any(o.hidden.get(k) is blob for o in tracks if o is not track)
-        }
     kept = [
         t
-        for t in tracks
+        for t in _join_fragments(done + live, s)
         if len(t.blobs) >= s.min_windows
         and sum(max(b.contrast - s.high, 0.0) for b in t.blobs.values()) >= s.min_evidence
     ]
+    kept = _rejoin(kept, s)
+    for track in kept:  # shared with another object (not noise, nor a piece of its own)
+        track.shared = {
+            k
+            for k, blob in track.blobs.items()
+            if any(o.hidden.get(k) is blob for o in kept if o is not track)
+        }
     for track in kept:  # only the objects kept (the shape fit is the costly part)
         track.blobs = uncut(track.blobs, set(track.blobs) - track.shared)
     return sorted(kept, key=lambda t: -len(t.blobs))
@@ -123,11 +128,26 @@ def _host(guess: np.ndarray, blobs: list[Blob]) -> Blob | None:
 
 
 def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set[int]:
-    """Give window ``k``'s ``blobs`` to the ``live`` tracks; the indices of the blobs taken."""
-    if not live or not blobs:
+    """Give window ``k``'s ``blobs`` to the ``live`` tracks; the indices of the blobs taken.
+    Tracks seen in at least ``s.min_windows`` windows choose first, the tentative ones (noise
+    until then) from what is left: a track just started beside an object, from a small region
+    with no velocity yet, must not take that object's next region because it lies nearer in
+    pixels than the object's own prediction (the demo's ball at a bounce; the matching cascade
+    of SORT-style trackers)."""
+    confirmed = [t for t in live if len(t.blobs) >= s.min_windows]
+    taken = _match(confirmed, blobs, k, s)
+    rest = [j for j in range(len(blobs)) if j not in taken]
+    tentative = [t for t in live if len(t.blobs) < s.min_windows]
+    return taken | {rest[j] for j in _match(tentative, [blobs[j] for j in rest], k, s)}
+
+
+def _match(tracks: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set[int]:
+    """Hungarian assignment of ``blobs`` to ``tracks`` on the distance from each track's
+    prediction, within its gate; the indices of the blobs taken."""
+    if not tracks or not blobs:
         return set()
-    cost = np.full((len(live), len(blobs)), UNASSIGNED)
-    for i, track in enumerate(live):
+    cost = np.full((len(tracks), len(blobs)), UNASSIGNED)
+    for i, track in enumerate(tracks):
         guess = track.predict(k)
         speed = float(np.linalg.norm(track.last_motion()[2]))  # px per window
         reach = s.gate * max(track.radius, speed * (track.missed + 1))
@@ -139,7 +159,7 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
     taken = set()
     for i, j in zip(rows, cols):
         if cost[i, j] < UNASSIGNED:
-            live[i].blobs[k] = blobs[j]
+            tracks[i].blobs[k] = blobs[j]
             taken.add(int(j))
     return taken
 
@@ -169,6 +189,59 @@ def _join_fragments(tracks: list[Track], s: MoverConfig) -> list[Track]:
             home.blobs[k] = blob if k not in home.blobs else _union(home.blobs[k], blob)
         home.hidden |= {k: b for k, b in track.hidden.items() if k not in home.blobs}
     return out
+
+
+def _sides(mask: np.ndarray) -> set[str]:
+    """The image borders a region touches."""
+    edges = {"top": mask[0], "bottom": mask[-1], "left": mask[:, 0], "right": mask[:, -1]}
+    return {side for side, edge in edges.items() if edge.any()}
+
+
+def _fastest(track: Track) -> float:
+    """Its largest speed between consecutive sightings (px per window)."""
+    ks = sorted(track.blobs)
+    steps = [
+        np.linalg.norm(track.blobs[b].centre - track.blobs[a].centre) / (b - a)
+        for a, b in zip(ks, ks[1:])
+    ]
+    return float(max(steps, default=0.0))
+
+
+def _returns(gone: Track, back: Track, s: MoverConfig) -> bool:
+    """Whether ``back`` is ``gone`` coming back into view: ``gone`` left through a border of
+    the image before ``back`` came in through the same one (an object out of view beyond one
+    border stays on that side of it; the straight path between the two, which the motion
+    interpolates, stays out of view), near enough to be reached at either's fastest speed
+    (a cut region's centre lies up to its radius inwards of the object's), and of a size that
+    agrees: ``s.gate`` apart at most (a cut region looks smaller, never larger)."""
+    a, b = max(gone.blobs), min(back.blobs)
+    if b <= a or not _sides(gone.blobs[a].mask) & _sides(back.blobs[b].mask):
+        return False
+    exit_, entry = gone.blobs[a], back.blobs[b]
+    reach = max(_fastest(gone), _fastest(back)) * (b - a) + exit_.radius + entry.radius
+    if np.linalg.norm(entry.centre - exit_.centre) > reach:
+        return False
+    radii = [t.radius for t in (gone, back)]  # of its regions clear of the border if any
+    whole = [
+        t.radius for t in (gone, back) if not all(touches_border(b.mask) for b in t.blobs.values())
+    ]
+    return not whole or max(radii) <= s.gate * min(whole)
+
+
+def _rejoin(tracks: list[Track], s: MoverConfig) -> list[Track]:
+    """Tracks with an object that left the image and came back one track (the seeding then
+    places it from its sightings clear of the border, and the motion carries it out of view
+    and in again): each returning track joins the latest-ending one it fits (``_returns``)."""
+    out: list[Track] = []
+    for track in sorted(tracks, key=lambda t: min(t.blobs)):
+        gone = [o for o in out if _returns(o, track, s)]
+        if not gone:
+            out.append(track)
+            continue
+        home = max(gone, key=lambda o: max(o.blobs))
+        home.blobs |= track.blobs
+        home.hidden |= track.hidden
+    return sorted(out, key=lambda t: -len(t.blobs))
 
 
 def _union(a: Blob, b: Blob) -> Blob:
