@@ -1,15 +1,6 @@
-"""An object's centres made consistent across its windows by aligning its events to its own
-template (the ring fit of a round mover, for any shape).
-
-A region's residual-weighted centre says where the object's events were strongest in that
-window, not where the object was: a textured or shaded object makes most of its events on one
-side (the demo's ball trailed its true centre by up to 7 px, where its strongest stripes were).
-What the motion needs is each window's displacement, and the object looks alike in every
-window. So each window's residual about its centre is compared with the mean of the other
-windows' (the object's template, its spread-out sides averaged in), and the centre moves to
-where the two correlate best; a partial view (one side's arc, a region cut by the border)
-correlates best where it lies on the template's matching part. Repeated a few times, the
-template sharpens as the centres agree.
+"""An object's centres made consistent across its windows by aligning each window's events to
+the object's template, the mean of its other views (docs/motion.md, step 3): a region's
+residual-weighted centre says where its events were strongest, not where the object was.
 """
 
 from __future__ import annotations

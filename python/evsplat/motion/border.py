@@ -1,10 +1,6 @@
-"""Objects cut by the image border: where their whole shape stands.
-
-A region that touches the border shows only the object's visible part, and that part's centre
-lies inwards of the object's (by up to its radius as it leaves the image). The object's whole
-shape is known from a sighting clear of the border: that region, moved so that its part
-inside the image matches the cut region best (intersection over union), puts the object's
-centre where the cut region says, beyond the border if need be.
+"""Objects cut by the image border (docs/motion.md, step 2): the object's whole region from a
+sighting clear of the border, moved until its part inside the image best matches the cut region,
+puts the object's centre where the cut region says, beyond the border if need be.
 """
 
 from __future__ import annotations

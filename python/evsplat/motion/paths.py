@@ -1,9 +1,5 @@
-"""An object's image track lifted to a world path, sampled on the motion model's knots.
-
-Its depth is the static model's: after the warm-up the model draws a mover as a smear partly in
-front of what it passes, and a near quantile of the rendered depth in the object's regions reads
-its front surface (a median of the regions' depth lay up to 1.1 m behind the tiny ball and put it
-behind the wall: docs/experiments/motion.md). Beyond its first and last sightings an object is
+"""An object's image track lifted to a world path at the static model's depth, sampled on the
+motion model's knots (docs/motion.md, step 5). Beyond its first and last sightings an object is
 held where it was seen (a still object makes no events); one that came in or went out through
 the image border is hidden there instead (``seed.span``).
 """

@@ -1,20 +1,11 @@
 """After the warm-up: find every moving object in the events and start its motion (not in the
-paper, which starts from a point cloud that event data does not have).
-
-A short pipeline of general steps, each in its own module:
-
-1. ``segment``: per short window, the events the static model leaves unexplained, split into
-   connected moving regions (any number, any shape);
-2. ``tracks``: the regions chained across windows into one track per object;
-3. ``turn``: each object's in-plane turn per window, by contrast maximisation on its own events;
-4. ``paths``: each track lifted to a world path at the static model's depth there;
-5. here: Gaussians placed on each object's shape as its events show it at its clearest window,
-   and an ``ObjectMotion`` that carries them rigidly along the path and turn. The deformation
-   MLP adds the non-rigid rest, and the paper's losses refine both.
-
-The scene's Gaussians skip the MLP afterwards (the background's gradients drowned a mover's in
-a shared MLP: docs/experiments/motion.md); nothing is seeded, and nothing changes, when no object
-is found.
+paper, which starts from a point cloud that event data does not have). The steps, each in its
+own module (docs/motion.md): ``segment`` the windows' unexplained events into regions, chain
+them into ``tracks``, ``align`` their centres, measure each object's ``turn``, lift the tracks
+to world ``paths``; here, Gaussians placed on each object's shape and an ``ObjectMotion`` that
+carries them along the path and turn. The scene's Gaussians skip the MLP afterwards (the
+background's gradients drowned a mover's in a shared MLP: docs/experiments/motion.md); nothing
+changes when no object is found.
 """
 
 from __future__ import annotations
@@ -32,13 +23,7 @@ from evsplat.model.motion import ObjectMotion
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
 from evsplat.motion.paths import hold_path, near_path, turn_angles
-from evsplat.motion.segment import (
-    Blob,
-    blurred,
-    floor,
-    regions,
-    unexplained,
-)
+from evsplat.motion.segment import Blob, blurred, floor, regions, unexplained
 from evsplat.motion.still import behind_objects, is_still
 from evsplat.motion.tracks import Track, chain
 from evsplat.motion.turn import WindowEvents, turn_rate

@@ -1,13 +1,7 @@
-"""Motion segmentation from events: per short window, the pixels whose events the static model
-does not explain, split into connected moving regions (as many as there are; any shape).
-
-After the warm-up the static model draws what the camera's motion shows of the still scene, so
-its rendered log change over a window predicts the still scene's events. A moving object's
-events are left over: the residual |ESI - predicted change| (both box-averaged first, so the
-ESI's steps of C average out) stands out from the model's small errors elsewhere. The residual's
-own robust spread (median and MAD over the image) sets the threshold, so nothing here knows a
-scene's contrast, size or number of objects. The regions are closed (an object's events sit on
-its edges and texture) and labelled as connected components; each becomes a ``Blob``.
+"""Motion segmentation from events (docs/motion.md, step 1): per short window, the pixels whose
+events the static model does not explain, split into connected moving regions of any number and
+shape. The thresholds are the residual's own robust spread, so nothing here knows a scene's
+contrast, size or number of objects.
 """
 
 from __future__ import annotations

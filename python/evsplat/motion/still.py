@@ -1,15 +1,8 @@
-"""Under a still camera, the scene's Gaussians go behind the moving objects.
-
-A camera that never moves sees no depth: the warm-up leaves the scene's Gaussians at whatever
-depths they started from, and those that lie in front of where an object moves veil it (on the
-`watch` scene, 2,000 of them in front of the objects, alpha 0.4-0.5 over their masks). Moving
-only those that cover an object's regions at the seeding is not enough: on the DAVIS346 sample
-the scene's Gaussians that training grew (to 680 px, opaque) covered the objects again, and the
-render stood still (docs/motion.md). Moving a Gaussian along its ray from the camera, its scales
-grown in proportion, is a similarity about the camera centre: that camera renders it exactly as
-before. So every scene Gaussian the camera draws nearer than the objects' farthest back is moved
-behind it (shifted in depth, in their own order), and only the order changes: the objects'
-events say that nothing hides them, and nothing else says where the scene is.
+"""Under a still camera, the scene's Gaussians go behind the moving objects (docs/motion.md,
+step 6). A camera that never moves sees no depth, and scene Gaussians left in front of where an
+object moves veil it. Moving a Gaussian along its ray, its scales grown in proportion, is a
+similarity about the camera centre that the camera renders exactly as before: only the depth
+order changes, which the objects' events say (nothing hides them).
 """
 
 from __future__ import annotations

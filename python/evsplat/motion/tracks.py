@@ -1,16 +1,7 @@
-"""Moving regions chained across windows into one track per object (K found, not given).
-
-Window by window, each live track predicts where its object is (constant velocity from its
-last two sightings) and the regions are assigned to the tracks by the Hungarian method on the
-distance from those predictions, gated by the object's size and speed; the tracks seen in a few
-windows choose first, the tentative ones from what is left. A region no track takes starts a
-track; a track no region takes coasts on its prediction, for a few windows, or (once seen in a
-few) for as long as that prediction lies inside another object's region (it passes behind that
-object or merges with it in the image), then ends. Fragments of one object (regions that move
-together in most windows they share) are joined; a track seen in too few windows, or only
-faintly, was noise; an object that left through a border and came back through it is one
-track. A region cut by the image border is centred where the object's whole shape puts it.
-Nothing here assumes a number, size or shape of objects.
+"""Moving regions chained across windows into one track per object, K found and not given
+(docs/motion.md, step 2): constant-velocity predictions, Hungarian assignment with confirmed
+tracks first, tracks that live on hidden inside another object's region, fragments joined,
+noise dropped, an object that leaves and comes back through one border kept as one track.
 """
 
 from __future__ import annotations
@@ -128,39 +119,32 @@ def _host(guess: np.ndarray, blobs: list[Blob]) -> Blob | None:
 
 
 def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set[int]:
-    """Give window ``k``'s ``blobs`` to the ``live`` tracks; the indices of the blobs taken.
-    Tracks seen in at least ``s.min_windows`` windows choose first, the tentative ones (noise
-    until then) from what is left: a track just started beside an object, from a small region
-    with no velocity yet, must not take that object's next region because it lies nearer in
+    """Give window ``k``'s ``blobs`` to the ``live`` tracks (Hungarian, on the distance from
+    each track's prediction within its gate); the indices of the blobs taken. Tracks seen in
+    ``s.min_windows`` windows choose first, the tentative ones from what is left: a track just
+    started beside an object must not take the object's next region because it lies nearer in
     pixels than the object's own prediction (the demo's ball at a bounce; the matching cascade
     of SORT-style trackers)."""
-    confirmed = [t for t in live if len(t.blobs) >= s.min_windows]
-    taken = _match(confirmed, blobs, k, s)
-    rest = [j for j in range(len(blobs)) if j not in taken]
-    tentative = [t for t in live if len(t.blobs) < s.min_windows]
-    return taken | {rest[j] for j in _match(tentative, [blobs[j] for j in rest], k, s)}
-
-
-def _match(tracks: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set[int]:
-    """Hungarian assignment of ``blobs`` to ``tracks`` on the distance from each track's
-    prediction, within its gate; the indices of the blobs taken."""
-    if not tracks or not blobs:
-        return set()
-    cost = np.full((len(tracks), len(blobs)), UNASSIGNED)
-    for i, track in enumerate(tracks):
-        guess = track.predict(k)
-        speed = float(np.linalg.norm(track.last_motion()[2]))  # px per window
-        reach = s.gate * max(track.radius, speed * (track.missed + 1))
-        for j, blob in enumerate(blobs):
-            d = float(np.linalg.norm(blob.centre - guess))
-            if d <= reach + blob.radius * s.gate:
-                cost[i, j] = d
-    rows, cols = linear_sum_assignment(cost)
-    taken = set()
-    for i, j in zip(rows, cols):
-        if cost[i, j] < UNASSIGNED:
-            tracks[i].blobs[k] = blobs[j]
-            taken.add(int(j))
+    confirmed = [len(t.blobs) >= s.min_windows for t in live]
+    taken: set[int] = set()
+    for tracks in (
+        [t for t, c in zip(live, confirmed) if c],
+        [t for t, c in zip(live, confirmed) if not c],
+    ):
+        free = [j for j in range(len(blobs)) if j not in taken]
+        cost = np.full((len(tracks), len(free)), UNASSIGNED)
+        for i, track in enumerate(tracks):
+            guess = track.predict(k)
+            speed = float(np.linalg.norm(track.last_motion()[2]))  # px per window
+            reach = s.gate * max(track.radius, speed * (track.missed + 1))
+            for n, j in enumerate(free):
+                d = float(np.linalg.norm(blobs[j].centre - guess))
+                if d <= reach + blobs[j].radius * s.gate:
+                    cost[i, n] = d
+        for i, n in zip(*linear_sum_assignment(cost)):
+            if cost[i, n] < UNASSIGNED:
+                tracks[i].blobs[k] = blobs[free[n]]
+                taken.add(free[n])
     return taken
 
 
@@ -197,16 +181,6 @@ def _sides(mask: np.ndarray) -> set[str]:
     return {side for side, edge in edges.items() if edge.any()}
 
 
-def _fastest(track: Track) -> float:
-    """Its largest speed between consecutive sightings (px per window)."""
-    ks = sorted(track.blobs)
-    steps = [
-        np.linalg.norm(track.blobs[b].centre - track.blobs[a].centre) / (b - a)
-        for a, b in zip(ks, ks[1:])
-    ]
-    return float(max(steps, default=0.0))
-
-
 def _returns(gone: Track, back: Track, s: MoverConfig) -> bool:
     """Whether ``back`` is ``gone`` coming back into view: ``gone`` left through a border of
     the image before ``back`` came in through the same one (an object out of view beyond one
@@ -218,14 +192,17 @@ def _returns(gone: Track, back: Track, s: MoverConfig) -> bool:
     if b <= a or not _sides(gone.blobs[a].mask) & _sides(back.blobs[b].mask):
         return False
     exit_, entry = gone.blobs[a], back.blobs[b]
-    reach = max(_fastest(gone), _fastest(back)) * (b - a) + exit_.radius + entry.radius
+    steps = [  # px per window between consecutive sightings
+        np.linalg.norm(t.blobs[j].centre - t.blobs[i].centre) / (j - i)
+        for t in (gone, back)
+        for i, j in zip(sorted(t.blobs), sorted(t.blobs)[1:])
+    ]
+    reach = max(steps, default=0.0) * (b - a) + exit_.radius + entry.radius
     if np.linalg.norm(entry.centre - exit_.centre) > reach:
         return False
-    radii = [t.radius for t in (gone, back)]  # of its regions clear of the border if any
-    whole = [
-        t.radius for t in (gone, back) if not all(touches_border(b.mask) for b in t.blobs.values())
-    ]
-    return not whole or max(radii) <= s.gate * min(whole)
+    clear = [not all(touches_border(r.mask) for r in t.blobs.values()) for t in (gone, back)]
+    whole = [t.radius for t, c in zip((gone, back), clear) if c]  # a cut one's looks smaller
+    return not whole or max(gone.radius, back.radius) <= s.gate * min(whole)
 
 
 def _rejoin(tracks: list[Track], s: MoverConfig) -> list[Track]:
@@ -241,7 +218,7 @@ def _rejoin(tracks: list[Track], s: MoverConfig) -> list[Track]:
         home = max(gone, key=lambda o: max(o.blobs))
         home.blobs |= track.blobs
         home.hidden |= track.hidden
-    return sorted(out, key=lambda t: -len(t.blobs))
+    return out
 
 
 def _union(a: Blob, b: Blob) -> Blob:

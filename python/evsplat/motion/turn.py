@@ -1,13 +1,6 @@
-"""An object's in-plane turn from its own events, by contrast maximisation (Gallego et al., CVPR
-2018): the events of one window are carried back to its middle time by a candidate motion and
-accumulated into an image of warped events (IWE); the right motion lines them up on the object's
-edges and texture, so the IWE is sharpest (largest variance) there.
-
-One warp-accumulate-score core (``iwe_variance``) serves every candidate: the object's image
-translation (its track's velocity, known) and a turn rate about its centre, searched on a grid
-and refined by a parabola through the best three. A disc's outline is the same at every turn, so
-a round object's turn shows only through its texture; the gain over no turn says how much the
-turn sharpened, and a turn that sharpens too little is not used.
+"""An object's in-plane turn from its own events by contrast maximisation (Gallego et al., CVPR
+2018; docs/motion.md, step 4): the turn rate whose image of warped events is sharpest. A disc's
+outline is the same at every turn, so a round object's turn shows only through its texture.
 """
 
 from __future__ import annotations
