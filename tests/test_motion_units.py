@@ -191,7 +191,8 @@ def test_a_track_keeps_its_object_when_a_new_region_starts_beside_it():
 @pytest.mark.parametrize("back_radius", [10.0, 20.0])
 def test_an_object_that_leaves_and_comes_back_through_the_same_border_is_one_track(back_radius):
     # A disc leaves through the right border and comes back through it lower down 8 windows
-    # later, while another enters through the left border. Only a returning object of the
+    # later, while another enters through the left border. A region inside the image beside
+    # where it left is not the disc, which can come back only through the border. Only a returning object of the
     # same size is the one that left; one twice as large is another.
     shape = (96, 128)
     per_window, truth = [], {}
@@ -201,6 +202,7 @@ def test_an_object_that_leaves_and_comes_back_through_the_same_border_is_one_tra
         other = np.array([-6.0 + 4 * (k - 22), 20.0])  # in from window 22
         discs = [(out, 10.0)] if k < 15 else [(back, back_radius)] if k >= 20 else []
         discs += [(other, 8.0)] if k >= 22 else []
+        discs += [((118.0, 44.0), 4.0)] if k == 16 else []  # noise near where it left
         truth[k] = (out if k < 15 else back, other)
         per_window.append(regions(_ring_residual(shape, discs, seed=k), k, SEGMENT))
     tracks = chain(per_window, TRACKS)

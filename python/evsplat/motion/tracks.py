@@ -79,8 +79,7 @@ def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
             if k in track.blobs:
                 track.missed = 0
                 continue
-            # Only a confirmed track lives on inside another's region (a tentative one, noise
-            # until seen in `min_windows` windows, would mark an object's regions as shared).
+            # Only a confirmed track hides in another's region (noise would mark it shared).
             confirmed = len(track.blobs) >= s.min_windows
             host = _host(track.predict(k), blobs) if confirmed else None
             if host is None:
@@ -137,9 +136,12 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
             guess = track.predict(k)
             speed = float(np.linalg.norm(track.last_motion()[2]))  # px per window
             reach = s.gate * max(track.radius, speed * (track.missed + 1))
+            # Unseen since a sighting at a border, it left the image: it comes back there.
+            out = _sides(track.blobs[max(track.blobs)].mask) if track.missed else set()
             for n, j in enumerate(free):
                 d = float(np.linalg.norm(blobs[j].centre - guess))
-                if d <= reach + blobs[j].radius * s.gate:
+                back = not out or out & _sides(blobs[j].mask)
+                if d <= reach + blobs[j].radius * s.gate and back:
                     cost[i, n] = d
         for i, n in zip(*linear_sum_assignment(cost)):
             if cost[i, n] < UNASSIGNED:
@@ -175,8 +177,7 @@ def _join_fragments(tracks: list[Track], s: MoverConfig) -> list[Track]:
     return out
 
 
-def _sides(mask: np.ndarray) -> set[str]:
-    """The image borders a region touches."""
+def _sides(mask: np.ndarray) -> set[str]:  # the image borders a region touches
     edges = {"top": mask[0], "bottom": mask[-1], "left": mask[:, 0], "right": mask[:, -1]}
     return {side for side, edge in edges.items() if edge.any()}
 
