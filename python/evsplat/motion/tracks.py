@@ -1,6 +1,6 @@
 """Moving regions chained across windows into one track per object, K found and not given
-(docs/motion.md, step 2): constant-velocity predictions, Hungarian assignment (tracks with a
-velocity first), tracks that live on hidden inside another object's region, fragments joined,
+(docs/motion.md, step 2): constant-velocity predictions, Hungarian assignment (confirmed
+tracks first), tracks that live on hidden inside another object's region, fragments joined,
 noise dropped, an object that leaves and comes back through one border kept as one track.
 """
 
@@ -119,16 +119,16 @@ def _host(guess: np.ndarray, blobs: list[Blob]) -> Blob | None:
 
 def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set[int]:
     """Give window ``k``'s ``blobs`` to the ``live`` tracks (Hungarian, on the distance from
-    each track's prediction within its gate); the indices of the blobs taken. Tracks that have
-    a velocity (two sightings) choose first, those seen once from what is left: a track seen
-    once predicts only where it was, and one started beside an object must not take the
-    object's next region because it lies nearer in pixels than the object's own prediction
-    (the demo's ball at a bounce; the matching cascade of SORT-style trackers)."""
-    moving = [len(t.blobs) >= 2 for t in live]
+    each track's prediction within its gate); the indices of the blobs taken. Tracks seen in
+    ``s.min_windows`` windows choose first, the tentative ones from what is left: one started
+    beside an object must not take the object's next region because it lies nearer in pixels
+    than the object's own prediction (the demo's ball at a bounce; the matching cascade of
+    SORT-style trackers)."""
+    confirmed = [len(t.blobs) >= s.min_windows for t in live]
     taken: set[int] = set()
     for tracks in (
-        [t for t, m in zip(live, moving) if m],
-        [t for t, m in zip(live, moving) if not m],
+        [t for t, c in zip(live, confirmed) if c],
+        [t for t, c in zip(live, confirmed) if not c],
     ):
         free = [j for j in range(len(blobs)) if j not in taken]
         cost = np.full((len(tracks), len(free)), UNASSIGNED)
