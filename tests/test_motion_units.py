@@ -192,8 +192,8 @@ def test_a_track_keeps_its_object_when_a_new_region_starts_beside_it():
 def test_an_object_that_leaves_and_comes_back_through_the_same_border_is_one_track(back_radius):
     # A disc leaves through the right border and comes back through it lower down 8 windows
     # later, while another enters through the left border. A region inside the image beside
-    # where it left is not the disc, which can come back only through the border. Only a returning object of the
-    # same size is the one that left; one twice as large is another.
+    # where it left is not the disc, which can come back only through the border. Only a
+    # returning object of the same size is the one that left; one twice as large is another.
     shape = (96, 128)
     per_window, truth = [], {}
     for k in range(30):
