@@ -13,8 +13,13 @@ from scipy import signal
 from evsplat.motion.segment import Blob
 
 
+def borders(mask: np.ndarray) -> set[str]:  # the image borders a region touches
+    edges = {"top": mask[0], "bottom": mask[-1], "left": mask[:, 0], "right": mask[:, -1]}
+    return {side for side, edge in edges.items() if edge.any()}
+
+
 def touches_border(mask: np.ndarray) -> bool:
-    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+    return bool(borders(mask))
 
 
 def whole_centre(shape: Blob, cut: Blob) -> np.ndarray:

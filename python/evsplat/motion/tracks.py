@@ -12,7 +12,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from evsplat.config import MoverConfig
-from evsplat.motion.border import in_image, touches_border, uncut
+from evsplat.motion.border import borders, in_image, touches_border, uncut
 from evsplat.motion.segment import Blob
 
 UNASSIGNED = 1e9  # cost of a pair outside the gate
@@ -125,6 +125,7 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
     than the object's own prediction (the demo's ball at a bounce; the matching cascade of
     SORT-style trackers)."""
     confirmed = [len(t.blobs) >= s.min_windows for t in live]
+    sides = [borders(b.mask) for b in blobs]
     taken: set[int] = set()
     for tracks in (
         [t for t, c in zip(live, confirmed) if c],
@@ -137,10 +138,10 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
             speed = float(np.linalg.norm(track.last_motion()[2]))  # px per window
             reach = s.gate * max(track.radius, speed * (track.missed + 1))
             # Unseen since a sighting at a border, it left the image: it comes back there.
-            out = _sides(track.blobs[max(track.blobs)].mask) if track.missed else set()
+            out = borders(track.blobs[max(track.blobs)].mask) if track.missed else set()
             for n, j in enumerate(free):
                 d = float(np.linalg.norm(blobs[j].centre - guess))
-                back = not out or out & _sides(blobs[j].mask)
+                back = not out or out & sides[j]
                 if d <= reach + blobs[j].radius * s.gate and back:
                     cost[i, n] = d
         for i, n in zip(*linear_sum_assignment(cost)):
@@ -177,11 +178,6 @@ def _join_fragments(tracks: list[Track], s: MoverConfig) -> list[Track]:
     return out
 
 
-def _sides(mask: np.ndarray) -> set[str]:  # the image borders a region touches
-    edges = {"top": mask[0], "bottom": mask[-1], "left": mask[:, 0], "right": mask[:, -1]}
-    return {side for side, edge in edges.items() if edge.any()}
-
-
 def _returns(gone: Track, back: Track, s: MoverConfig) -> bool:
     """Whether ``back`` is ``gone`` coming back into view: ``gone`` left through a border of
     the image before ``back`` came in through the same one (an object out of view beyond one
@@ -190,7 +186,7 @@ def _returns(gone: Track, back: Track, s: MoverConfig) -> bool:
     (a cut region's centre lies up to its radius inwards of the object's), and of a size that
     agrees: ``s.gate`` apart at most (a cut region looks smaller, never larger)."""
     a, b = max(gone.blobs), min(back.blobs)
-    if b <= a or not _sides(gone.blobs[a].mask) & _sides(back.blobs[b].mask):
+    if b <= a or not borders(gone.blobs[a].mask) & borders(back.blobs[b].mask):
         return False
     exit_, entry = gone.blobs[a], back.blobs[b]
     steps = [  # px per window between consecutive sightings
@@ -207,9 +203,8 @@ def _returns(gone: Track, back: Track, s: MoverConfig) -> bool:
 
 
 def _rejoin(tracks: list[Track], s: MoverConfig) -> list[Track]:
-    """Tracks with an object that left the image and came back one track (the seeding then
-    places it from its sightings clear of the border, and the motion carries it out of view
-    and in again): each returning track joins the latest-ending one it fits (``_returns``)."""
+    """Tracks with an object that left the image and came back one track: each returning track
+    joins the latest-ending one it fits (``_returns``), the motion carrying it out and in."""
     out: list[Track] = []
     for track in sorted(tracks, key=lambda t: min(t.blobs)):
         gone = [o for o in out if _returns(o, track, s)]
