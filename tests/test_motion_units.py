@@ -170,6 +170,22 @@ def test_an_object_leaving_the_image_is_centred_by_its_whole_shape():
     assert track.radius >= radius
 
 
+def test_pieces_of_one_object_are_one_track_while_one_piece_fires_faintly():
+    # One object seen as two regions 28 px apart: a large piece and a small one below it (the
+    # demo's ball: its upper part and its lower edge). For a third of the windows the large
+    # piece fires only near its centre and its region shrinks to half the size; the object's
+    # size did not change, and the pieces still move together.
+    shape = (96, 128)
+    per_window = []
+    for k in range(30):
+        top = np.array([20.0 + 3 * k, 30.0])
+        discs = [(top, 6.0 if 10 <= k < 20 else 12.0), (top + [0.0, 28.0], 4.0)]
+        per_window.append(regions(_ring_residual(shape, discs, seed=k), k, SEGMENT))
+    assert sum(len(blobs) == 2 for blobs in per_window) >= 25  # apart, not closed into one
+    (track,) = chain(per_window, TRACKS)
+    assert sorted(track.blobs) == list(range(30))
+
+
 def test_a_track_keeps_its_object_when_a_new_region_starts_beside_it():
     # The disc turns sharply at window 20 (as the demo's ball bounces) just as a small region
     # starts a track next to where it goes: nearer in pixels than the disc's own prediction,

@@ -153,13 +153,12 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
 
 def _together(a: Track, b: Track, s: MoverConfig) -> bool:
     """Whether ``a`` and ``b`` are pieces of one object: they share windows, and in most of
-    them (all but one in five) their centres lie within ``s.together`` x their summed radii."""
+    them (all but one in five) their centres lie within ``s.together`` x their summed radii
+    (the tracks', not the window's regions': a piece cut by the border or by a faint part of
+    the object is smaller than the object it belongs to)."""
     shared = sorted(set(a.blobs) & set(b.blobs))
-    near = [
-        np.linalg.norm(a.blobs[k].centre - b.blobs[k].centre)
-        <= s.together * (a.blobs[k].radius + b.blobs[k].radius)
-        for k in shared
-    ]
+    reach = s.together * (a.radius + b.radius)
+    near = [np.linalg.norm(a.blobs[k].centre - b.blobs[k].centre) <= reach for k in shared]
     return bool(shared) and np.mean(near) >= 0.8
 
 
