@@ -208,10 +208,9 @@ def seed_objects(
     """Find the moving objects (``sight``, ``tracks.chain``) and start each one's motion: the
     Gaussians that smear it along its path (the warm-up drew it there as a static smear), then
     the faintest, re-placed on its shape at its reference window; its path and turn on the
-    knots of an ``ObjectMotion``. See the module's docstring.
-
-    ``known``: the objects found before and each Gaussian's object. Only tracks of new objects
-    are seeded then, from the scene's Gaussians, and the motion returned holds all objects."""
+    knots of an ``ObjectMotion``. ``known``: the objects found before and each Gaussian's
+    object; only new objects are seeded then, from the scene's Gaussians, and the motion
+    returned holds all objects."""
     data = views.data
     sightings = sight(views, mc)
     tracks = chain(sightings.blobs, mc)

@@ -118,12 +118,10 @@ def _host(guess: np.ndarray, blobs: list[Blob]) -> Blob | None:
 
 
 def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set[int]:
-    """Give window ``k``'s ``blobs`` to the ``live`` tracks (Hungarian, on the distance from
-    each track's prediction within its gate); the indices of the blobs taken. Tracks seen in
-    ``s.min_windows`` windows choose first, the tentative ones from what is left: one started
-    beside an object must not take the object's next region because it lies nearer in pixels
-    than the object's own prediction (the demo's ball at a bounce; the matching cascade of
-    SORT-style trackers)."""
+    """Give window ``k``'s ``blobs`` to the ``live`` tracks (Hungarian on the distance from each
+    track's prediction, within its gate); the indices taken. Tracks seen in ``s.min_windows``
+    windows choose first (SORT's matching cascade): a new track beside an object must not take
+    the object's next region for lying nearer than its prediction (the ball at its bounce)."""
     confirmed = [len(t.blobs) >= s.min_windows for t in live]
     sides = [borders(b.mask) for b in blobs]
     taken: set[int] = set()
@@ -152,10 +150,9 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
 
 
 def _together(a: Track, b: Track, s: MoverConfig) -> bool:
-    """Whether ``a`` and ``b`` are pieces of one object: they share windows, and in most of
-    them (all but one in five) their centres lie within ``s.together`` x their summed radii
-    (the tracks', not the window's regions': a piece cut by the border or by a faint part of
-    the object is smaller than the object it belongs to)."""
+    """Whether ``a`` and ``b`` are pieces of one object: in four in five of their shared windows
+    their centres lie within ``s.together`` x the tracks' summed sizes (not the regions': a
+    piece firing faintly or cut by the border looks smaller than its object)."""
     shared = sorted(set(a.blobs) & set(b.blobs))
     reach = s.together * (a.radius + b.radius)
     near = [np.linalg.norm(a.blobs[k].centre - b.blobs[k].centre) <= reach for k in shared]
@@ -178,12 +175,11 @@ def _join_fragments(tracks: list[Track], s: MoverConfig) -> list[Track]:
 
 
 def _returns(gone: Track, back: Track, s: MoverConfig) -> bool:
-    """Whether ``back`` is ``gone`` coming back into view: ``gone`` left through a border of
-    the image before ``back`` came in through the same one (an object out of view beyond one
-    border stays on that side of it; the straight path between the two, which the motion
-    interpolates, stays out of view), near enough to be reached at either's fastest speed
-    (a cut region's centre lies up to its radius inwards of the object's), and of a size that
-    agrees: ``s.gate`` apart at most (a cut region looks smaller, never larger)."""
+    """Whether ``back`` is ``gone`` coming back into view: ``gone`` left through a border
+    before ``back`` came in through the same one (the straight path between, which the motion
+    interpolates, stays out of view), within reach at either's fastest speed (a cut region's
+    centre lies up to its radius inwards), sizes ``s.gate`` apart at most (a cut region looks
+    smaller, never larger)."""
     a, b = max(gone.blobs), min(back.blobs)
     if b <= a or not borders(gone.blobs[a].mask) & borders(back.blobs[b].mask):
         return False
