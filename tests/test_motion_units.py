@@ -204,6 +204,22 @@ def test_a_track_keeps_its_object_when_a_new_region_starts_beside_it():
     assert all(np.linalg.norm(c - truth[k]) < 1.0 for k, c in zip(range(30), track.centres))
 
 
+def test_a_track_that_jumps_onto_noise_does_not_take_a_far_object():
+    # A disc moving 2 px per window is lost at window 10, where a small noise region 22 px ahead
+    # takes its track. Three windows on, another object appears 60 px further: at the jump's
+    # speed the track would reach it, at its usual one it does not; they are two tracks.
+    shape = (96, 128)
+    per_window = []
+    for k in range(30):
+        discs = [((20.0 + 2 * k, 48.0), 8.0)] if k < 10 else []
+        discs += [((60.0, 48.0), 4.0)] if k == 10 else []
+        discs += [((120.0 - (k - 13), 48.0), 8.0)] if k >= 13 else []
+        per_window.append(regions(_ring_residual(shape, discs, seed=k), k, SEGMENT))
+    tracks = chain(per_window, TRACKS)
+    assert len(tracks) == 2
+    assert not any(min(t.blobs) < 10 and max(t.blobs) >= 13 for t in tracks)
+
+
 @pytest.mark.parametrize("back_radius", [10.0, 20.0])
 def test_an_object_that_leaves_and_comes_back_through_the_same_border_is_one_track(back_radius):
     # A disc leaves through the right border and comes back through it lower down 8 windows

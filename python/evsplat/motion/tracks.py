@@ -1,8 +1,6 @@
 """Moving regions chained across windows into one track per object, K found and not given
-(docs/motion.md, step 2): constant-velocity predictions, Hungarian assignment (confirmed
-tracks first), tracks that live on hidden inside another object's region, fragments joined,
-noise dropped, an object that leaves and comes back through one border kept as one track.
-"""
+(docs/motion.md, step 2): predictions at a held speed, Hungarian assignment (confirmed first),
+tracks hidden in another's region, pieces joined, noise dropped, exits and returns joined."""
 
 from __future__ import annotations
 
@@ -16,6 +14,7 @@ from evsplat.motion.border import borders, in_image, touches_border, uncut
 from evsplat.motion.segment import Blob
 
 UNASSIGNED = 1e9  # cost of a pair outside the gate
+JUMP = 2.0  # a step over twice the track's median is not its own motion (docs/motion.md)
 
 
 @dataclass
@@ -35,8 +34,7 @@ class Track:
     @property
     def centres(self) -> np.ndarray:
         """[F,2] pixel centres at the sighted windows, in time order; where its region was
-        shared, linear between its own sightings (the shared region's centre lies between the
-        objects)."""
+        shared, linear between its own (the shared region's centre lies between the objects)."""
         ks = sorted(self.blobs)
         out = np.stack([self.blobs[k].centre for k in ks])
         own = np.array([k not in self.shared for k in ks])
@@ -54,13 +52,25 @@ class Track:
         whole = [b for b in own if not touches_border(b.mask)] or own
         return float(np.median([b.radius for b in whole]))
 
+    @property
+    def steps(self) -> list[float]:
+        """Px per window between its consecutive sightings."""
+        ks = sorted(self.blobs)
+        return [
+            float(np.linalg.norm(self.blobs[j].centre - self.blobs[i].centre)) / (j - i)
+            for i, j in zip(ks, ks[1:])
+        ]
+
     def last_motion(self) -> tuple[int, np.ndarray, np.ndarray]:
-        """(window, centre, velocity px per window) of its last own sighting."""
+        """(window, centre, velocity px per window) of its last own sighting; its speed held to
+        ``JUMP`` x the track's median step (a jump is another object's region or noise)."""
         ks = [k for k in sorted(self.blobs) if k not in self.shared] or sorted(self.blobs)
         last = self.blobs[ks[-1]].centre
         if len(ks) < 2:
             return ks[-1], last, np.zeros(2)
-        return ks[-1], last, (last - self.blobs[ks[-2]].centre) / (ks[-1] - ks[-2])
+        velocity = (last - self.blobs[ks[-2]].centre) / (ks[-1] - ks[-2])
+        held = JUMP * float(np.median(self.steps)) / max(float(np.linalg.norm(velocity)), 1e-9)
+        return ks[-1], last, velocity * min(1.0, held)
 
     def predict(self, window: int) -> np.ndarray:
         """The object's centre at ``window`` at the velocity of its last own sightings."""
@@ -184,12 +194,7 @@ def _returns(gone: Track, back: Track, s: MoverConfig) -> bool:
     if b <= a or not borders(gone.blobs[a].mask) & borders(back.blobs[b].mask):
         return False
     exit_, entry = gone.blobs[a], back.blobs[b]
-    steps = [  # px per window between consecutive sightings
-        np.linalg.norm(t.blobs[j].centre - t.blobs[i].centre) / (j - i)
-        for t in (gone, back)
-        for i, j in zip(sorted(t.blobs), sorted(t.blobs)[1:])
-    ]
-    reach = max(steps, default=0.0) * (b - a) + exit_.radius + entry.radius
+    reach = max(gone.steps + back.steps, default=0.0) * (b - a) + exit_.radius + entry.radius
     if np.linalg.norm(entry.centre - exit_.centre) > reach:
         return False
     clear = [not all(touches_border(r.mask) for r in t.blobs.values()) for t in (gone, back)]
