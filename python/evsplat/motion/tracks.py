@@ -61,21 +61,18 @@ class Track:
             for i, j in zip(ks, ks[1:])
         ]
 
-    def last_motion(self) -> tuple[int, np.ndarray, np.ndarray]:
-        """(window, centre, velocity px per window) of its last own sighting; its speed held to
-        ``JUMP`` x the track's median step (a jump is another object's region or noise)."""
+    def predict(self, window: int) -> tuple[np.ndarray, float]:
+        """The object's centre at ``window`` at the velocity of its last own sightings, and
+        that speed (px per window), held to ``JUMP`` x the track's median step (a jump is
+        another object's region or noise)."""
         ks = [k for k in sorted(self.blobs) if k not in self.shared] or sorted(self.blobs)
         last = self.blobs[ks[-1]].centre
         if len(ks) < 2:
-            return ks[-1], last, np.zeros(2)
+            return last, 0.0
         velocity = (last - self.blobs[ks[-2]].centre) / (ks[-1] - ks[-2])
         held = JUMP * float(np.median(self.steps)) / max(float(np.linalg.norm(velocity)), 1e-9)
-        return ks[-1], last, velocity * min(1.0, held)
-
-    def predict(self, window: int) -> np.ndarray:
-        """The object's centre at ``window`` at the velocity of its last own sightings."""
-        k, centre, velocity = self.last_motion()
-        return centre + velocity * (window - k)
+        velocity = velocity * min(1.0, held)
+        return last + velocity * (window - ks[-1]), float(np.linalg.norm(velocity))
 
 
 def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
@@ -91,7 +88,7 @@ def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
                 continue
             # Only a confirmed track hides in another's region (noise would mark it shared).
             confirmed = len(track.blobs) >= s.min_windows
-            host = _host(track.predict(k), blobs) if confirmed else None
+            host = _host(track.predict(k)[0], blobs) if confirmed else None
             if host is None:
                 track.missed += 1
                 continue
@@ -142,8 +139,7 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
         free = [j for j in range(len(blobs)) if j not in taken]
         cost = np.full((len(tracks), len(free)), UNASSIGNED)
         for i, track in enumerate(tracks):
-            guess = track.predict(k)
-            speed = float(np.linalg.norm(track.last_motion()[2]))  # px per window
+            guess, speed = track.predict(k)
             reach = s.gate * max(track.radius, speed * (track.missed + 1))
             # Unseen since a sighting at a border, it left the image: it comes back there.
             out = borders(track.blobs[max(track.blobs)].mask) if track.missed else set()
