@@ -220,6 +220,28 @@ def test_a_track_that_jumps_onto_noise_does_not_take_a_far_object():
     assert not any(min(t.blobs) < 10 and max(t.blobs) >= 13 for t in tracks)
 
 
+def test_the_two_edges_of_a_plain_object_are_one_track_and_a_faster_one_another():
+    # A plain box fires only at its leading and trailing edges: two bars 26 px apart, each far
+    # smaller than their distance, that keep their offset as they go. A disc beside them moving
+    # the same way half as fast again is another object.
+    shape = (96, 160)
+    per_window, truth = [], []
+    for k in range(30):
+        box = np.array([20.0 + 2 * k, 30.0 + k])
+        residual = _ring_residual(shape, [((30.0 + 3 * k, 75.0), 8.0)], seed=k)
+        for edge in (-13, 13):
+            x = int(box[0]) + edge
+            residual[int(box[1]) - 10 : int(box[1]) + 10, x - 1 : x + 2] += 0.5
+        truth.append(box + [0.5, 0.0])  # the bars' pixel centres
+        per_window.append(regions(residual, k, SEGMENT))
+    assert all(len(blobs) == 3 for blobs in per_window)  # the bars are apart in every window
+    tracks = chain(per_window, TRACKS)
+    assert len(tracks) == 2
+    edges = min(tracks, key=lambda t: t.centres[0][1])  # the upper: the disc stays at y = 75
+    assert sorted(edges.blobs) == list(range(30))
+    assert all(np.linalg.norm(c - truth[k]) < 1.5 for k, c in zip(range(30), edges.centres))
+
+
 @pytest.mark.parametrize("back_radius", [10.0, 20.0])
 def test_an_object_that_leaves_and_comes_back_through_the_same_border_is_one_track(back_radius):
     # A disc leaves through the right border and comes back through it lower down 8 windows

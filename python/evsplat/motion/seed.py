@@ -233,8 +233,7 @@ def seed_objects(
     faintest = np.argsort(model.opacities().detach().cpu().numpy(), kind="stable")
     areas = np.array([np.median([b.area for b in t.blobs.values()]) for t in tracks])
     knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
-    rows, points, spacing, centres, radii, translations, rotvecs, spans = ([] for _ in range(8))
-    backs = []
+    rows, points, spacing, centres, radii, shifts, rotvecs, spans, backs = ([] for _ in range(9))
     for k, track in enumerate(tracks):
         depth = object_depth(track, sightings, mc.depth_quantile) or float(np.mean(depth_range))
         ref = reference(track)
@@ -264,7 +263,7 @@ def seed_objects(
         centres.append(placed.mean(0))
         radii.append(radius)
         at_ref = hold_path(track.times_us, path, np.array([t_ref]))[0]
-        translations.append(hold_path(track.times_us, path, knots) - at_ref)
+        shifts.append(hold_path(track.times_us, path, knots) - at_ref)
         spans.append(span(track, sightings, data.t_start_us, data.t_end_us))
         rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
         used = np.isfinite(rates)
@@ -299,7 +298,7 @@ def seed_objects(
     motion = ObjectMotion(
         torch.from_numpy(np.stack(centres)),
         torch.tensor(radii),
-        torch.from_numpy(np.stack(translations)),
+        torch.from_numpy(np.stack(shifts)),
         torch.from_numpy(np.stack(rotvecs)),
         torch.tensor(spans),
         fade=1.0 / mc.windows,  # one window spacing

@@ -38,8 +38,7 @@ def behind_objects(
     starts afresh. Returns how many moved."""
     means = model.means.detach()
     _, z = project(means.cpu().numpy().astype(np.float64), c2w, K)
-    ok = scene & drawn & (z < back)
-    rows = np.flatnonzero(ok)
+    rows = np.flatnonzero(scene & drawn & (z < back))
     if rows.size == 0:
         return 0
     factor = (back + z[rows] - z[rows].min()) / np.maximum(z[rows], 1e-9)

@@ -15,6 +15,7 @@ from evsplat.motion.segment import Blob
 
 UNASSIGNED = 1e9  # cost of a pair outside the gate
 JUMP = 2.0  # a step over twice the track's median is not its own motion (docs/motion.md)
+RIGID = 0.5  # pieces whose offset holds within half their size move as one (ditto)
 
 
 @dataclass
@@ -47,8 +48,7 @@ class Track:
     def radius(self) -> float:
         """The object's size in the image (px): the median of its own regions' disc radii, of
         those clear of the image border where there are any (a cut region looks smaller)."""
-        own = [b for k, b in self.blobs.items() if k not in self.shared]
-        own = own or list(self.blobs.values())
+        own = [b for k, b in self.blobs.items() if k not in self.shared] or [*self.blobs.values()]
         whole = [b for b in own if not touches_border(b.mask)] or own
         return float(np.median([b.radius for b in whole]))
 
@@ -158,11 +158,19 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
 def _together(a: Track, b: Track, s: MoverConfig) -> bool:
     """Whether ``a`` and ``b`` are pieces of one object: in four in five of their shared windows
     their centres lie within ``s.together`` x the tracks' summed sizes (not the regions': a
-    piece firing faintly or cut by the border looks smaller than its object)."""
+    piece firing faintly or cut by the border looks smaller than its object); or, in
+    ``s.min_windows`` or more, they moved by the smaller one's size while their offset held
+    within ``RIGID`` of it in four in five (a plain object's two edges, however far apart)."""
     shared = sorted(set(a.blobs) & set(b.blobs))
-    reach = s.together * (a.radius + b.radius)
-    near = [np.linalg.norm(a.blobs[k].centre - b.blobs[k].centre) <= reach for k in shared]
-    return bool(shared) and np.mean(near) >= 0.8
+    if not shared:
+        return False
+    offset = np.stack([a.blobs[k].centre - b.blobs[k].centre for k in shared])
+    near = np.linalg.norm(offset, axis=1) <= s.together * (a.radius + b.radius)
+    drift = np.quantile(np.linalg.norm(offset - np.median(offset, 0), axis=1), 0.8)
+    size = min(a.radius, b.radius)
+    travel = np.linalg.norm(a.blobs[shared[-1]].centre - a.blobs[shared[0]].centre)
+    rigid = len(shared) >= s.min_windows and drift <= RIGID * size <= RIGID * travel
+    return bool(rigid or np.mean(near) >= 0.8)
 
 
 def _join_fragments(tracks: list[Track], s: MoverConfig) -> list[Track]:
