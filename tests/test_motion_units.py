@@ -222,8 +222,8 @@ def test_a_track_that_jumps_onto_noise_does_not_take_a_far_object():
 
 def test_the_two_edges_of_a_plain_object_are_one_track_and_a_faster_one_another():
     # A plain box fires only at its leading and trailing edges: two bars 26 px apart, each far
-    # smaller than their distance, that keep their offset as they go. A disc beside them moving
-    # the same way half as fast again is another object.
+    # smaller than their distance, that keep their offset as they go. A disc beside them, going
+    # right 3 px per window while they go 2.2 px down and right, is another object.
     shape = (96, 160)
     per_window, truth = [], []
     for k in range(30):
