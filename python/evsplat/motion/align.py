@@ -50,7 +50,7 @@ def align(track: Track, energy: list[np.ndarray], search: float) -> Track:
         return track
     whole = [k for k in own if not touches_border(track.blobs[k].mask)]
     whole = whole if len(whole) >= MIN_WINDOWS else own
-    half = int(np.ceil(2.0 * track.radius))  # an elongated object reaches beyond its disc
+    half = int(np.ceil(2.0 * track.radius))  # an elongated one reaches beyond its disc radius
     reach = max(int(np.ceil(search * track.radius)), 1)
     start = {k: track.blobs[k].centre.astype(np.float64) for k in own}
     centres = dict(start)

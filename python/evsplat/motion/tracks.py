@@ -70,9 +70,9 @@ class Track:
         if len(ks) < 2:
             return last, 0.0
         velocity = (last - self.blobs[ks[-2]].centre) / (ks[-1] - ks[-2])
-        held = JUMP * float(np.median(self.steps)) / max(float(np.linalg.norm(velocity)), 1e-9)
-        velocity = velocity * min(1.0, held)
-        return last + velocity * (window - ks[-1]), float(np.linalg.norm(velocity))
+        speed = float(np.linalg.norm(velocity))
+        held = min(speed, JUMP * float(np.median(self.steps)))
+        return last + velocity * (held / max(speed, 1e-9)) * (window - ks[-1]), held
 
 
 def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
@@ -165,11 +165,11 @@ def _together(a: Track, b: Track, s: MoverConfig) -> bool:
     if not shared:
         return False
     offset = np.stack([a.blobs[k].centre - b.blobs[k].centre for k in shared])
-    near = np.linalg.norm(offset, axis=1) <= s.together * (a.radius + b.radius)
+    radii = (a.radius, b.radius)  # each a median over the track's regions
+    near = np.linalg.norm(offset, axis=1) <= s.together * sum(radii)
     drift = np.quantile(np.linalg.norm(offset - np.median(offset, 0), axis=1), 0.8)
-    size = min(a.radius, b.radius)
     travel = np.linalg.norm(a.blobs[shared[-1]].centre - a.blobs[shared[0]].centre)
-    rigid = len(shared) >= s.min_windows and drift <= RIGID * size <= RIGID * travel
+    rigid = len(shared) >= s.min_windows and drift <= RIGID * min(radii) and min(radii) <= travel
     return bool(rigid or np.mean(near) >= 0.8)
 
 
