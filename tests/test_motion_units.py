@@ -13,7 +13,7 @@ from evsplat.config import MoverConfig
 from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border
 from evsplat.motion.align import align
-from evsplat.motion.paths import hold_path, near_path, turn_angles
+from evsplat.motion.paths import hold_path, near_path, turn_angles, turns, two_ends
 from evsplat.motion.segment import Blob, floor, regions
 from evsplat.motion.tracks import chain
 from evsplat.motion.turn import WindowEvents, turn_rate
@@ -332,6 +332,34 @@ def test_turn_angles_integrate_the_rates():
     )
     # 2 rad/s for 0.1 s before the reference; 3 rad/s on average after; held at 4 beyond.
     assert np.allclose(angles, [-0.2, 0.0, 0.3, 0.7])
+
+
+def test_two_ends_finds_the_centre_of_a_card_whose_track_hops_between_its_tips():
+    # A card turning 0.1 rad per window about a centre drifting 0.5 px per window; its region
+    # is the tip at +d (body frame) except in windows 12-25, where it is the other tip.
+    windows = np.delete(np.arange(40), [27])  # one window unseen
+    angles = 0.1 * windows
+    centre = np.stack([30.0 + 0.5 * windows, 40.0 + 0.2 * windows], 1)
+    d = np.array([14.0, 3.0])
+    end = np.where((windows >= 12) & (windows <= 25), -1.0, 1.0)
+    seen = centre + end[:, None] * (turns(angles) @ d)
+    middle, found = two_ends(windows, seen, angles, radius=8.0, coast=3)
+    assert np.array_equal(found, end)
+    # d is fitted to the hops as if the centre stood still over each: off by its drift there.
+    assert np.linalg.norm(middle - centre, axis=1).max() < np.hypot(0.5, 0.2)
+    # The same tips without hops, a single hop (two unknowns fit any one step) and tips that
+    # would overlap (|d| under the region's radius) are left as they are.
+    for track, radius in (
+        (centre + turns(angles) @ d, 8.0),
+        (centre + np.where(windows < 12, 1.0, -1.0)[:, None] * (turns(angles) @ d), 8.0),
+        (seen, 20.0),
+    ):
+        kept, ends = two_ends(windows, track, angles, radius, coast=3)
+        assert np.array_equal(kept, track) and (ends == 1).all()
+    # A ball bouncing off a wall (its path turns sharply, no tip to hop to) is left alone.
+    bounce = np.stack([np.abs(windows - 20.0) * 4.0, 2.0 * windows], 1)
+    kept, ends = two_ends(windows, bounce, angles, 8.0, coast=3)
+    assert np.array_equal(kept, bounce) and (ends == 1).all()
 
 
 def test_hold_path_is_linear_between_sightings_and_held_beyond():

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from evsplat.motion.tracks import JUMP
+
 
 def hold_path(times_us: np.ndarray, points: np.ndarray, query_us: np.ndarray) -> np.ndarray:
     """[Q,3] centres at ``query_us``: linear between the sightings ``points`` [F,3] at
@@ -41,3 +43,35 @@ def near_path(points: np.ndarray, path: np.ndarray, radius: float) -> np.ndarray
     u = np.clip((rel * seg).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-12), 0.0, 1.0)
     closest = a[None] + u[..., None] * seg[None]
     return np.linalg.norm(points[:, None, :] - closest, axis=-1).min(axis=1) <= radius
+
+
+def turns(angles: np.ndarray) -> np.ndarray:
+    """[F,2,2] image-plane rotations (x right, y down) by ``angles`` [F] (rad)."""
+    c, s = np.cos(angles), np.sin(angles)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def two_ends(
+    windows: np.ndarray, centres: np.ndarray, angles: np.ndarray, radius: float, coast: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(the object's centres [F,2]; [F] +1 where the region is the end the track started on,
+    -1 where it is the other). An object turning in place fires at whichever end the camera's
+    motion adds to, and its track hops between them: a step over ``JUMP`` x the median between
+    windows at most ``coast`` + 1 apart. The ends sit at ±d about the object's centre, turned
+    with it (``angles``, rad), and d is fitted to the hops. Taken only where that explains
+    them: two hops or more (one fits any step), ends that do not overlap (|d| of at least the
+    track's ``radius``), no hop left in the centres; else the track's own centres."""
+    none = (centres, np.ones(len(centres)))
+    gaps = np.diff(windows)
+    step = np.linalg.norm(np.diff(centres, axis=0), axis=1) / np.maximum(gaps, 1)
+    limit = JUMP * np.median(step) if step.size else 0.0
+    hop = (step > limit) & (gaps <= coast + 1)
+    if hop.sum() < 2:
+        return none
+    end = np.concatenate([[1.0], (-1.0) ** np.cumsum(hop)])
+    turned = end[:, None, None] * turns(angles)
+    a = (turned[1:] - turned[:-1])[hop].reshape(-1, 2)
+    d = np.linalg.lstsq(a, np.diff(centres, axis=0)[hop].reshape(-1), rcond=None)[0]
+    middle = centres - turned @ d
+    left = np.linalg.norm(np.diff(middle, axis=0), axis=1)[hop] / gaps[hop] > limit
+    return none if left.any() or np.linalg.norm(d) < radius else (middle, end)

@@ -22,7 +22,7 @@ from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
 from evsplat.model.motion import ObjectMotion
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
-from evsplat.motion.paths import hold_path, near_path, turn_angles
+from evsplat.motion.paths import hold_path, near_path, turn_angles, turns, two_ends
 from evsplat.motion.segment import Blob, blurred, floor, regions, unexplained
 from evsplat.motion.still import behind_objects, is_still
 from evsplat.motion.tracks import Track, chain
@@ -118,6 +118,27 @@ def reference(track: Track) -> int:
     ks = sorted(track.blobs)
     inside = [k for k in ks if not touches_border(track.blobs[k].mask)] or ks
     return max(inside, key=lambda k: track.blobs[k].contrast)
+
+
+def shape(
+    track: Track, i: int, middle: np.ndarray, end: np.ndarray, seen: np.ndarray
+) -> np.ndarray:
+    """[H,W] bool: the object's pixels at its ``i``-th sighting, its region there; where its
+    track hops between two ends (``paths.two_ends``: centres ``middle``, ``end``), with the other
+    end's clearest region clear of the border carried there by the object's turn (``seen``,
+    rad) about its centre."""
+    blobs = [track.blobs[k] for k in sorted(track.blobs)]
+    mask = blobs[i].mask.copy()
+    other = [j for j, b in enumerate(blobs) if end[j] != end[i] and not touches_border(b.mask)]
+    if not other:
+        return mask
+    j = max(other, key=lambda j: blobs[j].contrast)
+    ys, xs = np.nonzero(blobs[j].mask)
+    uv = (np.stack([xs, ys], 1) + 0.5 - middle[j]) @ turns(seen[i : i + 1] - seen[j])[0].T
+    px = np.floor(uv + middle[i]).astype(np.int64)
+    px = px[in_image(px, mask.shape)]
+    mask[px[:, 1], px[:, 0]] = True
+    return mask
 
 
 def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
@@ -237,11 +258,18 @@ def seed_objects(
     for k, track in enumerate(tracks):
         depth = object_depth(track, sightings, mc.depth_quantile) or float(np.mean(depth_range))
         ref = reference(track)
-        blob, t_ref = track.blobs[ref], int(track.blobs[ref].t_us)
+        t_ref = int(track.blobs[ref].t_us)
         radius = track.radius * depth / focal
         ks = sorted(track.blobs)
+        rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
+        used = np.isfinite(rates)
+        angles, seen = np.zeros(len(knots)), np.zeros(len(ks))  # at the knots, the sightings
+        if used.sum() >= mc.turn_min_windows:
+            angles = turn_angles(track.times_us[used], rates[used], knots, t_ref)
+            seen = turn_angles(track.times_us[used], rates[used], track.times_us, t_ref)
+        middle, end = two_ends(np.array(ks), track.centres, seen, track.radius, mc.coast)
         poses = data.trajectory.pose(track.times_us.astype(np.float64))
-        path = back_project(track.centres, np.full(len(ks), depth), poses, data.K)
+        path = back_project(middle, np.full(len(ks), depth), poses, data.K)
         swept = np.flatnonzero(near_path(means, path, radius) & free)
         share = max(int(mc.fraction * n * areas[k] / areas.sum()), mc.min_gaussians)
         rest = faintest[free[faintest]]
@@ -250,12 +278,13 @@ def seed_objects(
         free[pick] = False
         object_id[pick] = first + k
         # On its shape: its reference region's pixels, from its front surface one radius deep.
-        ys, xs = np.nonzero(blob.mask)
+        mask = shape(track, ks.index(ref), middle, end, seen)
+        ys, xs = np.nonzero(mask)
         j = rng.integers(len(xs), size=len(pick))
         uv = np.stack([xs[j], ys[j]], 1) + rng.random((len(pick), 2))
         pose_ref = data.trajectory.pose(float(t_ref))
         placed = back_project(uv, depth + radius * rng.random(len(pick)), pose_ref, data.K)
-        volume = blob.area * (depth / focal) ** 2 * radius
+        volume = mask.sum() * (depth / focal) ** 2 * radius
         backs.append(depth + 2.0 * radius)  # its front surface is at depth, its body one radius
         rows.append(pick)
         points.append(placed)
@@ -265,14 +294,10 @@ def seed_objects(
         at_ref = hold_path(track.times_us, path, np.array([t_ref]))[0]
         shifts.append(hold_path(track.times_us, path, knots) - at_ref)
         spans.append(span(track, sightings, data.t_start_us, data.t_end_us))
-        rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
-        used = np.isfinite(rates)
-        angles = np.zeros(len(knots))
-        if used.sum() >= mc.turn_min_windows:
-            angles = turn_angles(track.times_us[used], rates[used], knots, t_ref)
         rotvecs.append(angles[:, None] * pose_ref[:3, 2][None])  # about the viewing axis
         stats |= {
             f"object{first + k}_windows": float(len(ks)),
+            f"object{first + k}_ends": 2.0 if (end < 0).any() else 1.0,
             f"object{first + k}_depth": depth,
             f"object{first + k}_radius_px": track.radius,
             f"object{first + k}_gaussians": float(len(pick)),
