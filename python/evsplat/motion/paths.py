@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evsplat.motion.tracks import JUMP
+from evsplat.motion.tracks import JUMP, step_lengths
 
 
 def hold_path(times_us: np.ndarray, points: np.ndarray, query_us: np.ndarray) -> np.ndarray:
@@ -45,8 +45,8 @@ def near_path(points: np.ndarray, path: np.ndarray, radius: float) -> np.ndarray
     return np.linalg.norm(points[:, None, :] - closest, axis=-1).min(axis=1) <= radius
 
 
-def turns(angles: np.ndarray) -> np.ndarray:
-    """[F,2,2] image-plane rotations (x right, y down) by ``angles`` [F] (rad)."""
+def turns(angles: np.ndarray | float) -> np.ndarray:
+    """[...,2,2] image-plane rotations (x right, y down) by ``angles`` [...] (rad)."""
     c, s = np.cos(angles), np.sin(angles)
     return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
 
@@ -62,8 +62,7 @@ def two_ends(
     them: two hops or more (one fits any step), ends that do not overlap (|d| of at least the
     track's ``radius``), no hop left in the centres; else the track's own centres."""
     none = (centres, np.ones(len(centres)))
-    gaps = np.diff(windows)
-    step = np.linalg.norm(np.diff(centres, axis=0), axis=1) / np.maximum(gaps, 1)
+    gaps, step = np.diff(windows), step_lengths(windows, centres)
     limit = JUMP * np.median(step) if step.size else 0.0
     hop = (step > limit) & (gaps <= coast + 1)
     if hop.sum() < 2:
@@ -73,5 +72,5 @@ def two_ends(
     a = (turned[1:] - turned[:-1])[hop].reshape(-1, 2)
     d = np.linalg.lstsq(a, np.diff(centres, axis=0)[hop].reshape(-1), rcond=None)[0]
     middle = centres - turned @ d
-    left = np.linalg.norm(np.diff(middle, axis=0), axis=1)[hop] / gaps[hop] > limit
+    left = step_lengths(windows, middle)[hop] > limit
     return none if left.any() or np.linalg.norm(d) < radius else (middle, end)

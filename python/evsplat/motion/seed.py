@@ -134,7 +134,7 @@ def shape(
         return mask
     j = max(other, key=lambda j: blobs[j].contrast)
     ys, xs = np.nonzero(blobs[j].mask)
-    uv = (np.stack([xs, ys], 1) + 0.5 - middle[j]) @ turns(seen[i : i + 1] - seen[j])[0].T
+    uv = (np.stack([xs, ys], 1) + 0.5 - middle[j]) @ turns(seen[i] - seen[j]).T
     px = np.floor(uv + middle[i]).astype(np.int64)
     px = px[in_image(px, mask.shape)]
     mask[px[:, 1], px[:, 0]] = True

@@ -18,6 +18,12 @@ JUMP = 2.0  # a step over twice the track's median is not its own motion (docs/m
 RIGID = 0.5  # pieces whose offset holds within half their size move as one (ditto)
 
 
+def step_lengths(windows: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """[F-1] px per window between consecutive sightings ``centres`` [F,2] at the increasing
+    window indices ``windows`` [F]."""
+    return np.linalg.norm(np.diff(centres, axis=0), axis=1) / np.diff(windows)
+
+
 @dataclass
 class Track:
     """One object's regions by window index, and the windows whose region it shared with
@@ -56,10 +62,7 @@ class Track:
     def steps(self) -> list[float]:
         """Px per window between its consecutive sightings."""
         ks = sorted(self.blobs)
-        return [
-            float(np.linalg.norm(self.blobs[j].centre - self.blobs[i].centre)) / (j - i)
-            for i, j in zip(ks, ks[1:])
-        ]
+        return step_lengths(np.array(ks), np.stack([self.blobs[k].centre for k in ks])).tolist()
 
     def predict(self, window: int) -> tuple[np.ndarray, float]:
         """The object's centre at ``window`` at the velocity of its last own sightings, and
