@@ -14,8 +14,9 @@ from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border
 from evsplat.motion.align import align
 from evsplat.motion.paths import hold_path, near_path, turn_angles, turns, two_ends
+from evsplat.motion.seed import joined_ends
 from evsplat.motion.segment import Blob, floor, regions
-from evsplat.motion.tracks import chain
+from evsplat.motion.tracks import Track, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project, project, project_points, world_to_camera
 
@@ -343,10 +344,20 @@ def test_two_ends_finds_the_centre_of_a_card_whose_track_hops_between_its_tips()
     d = np.array([14.0, 3.0])
     end = np.where((windows >= 12) & (windows <= 25), -1.0, 1.0)
     seen = centre + end[:, None] * (turns(angles) @ d)
-    middle, found = two_ends(windows, seen, angles, radius=8.0, coast=3)
+    middle, found, turned = two_ends(windows, seen, angles, radius=8.0, coast=3)
     assert np.array_equal(found, end)
     # d is fitted to the hops as if the centre stood still over each: off by its drift there.
     assert np.linalg.norm(middle - centre, axis=1).max() < np.hypot(0.5, 0.2)
+    assert np.abs(turned - angles).max() < 0.02  # the hops read the measured turn
+    # A measured turn that drifts (its rate 20% slow from window 10 on) is read again at the
+    # hops and its drift taken out between them (linear there): up to a constant, the angles
+    # then hold within the hops' reading error (the centre's own drift over a hop).
+    slow = angles - 0.02 * np.maximum(windows - 10, 0)
+    middle, found, turned = two_ends(windows, seen, slow, radius=8.0, coast=3)
+    between = (windows >= 12) & (windows <= 25)
+    assert np.array_equal(found, end)
+    assert np.ptp((turned - angles)[between]) < 0.04 < 0.25 < np.ptp((slow - angles)[between])
+    assert np.linalg.norm(middle - centre, axis=1)[between].max() < 0.6
     # The same tips without hops, a single hop (two unknowns fit any one step) and tips that
     # would overlap (|d| under the region's radius) are left as they are.
     for track, radius in (
@@ -354,12 +365,46 @@ def test_two_ends_finds_the_centre_of_a_card_whose_track_hops_between_its_tips()
         (centre + np.where(windows < 12, 1.0, -1.0)[:, None] * (turns(angles) @ d), 8.0),
         (seen, 20.0),
     ):
-        kept, ends = two_ends(windows, track, angles, radius, coast=3)
+        kept, ends, turned = two_ends(windows, track, angles, radius, coast=3)
         assert np.array_equal(kept, track) and (ends == 1).all()
+        assert np.array_equal(turned, angles)
     # A ball bouncing off a wall (its path turns sharply, no tip to hop to) is left alone.
     bounce = np.stack([np.abs(windows - 20.0) * 4.0, 2.0 * windows], 1)
-    kept, ends = two_ends(windows, bounce, angles, 8.0, coast=3)
+    kept, ends, _ = two_ends(windows, bounce, angles, 8.0, coast=3)
     assert np.array_equal(kept, bounce) and (ends == 1).all()
+
+
+def _tip_track(centre, d, windows, end, drift=(0.3, 0.1), radius=5.0):
+    """A track whose region in each of ``windows`` is the disc at ``centre`` + ``end`` d,
+    the centre moving by ``drift`` px per window."""
+    blobs = {}
+    for k, e in zip(windows, end):
+        c = centre + e * d + k * np.array(drift)
+        mask = _disc((96, 96), c, radius)
+        blobs[int(k)] = Blob(int(k) * 20_000, c, mask, float(mask.sum()), 12.0)
+    return Track(blobs)
+
+
+def test_a_card_broken_into_tracks_at_its_hops_is_one_object_and_its_other_end_no_other():
+    # A card that does not turn (no turn measured) fires at its tips (+d, -d) by turns, and the
+    # chaining broke it at a hop: windows 0-19 (a hop at 10), 18-39 (a hop at 30, and windows
+    # 18-19 shared with the first); windows 32-36 also show the other tip, a track of its own.
+    centre, d = np.array([40.0, 45.0]), np.array([14.0, 3.0])
+    mc = MoverConfig(turn=False, coast=3, together=1.5, min_windows=4)
+    first = _tip_track(centre, d, range(20), np.where(np.arange(20) < 10, 1.0, -1.0))
+    later = np.arange(18, 40)
+    second = _tip_track(centre, d, later, np.where(later < 30, -1.0, 1.0))
+    other = _tip_track(centre, d, range(32, 37), -np.ones(5))
+    alone = _tip_track(np.array([20.0, 80.0]), np.zeros(2), range(0, 40, 2), np.ones(20), (1, 0))
+    found = joined_ends([first, second, other, alone], views=None, mc=mc)
+    assert [id(t) for t, _ in found] == [id(first), id(alone)]
+    assert sorted(first.blobs) == list(range(40))
+    _, middle, end, _ = found[0][1]
+    assert (end[10:30] == -1).all() and (end[:10] == 1).all() and (end[30:] == 1).all()
+    drift = np.stack([0.3 * np.arange(40), 0.1 * np.arange(40)], 1)
+    assert np.linalg.norm(middle - centre - drift, axis=1).max() < 0.5
+    # Without its hops the lone object is one end, where it was seen.
+    assert (found[1][1][2] == 1).all()
 
 
 def test_hold_path_is_linear_between_sightings_and_held_beyond():

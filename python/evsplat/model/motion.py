@@ -77,15 +77,12 @@ class ObjectMotion(nn.Module):
         self.register_buffer("prior_translations", translations.float().clone())
         self.register_buffer("prior_rotvecs", rotvecs.float().clone())
 
-    @property
-    def knots(self) -> int:
-        return int(self.translations.shape[1])
-
     def at(self, t: float) -> tuple[Tensor, Tensor]:
         """(unit quaternions [K,4], translations [K,3]) at normalised time ``t`` (clamped to
         [0, 1])."""
-        u = min(max(float(t), 0.0), 1.0) * (self.knots - 1)
-        i = min(int(u), self.knots - 2)
+        g = self.translations.shape[1]  # knots
+        u = min(max(float(t), 0.0), 1.0) * (g - 1)
+        i = min(int(u), g - 2)
         w = u - i
         trans = (1.0 - w) * self.translations[:, i] + w * self.translations[:, i + 1]
         rotvec = (1.0 - w) * self.rotvecs[:, i] + w * self.rotvecs[:, i + 1]

@@ -53,24 +53,41 @@ def turns(angles: np.ndarray | float) -> np.ndarray:
 
 def two_ends(
     windows: np.ndarray, centres: np.ndarray, angles: np.ndarray, radius: float, coast: int
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(the object's centres [F,2]; [F] +1 where the region is the end the track started on,
-    -1 where it is the other). An object turning in place fires at whichever end the camera's
-    motion adds to, and its track hops between them: a step over ``JUMP`` x the median between
-    windows at most ``coast`` + 1 apart. The ends sit at ±d about the object's centre, turned
-    with it (``angles``, rad), and d is fitted to the hops. Taken only where that explains
-    them: two hops or more (one fits any step), ends that do not overlap (|d| of at least the
-    track's ``radius``), no hop left in the centres; else the track's own centres."""
-    none = (centres, np.ones(len(centres)))
+    -1 where it is the other; its turn angles [F], rad). An object turning in place fires at
+    whichever end the camera's motion adds to, and its track hops between them: a step over
+    ``JUMP`` x the median between windows at most ``coast`` + 1 apart. The ends sit at ±d about
+    the object's centre, turned with it, and d is fitted to the hops. Each hop also reads the
+    turn there (it is -2 x the end's offset, turned): the turn integrated from measured rates
+    (``angles``) drifts (docs/motion.md), so its drift is taken out at the hops and spread
+    linearly between them. Taken only where that explains them: two hops or more (one
+    fits any step), ends that do not overlap (|d| of at least the track's ``radius``), no hop
+    left in the centres; else the track's own centres and ``angles``."""
+    none = (centres, np.ones(len(centres)), angles)
     gaps, step = np.diff(windows), step_lengths(windows, centres)
     limit = JUMP * np.median(step) if step.size else 0.0
     hop = (step > limit) & (gaps <= coast + 1)
     if hop.sum() < 2:
         return none
     end = np.concatenate([[1.0], (-1.0) ** np.cumsum(hop)])
+    d = _about_centre(centres, end, hop, angles)[1]
+    jump = -(end[:-1, None] * np.diff(centres, axis=0))[hop]
+    read = np.arctan2(jump[:, 1], jump[:, 0]) - np.arctan2(d[1], d[0])
+    drift = np.unwrap(np.angle(np.exp(1j * (read - 0.5 * (angles[:-1] + angles[1:])[hop]))))
+    angles = angles + np.interp(windows, 0.5 * (windows[:-1] + windows[1:])[hop], drift)
+    middle, d = _about_centre(centres, end, hop, angles)
+    left = (step_lengths(windows, middle)[hop] > limit).any()
+    return none if left or np.linalg.norm(d) < radius else (middle, end, angles)
+
+
+def _about_centre(
+    centres: np.ndarray, end: np.ndarray, hop: np.ndarray, angles: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(the centres [F,2] less their ends' offsets, the offset d [2]) for the regions'
+    ``centres`` at ends ``end`` [F] (±1) turned by ``angles`` [F]: d by least squares on the
+    ``hop`` steps [F-1] (a hop is the jump from one end to the other)."""
     turned = end[:, None, None] * turns(angles)
     a = (turned[1:] - turned[:-1])[hop].reshape(-1, 2)
     d = np.linalg.lstsq(a, np.diff(centres, axis=0)[hop].reshape(-1), rcond=None)[0]
-    middle = centres - turned @ d
-    left = step_lengths(windows, middle)[hop] > limit
-    return none if left.any() or np.linalg.norm(d) < radius else (middle, end)
+    return centres - turned @ d, d

@@ -11,7 +11,7 @@ changes when no object is found.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -25,7 +25,7 @@ from evsplat.motion.border import in_image, touches_border
 from evsplat.motion.paths import hold_path, near_path, turn_angles, turns, two_ends
 from evsplat.motion.segment import Blob, blurred, floor, regions, unexplained
 from evsplat.motion.still import behind_objects, is_still
-from evsplat.motion.tracks import Track, chain
+from evsplat.motion.tracks import Track, chain, together
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project, project
 from evsplat.train.views import Views
@@ -98,18 +98,11 @@ def span(track: Track, sightings: Sightings, t_start_us: int, t_end_us: int) -> 
     its first sighting when that region touches the image border (it came in there), unless it
     is the first window; likewise at its end; ±inf otherwise (it was there all along, still)."""
     ks, last = sorted(track.blobs), len(sightings.times_us) - 1
-    length = max(t_end_us - t_start_us, 1)
-    step = 0.5 / max(last, 1)
-
-    def time(k: int) -> float:
-        return (float(sightings.times_us[k]) - t_start_us) / length
-
+    ends = (sightings.times_us[[ks[0], ks[-1]]] - t_start_us) / max(t_end_us - t_start_us, 1)
+    step, inf = 0.5 / max(last, 1), float("inf")
     enters = ks[0] > 0 and touches_border(track.blobs[ks[0]].mask)
     leaves = ks[-1] < last and touches_border(track.blobs[ks[-1]].mask)
-    return [
-        time(ks[0]) - step if enters else -float("inf"),
-        time(ks[-1]) + step if leaves else float("inf"),
-    ]
+    return [ends[0] - step if enters else -inf, ends[1] + step if leaves else inf]
 
 
 def reference(track: Track) -> int:
@@ -173,6 +166,53 @@ def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
         if gain >= mc.turn_min_gain:
             out[i] = rate
     return out
+
+
+Turning = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # ``turning``'s
+
+
+def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
+    """(the turn rates [F] (``turn_rates``); the object's centres [F,2], ends [F] and turn
+    angles [F] (rad, from its first sighting; 0 where too few rates were measured) at its
+    sightings, ``paths.two_ends``)."""
+    ks = sorted(track.blobs)
+    rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
+    used, seen = np.isfinite(rates), np.zeros(len(ks))
+    if used.sum() >= mc.turn_min_windows:
+        seen = turn_angles(track.times_us[used], rates[used], track.times_us, min(track.times_us))
+    return rates, *two_ends(np.array(ks), track.centres, seen, track.radius, mc.coast)
+
+
+def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tuple[Track, Turning]]:
+    """The objects and their ``turning``, an object turning in place one track where the
+    chaining broke it at a hop between its ends: a track that starts after another, at most
+    ``mc.coast`` + 1 windows past its end, and ends after it joins it where the two (the
+    earlier's windows, then the later's) hop between two ends (``two_ends``). A track together
+    with a two-ended object's centre (``tracks.together``) is its other end firing at once."""
+    gone: set[int] = set()  # ids of the tracks that are part of another
+    for track in sorted(tracks, key=lambda t: min(t.blobs)):
+        first, last = min(track.blobs), max(track.blobs)
+        for home in tracks:
+            start, end = min(home.blobs), max(home.blobs)
+            if id(home) in gone or not (start < first <= end + mc.coast + 1 and end < last):
+                continue
+            later = {k: b for k, b in track.blobs.items() if k > end}
+            both = Track(home.blobs | later, home.shared | (track.shared & set(later)))
+            if (turning(views, both, mc)[2] < 0).any():
+                home.blobs, home.shared = both.blobs, both.shared
+                gone.add(id(track))
+                break
+    found = []
+    for home in tracks:
+        if id(home) in gone:
+            continue
+        found.append((home, turning(views, home, mc)))
+        middle, end = found[-1][1][1:3]
+        if (end < 0).any():  # its other end, firing at once, may be a track of its own
+            ks = sorted(home.blobs)
+            centred = Track({k: replace(home.blobs[k], centre=c) for k, c in zip(ks, middle)})
+            gone |= {id(t) for t in tracks if t is not home and together(centred, t, mc)}
+    return [(t, turn) for t, turn in found if id(t) not in gone]
 
 
 def place(
@@ -239,6 +279,8 @@ def seed_objects(
     tracks = [align(t, energy, mc.align) for t in tracks]
     if known is not None:
         tracks = [t for t in tracks if not known_object(t, known[0], views)]
+    found = joined_ends(tracks, views, mc)
+    tracks = [t for t, _ in found]
     stats = {
         "objects": float(len(tracks)),
         "windows_with_motion": float(np.mean([len(b) > 0 for b in sightings.blobs])),
@@ -255,19 +297,18 @@ def seed_objects(
     areas = np.array([np.median([b.area for b in t.blobs.values()]) for t in tracks])
     knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
     rows, points, spacing, centres, radii, shifts, rotvecs, spans, backs = ([] for _ in range(9))
-    for k, track in enumerate(tracks):
+    for k, (track, (rates, middle, end, seen)) in enumerate(found):
         depth = object_depth(track, sightings, mc.depth_quantile) or float(np.mean(depth_range))
         ref = reference(track)
         t_ref = int(track.blobs[ref].t_us)
         radius = track.radius * depth / focal
         ks = sorted(track.blobs)
-        rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
-        used = np.isfinite(rates)
-        angles, seen = np.zeros(len(knots)), np.zeros(len(ks))  # at the knots, the sightings
-        if used.sum() >= mc.turn_min_windows:
+        used, seen = np.isfinite(rates), seen - seen[ks.index(ref)]
+        angles = np.zeros(len(knots))  # at the knots
+        if (end < 0).any():  # the turn its two ends show, held beyond its sightings
+            angles = np.interp(knots, track.times_us, seen)
+        elif used.sum() >= mc.turn_min_windows:
             angles = turn_angles(track.times_us[used], rates[used], knots, t_ref)
-            seen = turn_angles(track.times_us[used], rates[used], track.times_us, t_ref)
-        middle, end = two_ends(np.array(ks), track.centres, seen, track.radius, mc.coast)
         poses = data.trajectory.pose(track.times_us.astype(np.float64))
         path = back_project(middle, np.full(len(ks), depth), poses, data.K)
         swept = np.flatnonzero(near_path(means, path, radius) & free)

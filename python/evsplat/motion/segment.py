@@ -99,21 +99,17 @@ def _joined(parts: list[tuple[np.ndarray, float]], join: float) -> list[tuple[np
     """The pieces (mask, contrast) with those of one object united: a textured object's
     events fall apart into pieces a few pixels apart when its texture is sparse, and two
     pieces are one object when their gap is under ``join`` x the larger one's radius."""
-    parts = list(parts)
-    merged = True
-    while merged and len(parts) > 1:
-        merged = False
-        for i in range(len(parts)):
-            reach = ndimage.distance_transform_edt(~parts[i][0])
-            for j in range(i + 1, len(parts)):
-                large = max(parts[i][0].sum(), parts[j][0].sum())
-                if reach[parts[j][0]].min() <= join * np.sqrt(large / np.pi):
-                    union = (parts[i][0] | parts[j][0], max(parts[i][1], parts[j][1]))
-                    parts = [p for k, p in enumerate(parts) if k not in (i, j)] + [union]
-                    merged = True
-                    break
-            if merged:
-                break
+    parts, i = list(parts), 0
+    while i < len(parts):
+        mask = parts[i][0]
+        reach = ndimage.distance_transform_edt(~mask)
+        gap = [reach[m].min() / np.sqrt(max(mask.sum(), m.sum()) / np.pi) for m, _ in parts]
+        j = next((j for j in range(i + 1, len(parts)) if gap[j] <= join), None)
+        if j is None:
+            i += 1
+            continue
+        union = (mask | parts[j][0], max(parts[i][1], parts[j][1]))
+        parts, i = [p for k, p in enumerate(parts) if k not in (i, j)] + [union], 0
     return parts
 
 

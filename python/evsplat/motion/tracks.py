@@ -158,7 +158,7 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
     return taken
 
 
-def _together(a: Track, b: Track, s: MoverConfig) -> bool:
+def together(a: Track, b: Track, s: MoverConfig) -> bool:
     """Whether ``a`` and ``b`` are pieces of one object: in four in five of their shared windows
     their centres lie within ``s.together`` x the tracks' summed sizes (not the regions': a
     piece firing faintly or cut by the border looks smaller than its object); or, in
@@ -181,7 +181,7 @@ def _join_fragments(tracks: list[Track], s: MoverConfig) -> list[Track]:
     masks' union, its centre area-weighted)."""
     out: list[Track] = []
     for track in sorted(tracks, key=lambda t: -len(t.blobs)):
-        home = next((o for o in out if _together(o, track, s)), None)
+        home = next((o for o in out if together(o, track, s)), None)
         if home is None:
             out.append(track)
             continue
