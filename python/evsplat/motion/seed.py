@@ -174,13 +174,20 @@ Turning = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # ``turning``'s
 def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
     """(the turn rates [F] (``turn_rates``); the object's centres [F,2], ends [F] and turn
     angles [F] (rad, from its first sighting; 0 where too few rates were measured) at its
-    sightings, ``paths.two_ends``)."""
-    ks = sorted(track.blobs)
+    sightings, ``paths.two_ends``; for an object with two ends, from a steady turn)."""
+    ks, times = np.array(sorted(track.blobs)), track.times_us
     rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
     used, seen = np.isfinite(rates), np.zeros(len(ks))
     if used.sum() >= mc.turn_min_windows:
-        seen = turn_angles(track.times_us[used], rates[used], track.times_us, min(track.times_us))
-    return rates, *two_ends(np.array(ks), track.centres, seen, track.radius, mc.coast)
+        seen = turn_angles(times[used], rates[used], times, min(times))
+    found = two_ends(ks, track.centres, seen, track.radius, mc.coast)
+    if (found[1] < 0).any() and used.sum() >= mc.turn_min_windows:
+        # Its regions are its ends, whose rates stray (-17 to +30 rad/s late in the spinner's
+        # 8, docs/motion.md): a steady turn at their median instead, read again at the hops.
+        steady = np.median(rates[used]) * (times - times[0]) * 1e-6
+        again = two_ends(ks, track.centres, steady, track.radius, mc.coast)
+        found = again if (again[1] < 0).any() else found
+    return rates, *found
 
 
 def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tuple[Track, Turning]]:
