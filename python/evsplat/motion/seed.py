@@ -197,6 +197,7 @@ def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tupl
     earlier's windows, then the later's) hop between two ends (``two_ends``). A track together
     with a two-ended object's centre (``tracks.together``) is its other end firing at once."""
     gone: set[int] = set()  # ids of the tracks that are part of another
+    turns: dict[int, Turning] = {}  # a joined track's, from its join's test
     for track in sorted(tracks, key=lambda t: min(t.blobs)):
         first, last = min(track.blobs), max(track.blobs)
         for home in tracks:
@@ -205,15 +206,17 @@ def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tupl
                 continue
             later = {k: b for k, b in track.blobs.items() if k > end}
             both = Track(home.blobs | later, home.shared | (track.shared & set(later)))
-            if (turning(views, both, mc)[2] < 0).any():
+            turn = turning(views, both, mc)
+            if (turn[2] < 0).any():
                 home.blobs, home.shared = both.blobs, both.shared
+                turns[id(home)] = turn
                 gone.add(id(track))
                 break
     found = []
     for home in tracks:
         if id(home) in gone:
             continue
-        found.append((home, turning(views, home, mc)))
+        found.append((home, turns.get(id(home)) or turning(views, home, mc)))
         middle, end = found[-1][1][1:3]
         if (end < 0).any():  # its other end, firing at once, may be a track of its own
             ks = sorted(home.blobs)
