@@ -1,13 +1,9 @@
-"""Per-object rigid motion: each moving object carries its Gaussians by its own SE(3) path.
-
-A Gaussian given to object k (``object_id`` k >= 0) at canonical position x sits at
-``R_k(t) (x - c_k) + c_k + T_k(t)`` at normalised time t, turned by R_k(t) as well: ``c_k`` is the
-object's centre at its reference time, where R = I and T = 0. R_k and T_k are piecewise linear in
-time over knots shared by all objects (rotations as rotation vectors, turned into matrices by
-quaternions), and they are parameters: the paper's losses refine the path that the
-events' segmentation started (``evsplat.motion``). The deformation MLP adds what is not rigid on
-top (Shape of Motion's motion bases, one per object, plus a residual). Gaussians of the scene
-(id -1) are not moved here.
+"""Per-object rigid motion: a Gaussian of object k (``object_id`` k >= 0) at canonical x sits at
+``R_k(t) (x - c_k) + c_k + T_k(t)`` at normalised time t, turned by R_k(t) too; ``c_k`` is the
+object's centre at its reference time (R = I, T = 0). R_k (rotation vectors) and T_k are linear
+between knots shared by all objects, and parameters that the paper's losses refine from the
+seeding (``evsplat.motion``); the MLP adds what is not rigid (Shape of Motion's motion bases,
+one per object, plus a residual). The scene's Gaussians (id -1) are not moved here.
 """
 
 from __future__ import annotations
@@ -21,8 +17,7 @@ ANGLE_EPS = 1e-6  # below this angle (rad) the half-angle terms take their Taylo
 
 
 def rotvec_to_quat(v: Tensor) -> Tensor:
-    """Unit quaternions [...,4] (w, x, y, z) of rotation vectors [...,3] (finite gradients at
-    zero: sin(θ/2)/θ takes its Taylor form there)."""
+    """Unit quaternions [...,4] (w, x, y, z) of rotation vectors [...,3], gradients finite at 0."""
     theta2 = (v * v).sum(-1, keepdim=True)
     small = theta2 < ANGLE_EPS**2
     theta = torch.sqrt(torch.where(small, torch.ones_like(theta2), theta2))
@@ -39,13 +34,9 @@ def quat_multiply(a: Tensor, b: Tensor) -> Tensor:
 
 
 class ObjectMotion(nn.Module):
-    """K objects' rigid paths on G shared knots over normalised time [0, 1].
-
-    ``centres`` [K,3] (world, at each object's reference time) and ``radii`` [K] (world, the
-    track prior's length scale), ``translations`` [K,G,3] and ``rotvecs`` [K,G,3] (parameters),
-    and their starting values ``prior_*`` (buffers) that the track prior (``prior_loss``) holds
-    the refined path near.
-    """
+    """K objects' rigid paths on G shared knots over normalised time [0, 1]: ``centres`` [K,3]
+    (world, at the reference time), ``radii`` [K] (world, the track prior's length scale), and
+    ``translations``, ``rotvecs`` [K,G,3] (parameters), their starting values ``prior_*``."""
 
     def __init__(
         self,
@@ -59,15 +50,12 @@ class ObjectMotion(nn.Module):
         super().__init__()
         k, g = translations.shape[:2]
         if centres.shape != (k, 3) or radii.shape != (k,) or rotvecs.shape != (k, g, 3) or g < 2:
-            raise ValueError(
-                f"ObjectMotion: centres {tuple(centres.shape)}, radii {tuple(radii.shape)}, "
-                f"translations {tuple(translations.shape)}, rotvecs {tuple(rotvecs.shape)}; "
-                "need [K,3], [K], [K,G,3] and [K,G,3] with G >= 2"
-            )
+            got = [tuple(x.shape) for x in (centres, radii, translations, rotvecs)]
+            need = "centres [K,3], radii [K], translations and rotvecs [K,G,3], G >= 2"
+            raise ValueError(f"ObjectMotion: shapes {got}; need {need}")
         self.register_buffer("centres", centres.float().clone())
         self.register_buffer("radii", radii.float().clone())
-        # [K,2] normalised times each object is in view between (it enters and leaves through
-        # the image border), faded in and out over ``fade``; ±inf: there from start to end.
+        # [K,2] normalised times each object is in view between, faded over ``fade``; ±inf: always.
         inf = float("inf")
         spans = torch.tensor([[-inf, inf]] * k) if spans is None else spans.float().clone()
         self.register_buffer("spans", spans)
@@ -78,8 +66,7 @@ class ObjectMotion(nn.Module):
         self.register_buffer("prior_rotvecs", rotvecs.float().clone())
 
     def at(self, t: float) -> tuple[Tensor, Tensor]:
-        """(unit quaternions [K,4], translations [K,3]) at normalised time ``t`` (clamped to
-        [0, 1])."""
+        """(unit quaternions [K,4], translations [K,3]) at normalised time ``t`` (clamped)."""
         g = self.translations.shape[1]  # knots
         u = min(max(float(t), 0.0), 1.0) * (g - 1)
         i = min(int(u), g - 2)
@@ -104,8 +91,8 @@ class ObjectMotion(nn.Module):
         return means.index_copy(0, rows, moved), quats.index_copy(0, rows, turned)
 
     def visibility(self, object_id: Tensor, t: float) -> Tensor:
-        """[N] opacity factor at normalised time ``t``: 1 for the scene (id -1) and for an
-        object in view, falling to 0 outside its span (smoothly, over ``fade``)."""
+        """[N] opacity factor at normalised time ``t``: 1 for the scene and for an object in
+        view, falling smoothly to 0 over ``fade`` outside its span."""
         width = float(self.fade.clamp_min(1e-6))
         start, end = self.spans[:, 0], self.spans[:, 1]
         seen = torch.sigmoid((t - start) / width * 4) * torch.sigmoid((end - t) / width * 4)
@@ -123,13 +110,10 @@ class ObjectMotion(nn.Module):
         return (off**2).sum(-1).mean() + (turn**2).sum(-1).mean()
 
     def joined(self, more: ObjectMotion) -> ObjectMotion:
-        """These objects, their paths as refined so far, followed by ``more``'s (found later);
-        each keeps its own track prior. On this one's device, with its fade."""
+        """These objects as refined so far, then ``more``'s; each keeps its own track prior."""
         extra = more.to(self.centres.device).state_dict()
-        state = self.state_dict()  # detached
-        return ObjectMotion.from_state(
-            {k: torch.cat([v, extra[k]]) if v.dim() else v for k, v in state.items()}
-        )
+        both = {k: torch.cat([v, extra[k]]) if v.dim() else v for k, v in self.state_dict().items()}
+        return ObjectMotion.from_state(both)
 
     def state(self) -> dict[str, Tensor]:
         """Everything ``from_state`` needs, detached on the CPU."""

@@ -1,6 +1,5 @@
-"""An object's centres made consistent across its windows by aligning each window's events to
-the object's template, the mean of its other views (docs/motion.md, step 3): a region's
-residual-weighted centre says where its events were strongest, not where the object was.
+"""An object's centres aligned across its windows to its template, the mean of its other views
+(docs/motion.md, step 3): a region's weighted centre is where its events were, not the object.
 """
 
 from __future__ import annotations
@@ -15,17 +14,15 @@ from evsplat.motion.tracks import Track
 from evsplat.motion.turn import vertex
 
 EPS = 1e-12  # guards normalisations of empty patches
-# Template, align, repeat: each round moves the centres part of the way, as the template is
-# the blur of the windows' views until they agree (a one-sided ring: 10 rounds left 0.8 px,
-# 30 left 0.2; tests/test_motion_units.py).
+# Each round moves the centres part of the way, the template being the blur of the views until
+# they agree (a one-sided ring: 10 rounds left 0.8 px, 30 left 0.2; tests/test_motion_units.py).
 ROUNDS = 50
 SETTLED = 0.1  # px: no centre moved more in a round
 MIN_WINDOWS = 3  # a template from fewer windows is one or two views, not the object
 
 
 def _patch(image: np.ndarray, centre: np.ndarray, half: int) -> np.ndarray:
-    """[2h+1, 2h+1] ``image`` about ``centre`` (x, y px, pixel centres at +0.5), bilinear,
-    zero beyond the image."""
+    """[2h+1, 2h+1] ``image`` about ``centre`` (x, y px), bilinear, zero beyond the image."""
     r = np.arange(-half, half + 1, dtype=np.float64)
     ys, xs = np.meshgrid(centre[1] - 0.5 + r, centre[0] - 0.5 + r, indexing="ij")
     return ndimage.map_coordinates(image, [ys, xs], order=1, mode="constant", cval=0.0)
@@ -39,12 +36,10 @@ def _peak(score: np.ndarray) -> np.ndarray:
 
 
 def align(track: Track, energy: list[np.ndarray], search: float) -> Track:
-    """``track`` with its own windows' centres moved to where their residual ``energy``
-    (per window, [H,W]) best matches the object's template, at most ``search`` x its radius
-    from where they were. Windows shared with another object keep theirs (their centre is
-    interpolated from the object's own, ``Track.centres``). The template is the mean of the
-    windows whose region is clear of the image border, where there are enough: a cut view
-    shows only part of the object, and an object seen leaving and coming back is mostly cut."""
+    """``track`` with its own windows' centres moved to where their residual ``energy`` (per
+    window, [H,W]) best matches the object's template, at most ``search`` x its radius away
+    (shared windows keep theirs, ``Track.centres``). The template is the mean of the windows
+    whose region is clear of the image border, where there are enough (a cut view is partial)."""
     own = [k for k in sorted(track.blobs) if k not in track.shared]
     if len(own) < MIN_WINDOWS:
         return track
@@ -71,10 +66,7 @@ def align(track: Track, energy: list[np.ndarray], search: float) -> Track:
         centres = moved
         if shift < SETTLED:
             break
-    # The windows' displacements are what the alignment finds; where the template sits is
-    # arbitrary, so the centres keep their mean (the whole regions' own).
+    # Where the template sits is arbitrary: the centres keep their mean (the whole regions').
     drift = np.mean([centres[k] - start[k] for k in whole], axis=0)
-    blobs = dict(track.blobs)
-    for k in own:
-        blobs[k] = replace(blobs[k], centre=centres[k] - drift)
-    return replace(track, blobs=blobs)
+    moved_blobs = {k: replace(track.blobs[k], centre=centres[k] - drift) for k in own}
+    return replace(track, blobs=track.blobs | moved_blobs)

@@ -1,7 +1,6 @@
-"""Objects cut by the image border (docs/motion.md, step 2): the object's whole region from a
-sighting clear of the border, moved until its part inside the image best matches the cut region,
-puts the object's centre where the cut region says, beyond the border if need be.
-"""
+"""Objects cut by the image border (docs/motion.md, step 2): its whole region from a sighting
+clear of the border, moved until its part in the image best matches the cut region, puts its
+centre there, beyond the border if need be."""
 
 from __future__ import annotations
 
@@ -23,11 +22,10 @@ def touches_border(mask: np.ndarray) -> bool:
 
 
 def whole_centre(shape: Blob, cut: Blob) -> np.ndarray:
-    """[2] (x, y) px: the centre of the object whose whole region is ``shape`` (seen clear of
-    the border) where its cut region ``cut`` shows it. Searched over whole-pixel shifts up to
-    the shape's diameter from the cut region's centre (the object overlaps its visible part),
-    then quarter pixels about the best. The cut region's own centre where the shape there
-    lies wholly inside the image (a blur's rim touched the border, not the object)."""
+    """[2] (x, y) px: the centre of the object whose whole region is ``shape`` where its cut
+    region ``cut`` shows it: whole-pixel shifts up to the shape's diameter, then quarter pixels
+    about the best. The cut region's own centre where the shape there lies wholly in view (a
+    blur's rim touched the border, not the object)."""
     ys, xs = np.nonzero(shape.mask)
     offsets = np.stack([xs + 0.5, ys + 0.5], 1) - shape.centre[None]  # [M,2] about its centre
     centre = _coarse(shape, cut, int(np.ceil(2.0 * shape.radius)))
@@ -46,10 +44,8 @@ def in_image(pixels: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
 
 
 def _coarse(shape: Blob, cut: Blob, reach: int) -> np.ndarray:
-    """``_best`` over the whole-pixel shifts up to ``reach`` from ``cut``'s centre, at once: a
-    whole-pixel shift moves the shape's pixels as one, so each shift's overlap and in-image
-    count are correlations of the masks (by FFT; pixel by pixel, the DAVIS346 sample's 52-px
-    region took 24 GB)."""
+    """``_best`` over the whole-pixel shifts up to ``reach`` from ``cut``'s centre, as
+    correlations of the masks by FFT (pixel by pixel, the DAVIS346 sample's took 24 GB)."""
     h, w = cut.mask.shape
     image = np.stack([cut.mask, np.ones((h, w), dtype=bool)]).astype(np.float64)
     counts = signal.correlate(image, shape.mask[None].astype(np.float64), "full", "fft")
@@ -64,10 +60,8 @@ def _coarse(shape: Blob, cut: Blob, reach: int) -> np.ndarray:
 
 
 def _best(offsets: np.ndarray, cut: Blob, around: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Of the centres ``around`` + every (dx, dy) in ``steps``², the one whose shape
-    ``offsets`` [M,2] inside the image best matches ``cut``'s region (intersection over
-    union); of equal ones, the nearest to ``around`` (a shape beyond the border moves
-    unseen)."""
+    """Of the centres ``around`` + every (dx, dy) in ``steps``², the one whose shape ``offsets``
+    [M,2] in the image best matches ``cut``'s region (IoU); of equals, the nearest."""
     shifts = np.stack(np.meshgrid(steps, steps, indexing="ij"), -1).reshape(-1, 2)  # [S,2]
     centres = around[None] + shifts
     pixels = np.floor(centres[:, None] + offsets[None]).astype(np.int64)  # [S,M,2]
@@ -80,10 +74,9 @@ def _best(offsets: np.ndarray, cut: Blob, around: np.ndarray, steps: np.ndarray)
 
 
 def uncut(blobs: dict[int, Blob], own: set[int]) -> dict[int, Blob]:
-    """The regions by window, those cut by the border given their whole shape's centre; the
-    shape is that of the nearest window in time whose region is the object's alone (``own``)
-    and clear of the border (an object's region changes as it turns). Unchanged where no
-    region is clear."""
+    """The regions by window, those cut by the border given their whole shape's centre: that of
+    the nearest window whose region is the object's alone (``own``) and clear of the border (its
+    region changes as it turns). Unchanged where none is clear."""
     clear = [k for k in sorted(own) if not touches_border(blobs[k].mask)]
     if not clear:
         return blobs

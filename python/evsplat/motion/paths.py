@@ -1,7 +1,5 @@
-"""An object's image track lifted to a world path at the static model's depth, sampled on the
-motion model's knots (docs/motion.md, step 5). Beyond its first and last sightings an object is
-held where it was seen (a still object makes no events); one that came in or went out through
-the image border is hidden there instead (``seed.span``).
+"""An object's image track lifted to a world path, and its turn (docs/motion.md, step 5): held
+beyond its sightings (a still object makes no events; one out of view is hidden, ``seed.span``).
 """
 
 from __future__ import annotations
@@ -13,8 +11,7 @@ from evsplat.motion.tracks import JUMP, step_lengths
 
 def hold_path(times_us: np.ndarray, points: np.ndarray, query_us: np.ndarray) -> np.ndarray:
     """[Q,3] centres at ``query_us``: linear between the sightings ``points`` [F,3] at
-    ``times_us`` [F], held beyond them (an object out of view is hidden by its span instead,
-    ``ObjectMotion.visibility``)."""
+    ``times_us`` [F], held beyond them."""
     q = np.asarray(query_us, dtype=np.float64).reshape(-1)
     t = times_us.astype(np.float64)
     return np.stack([np.interp(q, t, points[:, k]) for k in range(3)], 1)
@@ -54,20 +51,17 @@ def turns(angles: np.ndarray | float) -> np.ndarray:
 def two_ends(
     windows: np.ndarray, centres: np.ndarray, angles: np.ndarray, radius: float, coast: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(the object's centres [F,2]; [F] +1 where the region is the end the track started on,
-    -1 where it is the other; its turn angles [F], rad). An object turning in place fires at
-    whichever end the camera's motion adds to, and its track hops between them: a step over
-    ``JUMP`` x the median between windows at most ``coast`` + 1 apart. The ends sit at ±d about
-    the object's centre, turned with it, and d is fitted to the hops. Each hop also reads the
-    turn there (it is -2 x the end's offset, turned): the turn integrated from measured rates
-    (``angles``) drifts (docs/motion.md), so its drift is taken out at the hops and spread
-    linearly between them. Taken only where that explains them: two hops or more (one
-    fits any step), ends that do not overlap (|d| of at least the track's ``radius``), no hop
-    left in the centres; else the track's own centres and ``angles``."""
+    """(centres [F,2]; ends [F], +1 where the track started, -1 at the other; turn angles [F],
+    rad). An object turning in place fires at whichever end the camera's motion adds to, and its
+    track hops between them (a step over ``JUMP`` x the median, at most ``coast`` + 1 windows).
+    The ends sit at ±d about the centre, turned with it, d fitted to the hops; each hop (-2 x
+    the offset, turned) reads the turn, taking the ``angles``' drift out (docs/motion.md). Only
+    where that explains them (two hops or more, |d| >= ``radius``, no hop left in the centres);
+    else the track's own centres and ``angles``."""
     none = (centres, np.ones(len(centres)), angles)
-    gaps, step = np.diff(windows), step_lengths(windows, centres)
+    step = step_lengths(windows, centres)
     limit = JUMP * np.median(step) if step.size else 0.0
-    hop = (step > limit) & (gaps <= coast + 1)
+    hop = (step > limit) & (np.diff(windows) <= coast + 1)
     if hop.sum() < 2:
         return none
     end = np.concatenate([[1.0], (-1.0) ** np.cumsum(hop)])
@@ -84,9 +78,8 @@ def two_ends(
 def _about_centre(
     centres: np.ndarray, end: np.ndarray, hop: np.ndarray, angles: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(the centres [F,2] less their ends' offsets, the offset d [2]) for the regions'
-    ``centres`` at ends ``end`` [F] (±1) turned by ``angles`` [F]: d by least squares on the
-    ``hop`` steps [F-1] (a hop is the jump from one end to the other)."""
+    """(the ``centres`` [F,2] less their ends' offsets, the offset d [2]) at ends ``end`` [F] (±1)
+    turned by ``angles`` [F]: d by least squares on the ``hop`` steps [F-1]."""
     turned = end[:, None, None] * turns(angles)
     a = (turned[1:] - turned[:-1])[hop].reshape(-1, 2)
     d = np.linalg.lstsq(a, np.diff(centres, axis=0)[hop].reshape(-1), rcond=None)[0]

@@ -1,7 +1,6 @@
-"""Motion segmentation from events (docs/motion.md, step 1): per short window, the pixels whose
-events the static model does not explain, split into connected moving regions of any number and
-shape. The thresholds are the residual's own robust spread, so nothing here knows a scene's
-contrast, size or number of objects.
+"""Motion segmentation (docs/motion.md, step 1): per short window, the pixels whose events the
+static model does not explain, split into moving regions of any number and shape; thresholds in
+the residual's own robust spread (nothing here knows a scene's contrast, size or objects).
 """
 
 from __future__ import annotations
@@ -43,17 +42,10 @@ def unexplained(esi: Tensor, predicted: Tensor, pool: int) -> np.ndarray:
     return smooth.abs().sum((0, 1))[: esi.shape[-2], : esi.shape[-1]].cpu().numpy()
 
 
-def robust_level(values: np.ndarray) -> tuple[float, float]:
-    """(median, robust sigma from the MAD) of ``values``."""
-    med = float(np.median(values))
-    return med, max(MAD_TO_SIGMA * float(np.median(np.abs(values - med))), EPS)
-
-
 def floor(c_pos: float, c_neg: float, pool: int) -> float:
-    """The least robust sigma the residual is measured in: one event's log step spread over a
-    ``pool`` px box. Under a still camera the background makes no events and its residual's MAD
-    is zero; without a floor, any blurred trace of an event would pass the thresholds and the
-    regions would swell into one another."""
+    """The least robust sigma the residual is measured in: one event's log step over a ``pool``
+    px box (under a still camera the background's MAD is zero, and any trace of an event would
+    pass the thresholds)."""
     return 0.5 * (c_pos + c_neg) / pool**2
 
 
@@ -63,26 +55,20 @@ def blurred(residual: np.ndarray, blur_px: float) -> np.ndarray:
     return ndimage.gaussian_filter(residual, blur_px) if blur_px > 0 else residual
 
 
-def _disc(radius: int) -> np.ndarray:
-    r = np.arange(-radius, radius + 1)
-    return (r[:, None] ** 2 + r[None, :] ** 2) <= radius**2
-
-
 def regions(residual: np.ndarray, t_us: int, s: MoverConfig, least: float = 0.0) -> list[Blob]:
     """The moving regions of one window's ``residual`` [H,W], largest first; ``least``: the
     least robust sigma (``floor``)."""
     energy = blurred(residual, s.blur_px)
-    med, sigma = robust_level(energy)
-    sigma = max(sigma, least)
+    med = float(np.median(energy))
+    sigma = max(MAD_TO_SIGMA * float(np.median(np.abs(energy - med))), EPS, least)
     hot = energy > med + s.low * sigma
     if s.close_px > 0:
         pad = s.close_px  # padded so regions touching the border are not eroded away
-        grown = np.pad(hot, pad, mode="edge")
-        grown = ndimage.binary_closing(grown, structure=_disc(s.close_px))
+        r = np.arange(-pad, pad + 1)
+        disc = (r[:, None] ** 2 + r[None, :] ** 2) <= pad**2
+        grown = ndimage.binary_closing(np.pad(hot, pad, mode="edge"), structure=disc)
         hot = ndimage.binary_fill_holes(grown)[pad:-pad, pad:-pad]
     labels, count = ndimage.label(hot, structure=np.ones((3, 3), dtype=bool))
-    if count == 0:
-        return []
     index = np.arange(1, count + 1)
     peak = ndimage.maximum(energy, labels, index)
     area = ndimage.sum(np.ones_like(energy), labels, index)
@@ -96,9 +82,8 @@ def regions(residual: np.ndarray, t_us: int, s: MoverConfig, least: float = 0.0)
 
 
 def _joined(parts: list[tuple[np.ndarray, float]], join: float) -> list[tuple[np.ndarray, float]]:
-    """The pieces (mask, contrast) with those of one object united: a textured object's
-    events fall apart into pieces a few pixels apart when its texture is sparse, and two
-    pieces are one object when their gap is under ``join`` x the larger one's radius."""
+    """The pieces (mask, contrast) with those of one object united (a sparse texture's events
+    fall apart): two are one where their gap is under ``join`` x the larger one's radius."""
     parts, i = list(parts), 0
     while i < len(parts):
         mask = parts[i][0]
@@ -116,7 +101,6 @@ def _joined(parts: list[tuple[np.ndarray, float]], join: float) -> list[tuple[np
 def _blob(mask: np.ndarray, weight: np.ndarray, t_us: int, contrast: float) -> Blob:
     """The region ``mask`` as a Blob, its centre weighted by the residual ``weight``."""
     ys, xs = np.nonzero(mask)
-    w = weight[ys, xs]
-    w = w / max(float(w.sum()), EPS)
+    w = weight[ys, xs] / max(float(weight[ys, xs].sum()), EPS)
     centre = np.array([float((w * (xs + 0.5)).sum()), float((w * (ys + 0.5)).sum())])
     return Blob(t_us, centre, mask, float(mask.sum()), contrast)

@@ -1,8 +1,6 @@
 """Under a still camera, the scene's Gaussians go behind the moving objects (docs/motion.md,
-step 6). A camera that never moves sees no depth, and scene Gaussians left in front of where an
-object moves veil it. Moving a Gaussian along its ray, its scales grown in proportion, is a
-similarity about the camera centre that the camera renders exactly as before: only the depth
-order changes, which the objects' events say (nothing hides them).
+step 6): it sees no depth, and scene Gaussians in front of an object veil it. Moved along its
+ray with its scales grown alike, a Gaussian renders as before; only the depth order changes.
 """
 
 from __future__ import annotations
@@ -31,11 +29,10 @@ def behind_objects(
     K: np.ndarray,
     drawn: np.ndarray,
 ) -> int:
-    """Move the ``scene`` rows (bool [N]) that the still camera ``c2w`` draws (``drawn``, bool
-    [N]: the rasterizer's footprint is not empty; a culled Gaussian moved could come into view)
-    nearer than ``back`` (camera depth) behind it along their rays (the nearest to that depth,
-    the others as much deeper as they were), their scales grown alike; their optimizer state
-    starts afresh. Returns how many moved."""
+    """Move the ``scene`` rows (bool [N]) that the still camera ``c2w`` draws (``drawn`` [N]; a
+    culled one moved could come into view) nearer than camera depth ``back`` behind it along
+    their rays (the nearest to it, the others as much deeper), scales grown alike, optimizer
+    state afresh. Returns how many moved."""
     means = model.means.detach()
     _, z = project(means.cpu().numpy().astype(np.float64), c2w, K)
     rows = np.flatnonzero(scene & drawn & (z < back))

@@ -1,9 +1,9 @@
 """Moving regions chained across windows into one track per object, K found and not given
-(docs/motion.md, step 2): predictions at a held speed, Hungarian assignment (confirmed first),
-tracks hidden in another's region, pieces joined, noise dropped, exits and returns joined."""
+(docs/motion.md, step 2): Hungarian assignment, hidden tracks, pieces and returns joined."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,15 +19,14 @@ RIGID = 0.5  # pieces whose offset holds within half their size move as one (dit
 
 
 def step_lengths(windows: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """[F-1] px per window between consecutive sightings ``centres`` [F,2] at the increasing
-    window indices ``windows`` [F]."""
+    """[F-1] px per window between the ``centres`` [F,2] sighted at the ``windows`` [F]."""
     return np.linalg.norm(np.diff(centres, axis=0), axis=1) / np.diff(windows)
 
 
 @dataclass
 class Track:
     """One object's regions by window index, and the windows whose region it shared with
-    another object (merged in the image: its centre there is not this object's)."""
+    another object (its centre there is not this object's)."""
 
     blobs: dict[int, Blob] = field(default_factory=dict)
     shared: set[int] = field(default_factory=set)
@@ -41,7 +40,7 @@ class Track:
     @property
     def centres(self) -> np.ndarray:
         """[F,2] pixel centres at the sighted windows, in time order; where its region was
-        shared, linear between its own (the shared region's centre lies between the objects)."""
+        shared, linear between its own."""
         ks = sorted(self.blobs)
         out = np.stack([self.blobs[k].centre for k in ks])
         own = np.array([k not in self.shared for k in ks])
@@ -52,8 +51,8 @@ class Track:
 
     @property
     def radius(self) -> float:
-        """The object's size in the image (px): the median of its own regions' disc radii, of
-        those clear of the image border where there are any (a cut region looks smaller)."""
+        """The object's size (px): the median of its own regions' disc radii, of those clear of
+        the image border where there are any (a cut region looks smaller)."""
         own = [b for k, b in self.blobs.items() if k not in self.shared] or [*self.blobs.values()]
         whole = [b for b in own if not touches_border(b.mask)] or own
         return float(np.median([b.radius for b in whole]))
@@ -65,9 +64,8 @@ class Track:
         return step_lengths(np.array(ks), np.stack([self.blobs[k].centre for k in ks])).tolist()
 
     def predict(self, window: int) -> tuple[np.ndarray, float]:
-        """The object's centre at ``window`` at the velocity of its last own sightings, and
-        that speed (px per window), held to ``JUMP`` x the track's median step (a jump is
-        another object's region or noise)."""
+        """The object's centre at ``window`` at the velocity of its last own sightings, and that
+        speed (px per window), held to ``JUMP`` x its median step (a jump is not its motion)."""
         ks = [k for k in sorted(self.blobs) if k not in self.shared] or sorted(self.blobs)
         last = self.blobs[ks[-1]].centre
         if len(ks) < 2:
@@ -90,8 +88,7 @@ def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
                 track.missed = 0
                 continue
             # Only a confirmed track hides in another's region (noise would mark it shared).
-            confirmed = len(track.blobs) >= s.min_windows
-            host = _host(track.predict(k)[0], blobs) if confirmed else None
+            host = _host(track.predict(k)[0], blobs) if len(track.blobs) >= s.min_windows else None
             if host is None:
                 track.missed += 1
                 continue
@@ -102,36 +99,32 @@ def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
         done += [t for t in live if t.missed > s.coast]
         live = [t for t in live if t.missed <= s.coast]
         live += [Track({k: b}) for j, b in enumerate(blobs) if j not in taken]
+    pieces = _merged(done + live, lambda t: -len(t.blobs), lambda o, t: together(o, t, s))
+    evidence = [sum(max(b.contrast - s.high, 0.0) for b in t.blobs.values()) for t in pieces]
     kept = [
-        t
-        for t in _join_fragments(done + live, s)
-        if len(t.blobs) >= s.min_windows
-        and sum(max(b.contrast - s.high, 0.0) for b in t.blobs.values()) >= s.min_evidence
+        t for t, e in zip(pieces, evidence) if len(t.blobs) >= s.min_windows and e >= s.min_evidence
     ]
-    kept = _rejoin(kept, s)
+    # An object that left the image and came back joins the latest track it ``_returns`` to.
+    kept = _merged(kept, lambda t: min(t.blobs), lambda o, t: _returns(o, t, s), latest=True)
     for track in kept:  # shared with another object (not noise, nor a piece of its own)
-        track.shared = {
-            k
-            for k, blob in track.blobs.items()
-            if any(o.hidden.get(k) is blob for o in kept if o is not track)
-        }
+        others = [o.hidden for o in kept if o is not track]
+        track.shared = {k for k, b in track.blobs.items() if any(h.get(k) is b for h in others)}
     for track in kept:  # only the objects kept (the shape fit is the costly part)
         track.blobs = uncut(track.blobs, set(track.blobs) - track.shared)
     return sorted(kept, key=lambda t: -len(t.blobs))
 
 
 def _host(guess: np.ndarray, blobs: list[Blob]) -> Blob | None:
-    """The region an unseen object's predicted centre lies in, if any: it passes behind that
-    object or merges with it in the image, and lives on while it does."""
+    """The region an unseen object's predicted centre lies in, if any (it passes behind that
+    object or merges with it in the image)."""
     px = np.floor(guess).astype(np.int64)
     return next((b for b in blobs if in_image(px, b.mask.shape) and b.mask[px[1], px[0]]), None)
 
 
 def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set[int]:
     """Give window ``k``'s ``blobs`` to the ``live`` tracks (Hungarian on the distance from each
-    track's prediction, within its gate); the indices taken. Tracks seen in ``s.min_windows``
-    windows choose first (SORT's matching cascade): a new track beside an object must not take
-    the object's next region for lying nearer than its prediction (the ball at its bounce)."""
+    track's prediction, within its gate); the indices taken. Confirmed tracks choose first
+    (SORT's cascade): a new track must not take an object's next region (the ball's bounce)."""
     confirmed = [len(t.blobs) >= s.min_windows for t in live]
     sides = [borders(b.mask) for b in blobs]
     taken: set[int] = set()
@@ -160,10 +153,9 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
 
 def together(a: Track, b: Track, s: MoverConfig) -> bool:
     """Whether ``a`` and ``b`` are pieces of one object: in four in five of their shared windows
-    their centres lie within ``s.together`` x the tracks' summed sizes (not the regions': a
-    piece firing faintly or cut by the border looks smaller than its object); or, in
-    ``s.min_windows`` or more, they moved by the smaller one's size while their offset held
-    within ``RIGID`` of it in four in five (a plain object's two edges, however far apart)."""
+    their centres lie within ``s.together`` x the tracks' summed sizes (a piece's region looks
+    smaller than its object); or, in ``s.min_windows`` or more, they moved by the smaller one's
+    size with their offset held within ``RIGID`` of it (a plain object's two edges)."""
     shared = sorted(set(a.blobs) & set(b.blobs))
     if not shared:
         return False
@@ -176,15 +168,21 @@ def together(a: Track, b: Track, s: MoverConfig) -> bool:
     return bool(rigid or np.mean(near) >= 0.8)
 
 
-def _join_fragments(tracks: list[Track], s: MoverConfig) -> list[Track]:
-    """Tracks with the pieces of one object merged: per shared window, one region (the two
-    masks' union, its centre area-weighted)."""
+def _merged(
+    tracks: list[Track],
+    order: Callable[[Track], int],
+    fits: Callable[[Track, Track], bool],
+    latest: bool = False,
+) -> list[Track]:
+    """``tracks`` in ``order``, each merged into the first (or ``latest``-ending) of those
+    before it that it ``fits``: per shared window one region (the masks' union)."""
     out: list[Track] = []
-    for track in sorted(tracks, key=lambda t: -len(t.blobs)):
-        home = next((o for o in out if together(o, track, s)), None)
-        if home is None:
+    for track in sorted(tracks, key=order):
+        homes = [o for o in out if fits(o, track)]
+        if not homes:
             out.append(track)
             continue
+        home = max(homes, key=lambda o: max(o.blobs)) if latest else homes[0]
         for k, blob in track.blobs.items():
             home.blobs[k] = blob if k not in home.blobs else _union(home.blobs[k], blob)
         home.hidden |= {k: b for k, b in track.hidden.items() if k not in home.blobs}
@@ -192,11 +190,9 @@ def _join_fragments(tracks: list[Track], s: MoverConfig) -> list[Track]:
 
 
 def _returns(gone: Track, back: Track, s: MoverConfig) -> bool:
-    """Whether ``back`` is ``gone`` coming back into view: ``gone`` left through a border
-    before ``back`` came in through the same one (the straight path between, which the motion
-    interpolates, stays out of view), within reach at either's fastest speed (a cut region's
-    centre lies up to its radius inwards), sizes ``s.gate`` apart at most (a cut region looks
-    smaller, never larger)."""
+    """Whether ``back`` is ``gone`` coming back: it left through the border that ``back`` came
+    in through (the path between stays out of view), within reach at either's fastest speed
+    plus the regions' radii, sizes ``s.gate`` apart at most (a cut region looks smaller)."""
     a, b = max(gone.blobs), min(back.blobs)
     if b <= a or not borders(gone.blobs[a].mask) & borders(back.blobs[b].mask):
         return False
@@ -207,21 +203,6 @@ def _returns(gone: Track, back: Track, s: MoverConfig) -> bool:
     clear = [not all(touches_border(r.mask) for r in t.blobs.values()) for t in (gone, back)]
     whole = [t.radius for t, c in zip((gone, back), clear) if c]  # a cut one's looks smaller
     return not whole or max(gone.radius, back.radius) <= s.gate * min(whole)
-
-
-def _rejoin(tracks: list[Track], s: MoverConfig) -> list[Track]:
-    """Tracks with an object that left the image and came back one track: each returning track
-    joins the latest-ending one it fits (``_returns``), the motion carrying it out and in."""
-    out: list[Track] = []
-    for track in sorted(tracks, key=lambda t: min(t.blobs)):
-        gone = [o for o in out if _returns(o, track, s)]
-        if not gone:
-            out.append(track)
-            continue
-        home = max(gone, key=lambda o: max(o.blobs))
-        home.blobs |= track.blobs
-        home.hidden |= track.hidden
-    return out
 
 
 def _union(a: Blob, b: Blob) -> Blob:

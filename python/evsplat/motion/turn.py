@@ -1,6 +1,5 @@
-"""An object's in-plane turn from its own events by contrast maximisation (Gallego et al., CVPR
-2018; docs/motion.md, step 4): the turn rate whose image of warped events is sharpest. A disc's
-outline is the same at every turn, so a round object's turn shows only through its texture.
+"""An object's in-plane turn rate from its own events by contrast maximisation (Gallego et al.,
+CVPR 2018; docs/motion.md, step 4): the rate whose image of warped events is sharpest.
 """
 
 from __future__ import annotations
@@ -16,8 +15,8 @@ GRID = 41  # turn rates tried between -max and +max; refined by a parabola
 
 @dataclass
 class WindowEvents:
-    """One object's events in one window: pixel centres [E,2], times relative to the window's
-    middle [E] in seconds, polarity [E] (+1/-1)."""
+    """One object's events in one window: pixel centres [E,2], seconds from the middle [E],
+    polarity [E] (+1/-1)."""
 
     xy: np.ndarray
     dt: np.ndarray
@@ -31,9 +30,9 @@ def iwe_variance(
     rates: np.ndarray,
     shape: tuple[int, int],
 ) -> np.ndarray:
-    """Variance of the IWE [R] for each turn rate ``rates`` [R] (rad/s, x towards y), each event
-    carried back to dt = 0 by the image ``velocity`` [2] (px/s) and the turn about ``centre``.
-    One image per polarity (an edge's two signs would cancel in one), bilinear votes."""
+    """Variance of the IWE [R] for each turn rate ``rates`` [R] (rad/s, x towards y), events
+    carried back to dt = 0 by the image ``velocity`` [2] (px/s) and the turn about ``centre``;
+    one image per polarity (an edge's two signs would cancel), bilinear votes."""
     h, w = shape
     xy = torch.from_numpy(ev.xy - centre - velocity[None] * ev.dt[:, None])  # [E,2]
     angle = -torch.from_numpy(rates)[:, None] * torch.from_numpy(ev.dt)[None]  # [R,E]
@@ -56,8 +55,8 @@ def iwe_variance(
 
 
 def vertex(line: np.ndarray, i: int) -> float:
-    """The offset (in samples, within ±0.5) of the top of the parabola through ``line``'s
-    samples i - 1, i, i + 1 from i, where ``i`` is the maximum; 0 at an end or on a flat top."""
+    """The offset (samples, within ±0.5) from ``i``, ``line``'s maximum, of the top of the
+    parabola through samples i - 1, i, i + 1; 0 at an end or on a flat top."""
     if not 0 < i < len(line) - 1:
         return 0.0
     a, b, c = line[i - 1], line[i], line[i + 1]
