@@ -11,10 +11,10 @@ import numpy as np
 
 from evsplat import _core
 from evsplat.errors import EvsplatError
-from evsplat.scenes import library, multi_object
+from evsplat.scenes import held_out, library, multi_object
 from evsplat.scenes.geometry import Primitive
 
-SCENES = library.SCENES | multi_object.SCENES
+SCENES = library.SCENES | multi_object.SCENES | held_out.SCENES
 
 FULL_DURATION_US = 1_000_000
 TINY_DURATION_US = 600_000
