@@ -14,7 +14,7 @@ from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border
 from evsplat.motion.align import align
 from evsplat.motion.paths import hold_path, near_path, turn_angles, turns, two_ends
-from evsplat.motion.seed import joined_ends
+from evsplat.motion.seed import joined_ends, span
 from evsplat.motion.segment import Blob, floor, regions
 from evsplat.motion.tracks import Track, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
@@ -446,6 +446,30 @@ def test_an_object_is_visible_only_inside_its_span():
     early = motion.visibility(ids, 0.1)
     assert early[0] == 1 and early[1] < 1e-6 and early[2] == 1
     assert abs(float(motion.visibility(ids, 0.4)[1]) - 0.5) < 1e-6  # half faded at the edge
+
+
+def test_an_object_is_hidden_only_beyond_where_it_came_in_or_went_out_through_the_border():
+    h, w, inf = 40, 48, float("inf")
+    times = np.linspace(0.0, 1.0, 20)  # the windows' normalised times
+    half = 0.5 / 19  # half a window spacing
+
+    def track(first, last, cut_ends=True):  # a disc on row 20, at the borders at its ends
+        xs = {k: 24.0 for k in range(first, last + 1)}
+        if cut_ends:
+            xs |= {first: 2.0, last: 46.0}
+        return Track(
+            {
+                k: Blob(k, np.array([x, 20.0]), _disc((h, w), (x, 20.0), 5), 78.0, 20.0)
+                for k, x in xs.items()
+            }
+        )
+
+    assert span(track(6, 13), times, coast=3) == pytest.approx([times[6] - half, times[13] + half])
+    # Clear of the border at its ends: it was there all along, still.
+    assert span(track(6, 13, cut_ends=False), times, coast=3) == [-inf, inf]
+    # Within ``coast`` windows of the sequence's ends it may have been in view, unseen.
+    assert span(track(3, 16), times, coast=3) == [-inf, inf]
+    assert span(track(4, 15), times, coast=3) == pytest.approx([times[4] - half, times[15] + half])
 
 
 def test_back_project_inverts_the_projection():

@@ -82,16 +82,16 @@ def object_depth(track: Track, sightings: Sightings, quantile: float) -> float |
     return float(np.median(found)) if found else None
 
 
-def span(track: Track, sightings: Sightings, t_start_us: int, t_end_us: int) -> list[float]:
-    """The normalised times the object is in view between: from half a window spacing before
-    its first sighting where it came in through the border (not in the first window), likewise
-    at its end; ±inf otherwise (it was there all along, still)."""
-    ks, last = sorted(track.blobs), len(sightings.times_us) - 1
-    ends = (sightings.times_us[[ks[0], ks[-1]]] - t_start_us) / max(t_end_us - t_start_us, 1)
-    step, inf = 0.5 / max(last, 1), float("inf")
-    enters = ks[0] > 0 and touches_border(track.blobs[ks[0]].mask)
-    leaves = ks[-1] < last and touches_border(track.blobs[ks[-1]].mask)
-    return [ends[0] - step if enters else -inf, ends[1] + step if leaves else inf]
+def span(track: Track, times: np.ndarray, coast: int) -> list[float]:
+    """The normalised times the object is in view between, of the windows' ``times`` [W]: from
+    half a window spacing before its first sighting where it came in through the border,
+    likewise at its end; ±inf otherwise (it was there all along, still). Not where the sequence
+    ends within ``coast`` windows of it: an object may go unseen that long (``tracks.chain``)."""
+    ks, last, inf = sorted(track.blobs), len(times) - 1, float("inf")
+    step = 0.5 / max(last, 1)
+    enters = ks[0] > coast and touches_border(track.blobs[ks[0]].mask)
+    leaves = ks[-1] < last - coast and touches_border(track.blobs[ks[-1]].mask)
+    return [times[ks[0]] - step if enters else -inf, times[ks[-1]] + step if leaves else inf]
 
 
 def reference(track: Track) -> int:
@@ -282,6 +282,7 @@ def seed_objects(
     faintest = np.argsort(model.opacities().detach().cpu().numpy(), kind="stable")
     areas = np.array([np.median([b.area for b in t.blobs.values()]) for t in tracks])
     knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
+    windows = (sightings.times_us - data.t_start_us) / max(data.t_end_us - data.t_start_us, 1)
     centres, radii, shifts, rotvecs, spans, backs = ([] for _ in range(6))
     for k, (track, (rates, middle, end, seen)) in enumerate(found):
         depth = object_depth(track, sightings, mc.depth_quantile) or float(np.mean(depth_range))
@@ -316,7 +317,7 @@ def seed_objects(
         centres.append(placed.mean(0))
         radii.append(radius)
         shifts.append(hold_path(track.times_us, path, knots) - path[r])
-        spans.append(span(track, sightings, data.t_start_us, data.t_end_us))
+        spans.append(span(track, windows, mc.coast))
         rotvecs.append(angles[:, None] * pose_ref[:3, 2][None])  # about the viewing axis
         rate = float(np.nanmedian(rates)) if used.any() else 0.0
         numbers = {"windows": len(ks), "ends": 1 + (end < 0).any(), "depth": depth}
