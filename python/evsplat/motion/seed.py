@@ -56,8 +56,7 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
     draws (after the warm-up, the static model; later, everything found so far)."""
     data, renderer = views.data, views.renderer
     least = floor(data.c_pos, data.c_neg, mc.pool)
-    span = data.t_end_us - data.t_start_us
-    half = max(int(mc.window * span) // 2, 1)
+    half = max(int(mc.window * (data.t_end_us - data.t_start_us)) // 2, 1)
     mids = np.linspace(data.t_start_us + half, data.t_end_us - half, mc.windows).astype(np.int64)
     mids = mids[[views.allowed(int(m) - half, int(m) + half) for m in mids]]  # held out: unread
     blobs, residuals, depth = [], [], []
@@ -282,7 +281,7 @@ def seed_objects(
     faintest = np.argsort(model.opacities().detach().cpu().numpy(), kind="stable")
     areas = np.array([np.median([b.area for b in t.blobs.values()]) for t in tracks])
     knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
-    windows = (sightings.times_us - data.t_start_us) / max(data.t_end_us - data.t_start_us, 1)
+    windows = np.array([views.renderer.time(t) for t in sightings.times_us])  # the spans' clock
     centres, radii, shifts, rotvecs, spans, backs = ([] for _ in range(6))
     for k, (track, (rates, middle, end, seen)) in enumerate(found):
         depth = object_depth(track, sightings, mc.depth_quantile) or float(np.mean(depth_range))
