@@ -304,6 +304,31 @@ def test_align_gives_a_one_sided_objects_true_displacements():
     assert spread(aligned).max() < 1.0
 
 
+def test_align_leaves_a_view_cut_by_the_border_where_its_whole_shape_put_it():
+    # A textured object fires over its whole body, most towards its middle. Where the border
+    # cuts it, its partial view correlates best with the template's middle, inwards of where
+    # it is (5 px at 38% in view); border.uncut's centre from its whole shape is kept.
+    shape, radius = (96, 128), 10.0
+    ys, xs = np.mgrid[0 : shape[0], 0 : shape[1]] + 0.5
+    per_window, energy, truth = [], [], []
+    for k in range(36):
+        centre = np.array([60.0 + 2.0 * k, 48.0])  # out through the right border from k = 29
+        body = np.maximum(1.0 - np.hypot(xs - centre[0], ys - centre[1]) / radius, 0.0)
+        residual = _ring_residual(shape, [], seed=k) + 0.6 * body
+        per_window.append(regions(residual, k, SEGMENT))
+        energy.append(residual)
+        truth.append(centre)
+    (track,) = chain(per_window, TRACKS)
+    cut = 0
+    for k, centre in zip(sorted(track.blobs), align(track, energy, 0.5).centres):
+        visible = _disc(shape, truth[k], radius).sum() / (np.pi * radius**2)
+        if visible < 0.3:
+            continue  # a sliver: its shape says little
+        cut += visible < 0.8
+        assert np.linalg.norm(centre - truth[k]) < 1.5, (k, centre, truth[k])
+    assert cut >= 3
+
+
 def test_turn_rate_recovers_the_spin_of_a_translating_textured_card():
     rng = np.random.default_rng(3)
     rate, velocity = 12.0, np.array([300.0, -100.0])  # rad/s, px/s

@@ -1,10 +1,10 @@
 """Per-object rigid motion: a Gaussian of object k (``object_id`` k >= 0) at canonical x sits at
 ``R_k(t) (x - c_k) + c_k + T_k(t)`` at normalised time t, turned by R_k(t) too; ``c_k`` is the
 object's centre at its reference time (R = I, T = 0). R_k (rotation vectors) and T_k are linear
-between knots shared by all objects, and parameters that the paper's losses refine from the
-seeding (``evsplat.motion``); the MLP adds what is not rigid (Shape of Motion's motion bases,
-one per object, plus a residual). The scene's Gaussians (id -1) are not moved here.
-"""
+between knots shared by all objects, parameters of the paper's losses started from the seeding
+(``evsplat.motion``; they stay within a pixel of it, docs/motion.md "Limits"); the MLP adds what
+is not rigid (Shape of Motion's motion bases, one per object, plus a residual). The scene's
+Gaussians (id -1) are not moved here."""
 
 from __future__ import annotations
 

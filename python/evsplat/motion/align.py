@@ -1,6 +1,5 @@
 """An object's centres aligned across its windows to its template, the mean of its other views
-(docs/motion.md, step 3): a region's weighted centre is where its events were, not the object.
-"""
+(docs/motion.md, step 3): a region's weighted centre is where its events were, not the object."""
 
 from __future__ import annotations
 
@@ -48,6 +47,11 @@ def align(track: Track, energy: list[np.ndarray], search: float) -> Track:
     half = int(np.ceil(2.0 * track.radius))  # an elongated one reaches beyond its disc radius
     reach = max(int(np.ceil(search * track.radius)), 1)
     start = {k: track.blobs[k].centre.astype(np.float64) for k in own}
+    # A view cut by the border (its disc reaches out of the image) would drift to the template's
+    # middle: it keeps border.uncut's centre from the whole shape.
+    h, w = energy[own[0]].shape
+    inside = {k: min(*c, w - c[0], h - c[1]) >= track.radius for k, c in start.items()}
+    own = [k for k in own if k in whole or inside[k]]
     centres = dict(start)
     for _ in range(ROUNDS):
         # Each window's search area about its centre; the object's view is its middle.

@@ -1,6 +1,5 @@
 """An object's image track lifted to a world path, and its turn (docs/motion.md, step 5): held
-beyond its sightings (a still object makes no events; one out of view is hidden, ``seed.span``).
-"""
+beyond its sightings (a still object makes no events; one out of view is hidden, ``seed.span``)."""
 
 from __future__ import annotations
 

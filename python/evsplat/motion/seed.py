@@ -1,8 +1,7 @@
 """After the warm-up, find every moving object in the events and start its motion (not in the
 paper, which starts from a point cloud). The steps (docs/motion.md): ``segment`` the windows'
 unexplained events, chain them into ``tracks``, ``align`` them, measure each object's ``turn``,
-lift them to ``paths``; here, Gaussians placed on each object's shape and an ``ObjectMotion``.
-"""
+lift them to ``paths``; here, Gaussians placed on each object's shape and an ``ObjectMotion``."""
 
 from __future__ import annotations
 

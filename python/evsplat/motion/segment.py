@@ -1,7 +1,6 @@
 """Motion segmentation (docs/motion.md, step 1): per short window, the pixels whose events the
 static model does not explain, split into moving regions of any number and shape; thresholds in
-the residual's own robust spread (nothing here knows a scene's contrast, size or objects).
-"""
+the residual's own robust spread (nothing here knows a scene's contrast, size or objects)."""
 
 from __future__ import annotations
 

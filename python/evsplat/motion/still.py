@@ -1,7 +1,6 @@
 """Under a still camera, the scene's Gaussians go behind the moving objects (docs/motion.md,
 step 6): it sees no depth, and scene Gaussians in front of an object veil it. Moved along its
-ray with its scales grown alike, a Gaussian renders as before; only the depth order changes.
-"""
+ray with its scales grown alike, a Gaussian renders as before; only the depth order changes."""
 
 from __future__ import annotations
 

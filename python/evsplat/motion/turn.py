@@ -1,6 +1,5 @@
 """An object's in-plane turn rate from its own events by contrast maximisation (Gallego et al.,
-CVPR 2018; docs/motion.md, step 4): the rate whose image of warped events is sharpest.
-"""
+CVPR 2018; docs/motion.md, step 4): the rate whose image of warped events is sharpest."""
 
 from __future__ import annotations
 
