@@ -13,8 +13,8 @@ from evsplat.config import MoverConfig
 from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border
 from evsplat.motion.align import align
-from evsplat.motion.paths import hold_path, near_path, turn_angles, turns, two_ends
-from evsplat.motion.seed import joined_ends, span
+from evsplat.motion.paths import hold_path, turn_angles, turns, two_ends
+from evsplat.motion.seed import joined_ends, smear, span
 from evsplat.motion.segment import Blob, floor, regions
 from evsplat.motion.tracks import Track, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
@@ -514,11 +514,30 @@ def test_back_project_inverts_the_projection():
     assert np.allclose(uv_np, uv) and np.allclose(uv_torch.numpy(), uv) and np.allclose(z, [2, 3])
 
 
-@pytest.mark.parametrize("radius, inside", [(0.5, [True, True, False]), (2.0, [True, True, True])])
-def test_near_path_is_the_swept_volume(radius, inside):
-    path = np.array([[0.0, 0, 0], [2.0, 0, 0]])
-    pts = np.array([[1.0, 0.4, 0], [2.3, 0, 0], [1.0, 1.5, 0]])
-    assert near_path(pts, path, radius).tolist() == inside
+def test_the_smear_is_what_the_objects_regions_hold_in_front_of_its_back():
+    # Oracle: points put on known pixels at known depths by back-projection, two windows seen
+    # from two camera positions; held are those in either window's region, nearer than the back.
+    K = np.array([[50.0, 0, 32], [0, 50.0, 32], [0, 0, 1]])
+    poses = np.stack([np.eye(4), np.eye(4)])
+    poses[1, 0, 3] = 0.5  # the camera moved right: a static point moves left in the image
+    track = Track(
+        {
+            k: Blob(k, np.array([x, 32.0]), _disc((64, 64), (x, 32), 6), 113.0, 20.0)
+            for k, x in ((0, 20.0), (1, 44.0))
+        }
+    )
+    pixels = np.array([[20.5, 32.5], [20.5, 32.5], [44.5, 32.5], [32.5, 10.5], [20.5, 32.5]])
+    depths = np.array([2.0, 3.5, 2.0, 2.0, 2.9])  # the back is at 3
+    pose = np.array([0, 0, 1, 0, 0])  # the window whose pose each point is placed from
+    points = np.concatenate(
+        [
+            back_project(px[None], np.array([d]), poses[p], K)
+            for px, d, p in zip(pixels, depths, pose)
+        ]
+    )
+    assert smear(points, track, poses, K, back=3.0).tolist() == [True, False, True, False, True]
+    # Seen from the other window, the first point lies outside that window's region.
+    assert not smear(points[:1], Track({1: track.blobs[1]}), poses[1:], K, back=3.0)[0]
 
 
 def test_a_cut_regions_whole_pixel_search_matches_pixel_by_pixel_overlaps():

@@ -29,18 +29,6 @@ def turn_angles(
     return np.interp(np.asarray(query_us, dtype=np.float64), grid, angle)
 
 
-def near_path(points: np.ndarray, path: np.ndarray, radius: float) -> np.ndarray:
-    """Bool [N]: ``points`` [N,3] within ``radius`` of the polyline through ``path`` [T,3]
-    (a single point when T = 1): the volume an object sweeps."""
-    ends = np.concatenate([path[:1], path])
-    a, b = ends[:-1], ends[1:]  # the first segment is the first point alone
-    seg = b - a
-    rel = points[:, None, :] - a[None]
-    u = np.clip((rel * seg).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-12), 0.0, 1.0)
-    closest = a[None] + u[..., None] * seg[None]
-    return np.linalg.norm(points[:, None, :] - closest, axis=-1).min(axis=1) <= radius
-
-
 def turns(angles: np.ndarray | float) -> np.ndarray:
     """[...,2,2] image-plane rotations (x right, y down) by ``angles`` [...] (rad)."""
     c, s = np.cos(angles), np.sin(angles)

@@ -17,7 +17,7 @@ from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
 from evsplat.model.motion import ObjectMotion
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
-from evsplat.motion.paths import hold_path, near_path, turn_angles, turns, two_ends
+from evsplat.motion.paths import hold_path, turn_angles, turns, two_ends
 from evsplat.motion.segment import Blob, blurred, floor, regions, unexplained
 from evsplat.motion.still import behind_objects, is_still
 from evsplat.motion.tracks import Track, chain, together
@@ -117,6 +117,20 @@ def shape(
     px = px[in_image(px, mask.shape)]
     mask[px[:, 1], px[:, 0]] = True
     return mask
+
+
+def smear(
+    points: np.ndarray, track: Track, poses: np.ndarray, K: np.ndarray, back: float
+) -> np.ndarray:
+    """Bool [N]: the ``points`` [N,3] that a region of ``track`` holds from its window's pose
+    (``poses`` [F,4,4]) nearer than ``back``: the warm-up's smear of it, spread along the rays."""
+    out = np.zeros(len(points), dtype=bool)
+    for blob, pose in zip((track.blobs[k] for k in sorted(track.blobs)), poses):
+        uv, z = project(points, pose, K)
+        px = np.floor(uv).astype(np.int64)
+        seen = in_image(px, blob.mask.shape) & (z > 0) & (z <= back)
+        out[seen] |= blob.mask[px[seen, 1], px[seen, 0]]
+    return out
 
 
 def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
@@ -295,7 +309,8 @@ def seed_objects(
             angles = turn_angles(track.times_us[used], rates[used], knots, t_ref)
         poses = data.trajectory.pose(track.times_us.astype(np.float64))
         path = back_project(middle, np.full(len(ks), depth), poses, data.K)
-        swept = np.flatnonzero(near_path(means, path, radius) & free)
+        back = depth + 2.0 * radius  # its front surface is at depth, its body one radius
+        swept = np.flatnonzero(smear(means, track, poses, data.K, back) & free)
         share = max(int(mc.fraction * n * areas[k] / areas.sum()), mc.min_gaussians)
         rest = faintest[free[faintest]]
         rest = rest[~np.isin(rest, swept)][: max(share - len(swept), 0)]
@@ -311,7 +326,7 @@ def seed_objects(
         placed = back_project(uv, depth + radius * rng.random(len(pick)), pose_ref, data.K)
         volume = mask.sum() * (depth / focal) ** 2 * radius
         place(model, optimizer, pick, placed, (volume / max(len(pick), 1)) ** (1 / 3), mc.opacity)
-        backs.append(depth + 2.0 * radius)  # its front surface is at depth, its body one radius
+        backs.append(back)
         centres.append(placed.mean(0))
         radii.append(radius)
         shifts.append(hold_path(track.times_us, path, knots) - path[r])
