@@ -310,10 +310,11 @@ def seed_objects(
         poses = data.trajectory.pose(track.times_us.astype(np.float64))
         path = back_project(middle, np.full(len(ks), depth), poses, data.K)
         back = depth + 2.0 * radius  # its front surface is at depth, its body one radius
+        swept = np.flatnonzero(smear(means, track, poses, data.K, back) & free)
         share = max(int(mc.fraction * n * areas[k] / areas.sum()), mc.min_gaussians)
-        # Its share, first of its smear, faintest first (the scene it passes is opaque).
-        smeared = smear(means, track, poses, data.K, back)[faintest]
-        pick = np.concatenate([faintest[free[faintest] & s] for s in (smeared, ~smeared)])[:share]
+        rest = faintest[free[faintest]]
+        rest = rest[~np.isin(rest, swept)][: max(share - len(swept), 0)]
+        pick = np.concatenate([swept, rest])
         free[pick] = False
         object_id[pick] = first + k
         # On its shape: its reference region's pixels, from its front surface one radius deep.
