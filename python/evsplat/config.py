@@ -150,7 +150,7 @@ class MoverConfig:
     together: float = 1.5  # tracks within this many summed radii in most windows are one object
     align: float = 0.5  # a centre moves at most this many radii to match the object's template
     depth_quantile: float = 0.25  # of the static render's depth in its regions: its front
-    fraction: float = 0.15  # of the Gaussians placed on the objects, split by area
+    fraction: float = 0.15  # of the Gaussians placed on the objects, split by area (or their smear)
     min_gaussians: int = 64  # at least this many per object
     opacity: float = 0.5  # their initial opacity: an object occludes what is behind it
     turn: bool = True  # estimate each object's in-plane turn from its events
