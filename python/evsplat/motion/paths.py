@@ -8,14 +8,6 @@ import numpy as np
 from evsplat.motion.tracks import JUMP, step_lengths
 
 
-def hold_path(times_us: np.ndarray, points: np.ndarray, query_us: np.ndarray) -> np.ndarray:
-    """[Q,3] centres at ``query_us``: linear between the sightings ``points`` [F,3] at
-    ``times_us`` [F], held beyond them."""
-    q = np.asarray(query_us, dtype=np.float64).reshape(-1)
-    t = times_us.astype(np.float64)
-    return np.stack([np.interp(q, t, points[:, k]) for k in range(3)], 1)
-
-
 def turn_angles(
     times_us: np.ndarray, rates: np.ndarray, query_us: np.ndarray, t_ref_us: int
 ) -> np.ndarray:

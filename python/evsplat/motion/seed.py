@@ -17,7 +17,7 @@ from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
 from evsplat.model.motion import ObjectMotion
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
-from evsplat.motion.paths import hold_path, turn_angles, turns, two_ends
+from evsplat.motion.paths import turn_angles, turns, two_ends
 from evsplat.motion.segment import Blob, blurred, floor, regions, unexplained
 from evsplat.motion.still import behind_objects, is_still
 from evsplat.motion.tracks import Track, chain, together
@@ -329,7 +329,8 @@ def seed_objects(
         backs.append(back)
         centres.append(placed.mean(0))
         radii.append(radius)
-        shifts.append(hold_path(track.times_us, path, knots) - path[r])
+        held = [np.interp(knots, track.times_us, path[:, j]) for j in range(3)]  # held beyond
+        shifts.append(np.stack(held, 1) - path[r])
         spans.append(span(track, windows, mc.coast))
         rotvecs.append(angles[:, None] * pose_ref[:3, 2][None])  # about the viewing axis
         rate = float(np.nanmedian(rates)) if used.any() else 0.0

@@ -64,9 +64,10 @@ class Track:
         return step_lengths(np.array(ks), np.stack([self.blobs[k].centre for k in ks])).tolist()
 
     def predict(self, window: int) -> tuple[np.ndarray, float]:
-        """The object's centre at ``window`` at the velocity of its last own sightings, and that
-        speed (px per window), held to ``JUMP`` x its median step (a jump is not its motion)."""
-        ks = [k for k in sorted(self.blobs) if k not in self.shared] or sorted(self.blobs)
+        """The object's centre at ``window`` at its last sightings' velocity (shared too: an object
+        turning while another hid in it was lost), and that speed (px per window), held to
+        ``JUMP`` x its median step (a jump is not its motion)."""
+        ks = sorted(self.blobs)
         last = self.blobs[ks[-1]].centre
         if len(ks) < 2:
             return last, 0.0
