@@ -231,11 +231,11 @@ def test_a_track_that_jumps_onto_noise_does_not_take_a_far_object():
 
 
 def test_an_object_keeps_its_track_as_it_turns_while_a_small_one_hides_in_it():
-    # A disc goes right, then turns down at window 10; a small one above it, seen in windows
-    # 4-8, goes on unseen inside its region from window 11 (its windows are shared from then
-    # on). Predicted from its last own sighting, the disc's track went on right and the small
-    # one's took the disc from window 13 (`blobs`, docs/motion.md); from its shared ones, the
-    # disc's track keeps the disc.
+    # A disc goes right, then turns down at window 10, over a small still object seen in
+    # windows 4-8 and unseen from then: inside the disc's region in windows 11-15, which are
+    # shared. Predicted from its last own sighting (window 10), the disc's track went on right
+    # and the small one's, nearer, took the disc (`blobs`, docs/motion.md); predicted from its
+    # last sighting, shared too, the disc's track keeps the disc.
     shape = (160, 128)
 
     def blob(k: int, centre: tuple[float, float], radius: float) -> Blob:
@@ -243,12 +243,12 @@ def test_an_object_keeps_its_track_as_it_turns_while_a_small_one_hides_in_it():
         return Blob(k, np.array(centre), mask, float(mask.sum()), 20.0)
 
     disc = [(16.0 + 4 * k, 50.0) if k <= 10 else (56.0, 50.0 + 4 * (k - 10)) for k in range(30)]
-    small = {k: (56.0, 26.0 + 5 * (k - 8)) for k in range(4, 9)}
     per_window = [[blob(k, disc[k], 14.0)] for k in range(30)]
-    for k, centre in small.items():
-        per_window[k].append(blob(k, centre, 4.0))
+    for k in range(4, 9):
+        per_window[k].append(blob(k, (64.0, 62.0), 4.0))
     tracks = chain(per_window, TRACKS)
     assert sorted(len(t.blobs) for t in tracks) == [5, 30]
+    assert sorted(tracks[0].hidden or tracks[1].hidden) == [11, 12, 13, 14, 15]
     assert all(b.radius > 10 for b in tracks[0].blobs.values())  # the longest first: the disc's
 
 

@@ -64,14 +64,15 @@ class Track:
         return step_lengths(np.array(ks), np.stack([self.blobs[k].centre for k in ks])).tolist()
 
     def predict(self, window: int) -> tuple[np.ndarray, float]:
-        """The object's centre at ``window`` at its last sightings' velocity (shared too: an object
-        turning while another hid in it was lost), and that speed (px per window), held to
-        ``JUMP`` x its median step (a jump is not its motion)."""
+        """The object's centre at ``window``: from its last sighting (shared too, its region holds
+        it) at the velocity of its last own ones (a shared region moves as the pair does), and that
+        speed (px per window), held to ``JUMP`` x its median step (a jump is not its motion)."""
         ks = sorted(self.blobs)
+        own = [k for k in ks if k not in self.shared] or ks
         last = self.blobs[ks[-1]].centre
-        if len(ks) < 2:
+        if len(own) < 2:
             return last, 0.0
-        velocity = (last - self.blobs[ks[-2]].centre) / (ks[-1] - ks[-2])
+        velocity = (self.blobs[own[-1]].centre - self.blobs[own[-2]].centre) / (own[-1] - own[-2])
         speed = float(np.linalg.norm(velocity))
         held = min(speed, JUMP * float(np.median(self.steps)))
         return last + velocity * (held / max(speed, 1e-9)) * (window - ks[-1]), held
