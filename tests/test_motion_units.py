@@ -75,6 +75,12 @@ def _disc(shape, centre, radius):
     return ((xs - centre[0]) ** 2 + (ys - centre[1]) ** 2) <= radius**2
 
 
+def _disc_blob(shape, t_us, centre, radius, contrast=20.0):
+    """A region that is the whole disc of ``radius`` at ``centre``."""
+    mask = _disc(shape, centre, radius)
+    return Blob(t_us, np.asarray(centre, dtype=np.float64), mask, float(mask.sum()), contrast)
+
+
 def _ring_residual(shape, discs, seed=0):
     """A residual map: noise everywhere, and the outlines of ``discs`` (centre, radius)
     firing as a moving object's edges do."""
@@ -237,15 +243,10 @@ def test_an_object_keeps_its_track_as_it_turns_while_a_small_one_hides_in_it():
     # and the small one's, nearer, took the disc (`blobs`, docs/motion.md); predicted from its
     # last sighting, shared too, the disc's track keeps the disc.
     shape = (160, 128)
-
-    def blob(k: int, centre: tuple[float, float], radius: float) -> Blob:
-        mask = _disc(shape, centre, radius)
-        return Blob(k, np.array(centre), mask, float(mask.sum()), 20.0)
-
     disc = [(16.0 + 4 * k, 50.0) if k <= 10 else (56.0, 50.0 + 4 * (k - 10)) for k in range(30)]
-    per_window = [[blob(k, disc[k], 14.0)] for k in range(30)]
+    per_window = [[_disc_blob(shape, k, disc[k], 14.0)] for k in range(30)]
     for k in range(4, 9):
-        per_window[k].append(blob(k, (64.0, 62.0), 4.0))
+        per_window[k].append(_disc_blob(shape, k, (64.0, 62.0), 4.0))
     tracks = chain(per_window, TRACKS)
     assert sorted(len(t.blobs) for t in tracks) == [5, 30]
     assert sorted(tracks[0].hidden or tracks[1].hidden) == [11, 12, 13, 14, 15]
@@ -426,8 +427,7 @@ def _tip_track(centre, d, windows, end, drift=(0.3, 0.1), radius=5.0):
     blobs = {}
     for k, e in zip(windows, end):
         c = centre + e * d + k * np.array(drift)
-        mask = _disc((96, 96), c, radius)
-        blobs[int(k)] = Blob(int(k) * 20_000, c, mask, float(mask.sum()), 12.0)
+        blobs[int(k)] = _disc_blob((96, 96), int(k) * 20_000, c, radius, contrast=12.0)
     return Track(blobs)
 
 
