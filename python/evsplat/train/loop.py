@@ -26,7 +26,6 @@ from evsplat.losses.flow import gaussian_flow_features
 from evsplat.model.deform import DeformationMLP
 from evsplat.model.densify import Densifier
 from evsplat.model.motion import ObjectMotion
-from evsplat.motion.refine import refine_paths
 from evsplat.motion.seed import seed_objects
 from evsplat.projection import viewmat
 from evsplat.render import Renderer
@@ -125,9 +124,6 @@ class Trainer:
         again = iteration == look_again_at(cfg) and not self.static_scene
         if motion_stage and cfg.mover.enabled and again:
             seeded = {f"again_{k}": v for k, v in self.seed_objects(again=True).items()}
-            if self.renderer.motion is not None:
-                self.renderer.mlp = self.mlp
-                seeded |= refine_paths(self.views, self.renderer.motion, cfg.mover)
         moving = motion_stage and not self.static_scene
         self.renderer.mlp = self.mlp if moving else None
         coarse = coarse_due(cfg, iteration, stage)
