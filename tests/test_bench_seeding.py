@@ -1,12 +1,13 @@
-"""`evsplat bench seeding` scores each true object by the seeded object nearest its path: checked
-on paths whose distances are known, and end to end on a built-in scene against its true objects."""
+"""`evsplat bench seeding` scores each true object by the seeded objects drawn nearest its path:
+checked on paths whose distances are known, and end to end on a built-in scene against its true
+objects."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from evsplat.bench.seeding import match_score
+from evsplat.bench.seeding import follow_score, nearest
 from evsplat.cli import main
 
 
@@ -15,18 +16,37 @@ def _truth(times: int = 20) -> np.ndarray:
     return np.stack([10.0 + 60.0 * t, 40.0 + 20.0 * np.sin(3.0 * t)], 1)
 
 
-def test_the_nearest_seeded_object_is_matched_and_its_steady_offset_taken_out():
+def test_the_nearest_drawn_object_follows_and_its_steady_offset_is_taken_out():
     truth = _truth()
     seen = np.ones(len(truth), dtype=bool)
     seen[:4] = False  # out of the image: not scored
     near = truth + np.array([3.0, 4.0])  # 5 px off, steadily
     near[:4] += 100.0
     far = truth + np.array([30.0, 0.0])
-    k, median, steady, p90 = match_score(np.stack([far, near]), truth, seen)
-    assert k == 1
+    drawn = np.ones((2, len(truth)), dtype=bool)
+    followed, median, steady, p90, missed = follow_score(
+        *nearest(np.stack([far, near]), drawn, truth), seen
+    )
+    assert followed == [1]
     assert median == pytest.approx(5.0)
     assert steady == pytest.approx(0.0, abs=1e-9)
     assert p90 == pytest.approx(5.0)
+    assert missed == 0.0
+
+
+def test_an_object_hidden_outside_its_span_hands_over_or_is_missed():
+    truth = _truth()
+    seen = np.ones(len(truth), dtype=bool)
+    first, second = truth + np.array([1.0, 0.0]), truth + np.array([0.0, 2.0])
+    drawn = np.zeros((2, len(truth)), dtype=bool)
+    drawn[0, :8] = True  # the first track ends, the second starts later
+    drawn[1, 10:] = True
+    followed, median, _, _, missed = follow_score(
+        *nearest(np.stack([first, second]), drawn, truth), seen
+    )
+    assert followed == [1, 0]  # 10 times the second, 8 the first
+    assert median == pytest.approx(2.0)  # 8 at 1 px, 10 at 2 px
+    assert missed == pytest.approx(2 / 20)
 
 
 def test_an_offset_that_changes_is_not_taken_out():
@@ -34,18 +54,20 @@ def test_an_offset_that_changes_is_not_taken_out():
     seen = np.ones(len(truth), dtype=bool)
     jitter = np.zeros_like(truth)
     jitter[:, 0] = np.where(np.arange(len(truth)) % 2 == 0, 2.0, -2.0)  # 2 px right, then left
-    k, median, steady, _ = match_score(jitter[None] + truth, truth, seen)
-    assert k == 0
+    drawn = np.ones((1, len(truth)), dtype=bool)
+    _, median, steady, _, _ = follow_score(*nearest(jitter[None] + truth, drawn, truth), seen)
     assert median == pytest.approx(2.0)
     assert steady == pytest.approx(2.0)  # the median offset is none
 
 
 def test_nothing_seeded_or_never_seen_scores_none():
     truth = _truth()
-    assert (
-        match_score(np.zeros((0, len(truth), 2)), truth, np.ones(len(truth), bool)) == (None,) * 4
-    )
-    assert match_score(truth[None], truth, np.zeros(len(truth), bool)) == (None,) * 4
+    seen = np.ones(len(truth), dtype=bool)
+    empty = nearest(np.zeros((0, len(truth), 2)), np.zeros((0, len(truth)), bool), truth)
+    assert follow_score(*empty, seen) == ([], None, None, None, 1.0)
+    drawn = np.ones((1, len(truth)), dtype=bool)
+    unseen = np.zeros(len(truth), dtype=bool)
+    assert follow_score(*nearest(truth[None], drawn, truth), unseen)[:4] == ([], None, None, None)
 
 
 def test_an_unknown_scene_is_a_one_line_error(capsys, tmp_path):
