@@ -103,6 +103,7 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
     from evsplat.config import preset
     from evsplat.config_fields import apply
     from evsplat.data.dataset import load_dataset
+    from evsplat.model.gaussians import PARAM_NAMES
     from evsplat.projection import project
     from evsplat.train.loop import Trainer
 
@@ -113,8 +114,7 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
     for it in range(cfg.schedule.warmup_end):
         trainer.step(it)
     trainer.renderer.mlp = None  # the warm-up's static model, as the seeding sees it
-    names = ("means", "log_scales", "quats", "opacity_logits", "sh", "t_mean", "t_log_scale")
-    warm = {k: getattr(trainer.model, k).detach().clone() for k in names}
+    warm = {k: getattr(trainer.model, k).detach().clone() for k in PARAM_NAMES}
     times = np.linspace(data.t_start_us, data.t_end_us, TIMES + 2)[1:-1]
     poses = data.trajectory.pose(times)
     out = []
