@@ -72,11 +72,11 @@ def nearest(found: np.ndarray, drawn: np.ndarray, truth: np.ndarray) -> tuple:
     """(index [T] of the drawn seeded object nearest the true centre, -1 where none is drawn;
     its offset [T,2] px, NaN there) of seeded centres ``found`` [K,T,2] drawn at ``drawn``
     [K,T] against the true centres ``truth`` [T,2]."""
-    dist = np.linalg.norm(found - truth[None], axis=-1)
-    dist = np.where(drawn, dist, np.inf)
-    index = np.argmin(dist, axis=0) if len(found) else np.zeros(len(truth), dtype=np.int64)
-    index = np.where(np.isfinite(dist.min(axis=0)) if len(found) else False, index, -1)
     offset = np.full(truth.shape, np.nan)
+    if not len(found):
+        return np.full(len(truth), -1), offset
+    dist = np.where(drawn, np.linalg.norm(found - truth[None], axis=-1), np.inf)
+    index = np.where(np.isfinite(dist.min(axis=0)), np.argmin(dist, axis=0), -1)
     hit = index >= 0
     offset[hit] = found[index[hit], np.flatnonzero(hit)] - truth[hit]
     return index, offset
@@ -139,7 +139,6 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
             u = np.array(clock)[None]
             drawn = (spans[:, :1] <= u) & (u <= spans[:, 1:])  # outside its span it is hidden
         trainer.renderer.motion = trainer.renderer.object_id = trainer.renderer.static_mask = None
-        trainer.renderer.mlp = None
         for track in data.tracks:
             centres = np.stack(
                 [np.interp(times, track.times_us, track.centres[:, j]) for j in range(3)], 1
