@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
-from evsplat.bench.seeding import follow_score, nearest
+from evsplat.bench.seeding import follow_score, nearest, turn_error
 from evsplat.cli import main
 
 
@@ -70,6 +71,19 @@ def test_nothing_seeded_or_never_seen_scores_none():
     assert follow_score(*nearest(truth[None], drawn, truth), unseen)[:4] == ([], None, None, None)
 
 
+def test_turn_error_is_the_angle_between_the_seeded_and_the_true_turn_from_the_reference():
+    t = np.linspace(0.0, 0.6, 31)
+    start = Rotation.from_rotvec([0.3, -1.0, 2.0])  # the true object's orientation at t = 0
+    true = (Rotation.from_rotvec(t[:, None] * [0.0, 5.0, 0.0]) * start).as_matrix()
+    seen = np.ones(len(t), dtype=bool)
+    exact = Rotation.from_rotvec((t[:, None] - 0.2) * [0.0, 5.0, 0.0]).as_quat()  # ref 0.2 s
+    assert turn_error(np.roll(exact, 1, axis=1), true, seen) == pytest.approx(0.0, abs=1e-6)
+    none = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))  # not turned: off by 5 rad/s x |t - 0|
+    want = np.degrees(np.median(5.0 * t))
+    assert turn_error(none, true, seen) == pytest.approx(want, rel=1e-6)
+    assert turn_error(none, true, np.zeros(len(t), dtype=bool)) is None
+
+
 def test_an_unknown_scene_is_a_one_line_error(capsys, tmp_path):
     assert main(["bench", "seeding", "--scenes", "nope", "--out", str(tmp_path)]) != 0
     err = capsys.readouterr().err.strip().splitlines()
@@ -86,3 +100,4 @@ def test_every_true_object_of_a_scene_gets_a_row(capsys, tmp_path):
         cells = [c.strip() for c in row.split("|")[1:-1]]
         assert int(cells[2]) >= 1  # objects seeded
         assert float(cells[5]) >= 0.0  # a median distance, in px
+        assert 0.0 <= float(cells[9]) <= 180.0  # the turn's error, degrees

@@ -154,6 +154,7 @@ class MoverConfig:
     min_gaussians: int = 64  # at least this many per object
     opacity: float = 0.5  # their initial opacity: an object occludes what is behind it
     turn: bool = True  # estimate each object's in-plane turn from its events
+    sphere: bool = True  # a round object's turn about three axes, from its outline (needs turn)
     turn_window: float = 0.05  # the turn's windows, a fraction of the sequence
     turn_min_gain: float = 0.05  # a turn is used where it sharpens the warped events this much
     turn_min_events: int = 50  # ... from at least this many of the object's events

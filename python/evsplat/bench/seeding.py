@@ -10,7 +10,9 @@ objects that follow it, most often first, the distance's median, its median less
 offset (a region's centre is where its events were, not the object's centre: the Gaussians take
 a steady offset up), its 90th percentile, and the fraction of the times no seeded object is drawn.
 One seeded object that follows two true objects shows in both rows: two objects drawn as one.
-No colour, no Gaussians' shape: what training starts the paths from.
+The turn: the angle between the turn the object that follows it most is seeded with and the
+true object's, both from the time the seeded turn is least (its reference), median over the
+times it is seen. No colour, no Gaussians' shape: what training starts the paths from.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ class Score:
     steady: float | None  # median less the median offset
     p90: float | None
     missed: float  # of the times it is in the image, the fraction with no seeded object drawn
+    turn: float | None  # degrees, median (None: none followed it)
     seconds: float
 
 
@@ -97,6 +100,20 @@ def follow_score(index: np.ndarray, offset: np.ndarray, seen: np.ndarray) -> tup
     return order, *(float(q) for q in quantiles), float(missed)
 
 
+def turn_error(seeded: np.ndarray, truth: np.ndarray, seen: np.ndarray) -> float | None:
+    """Median angle (degrees) over the times ``seen`` [T] between the seeded turns ``seeded``
+    [T,4] (unit quaternions w, x, y, z, world frame) and the true orientations ``truth``
+    [T,3,3], both taken from the time the seeded turn is least."""
+    from scipy.spatial.transform import Rotation
+
+    if not seen.any():
+        return None
+    mine = Rotation.from_quat(np.roll(seeded, -1, axis=1))  # scipy: x, y, z, w
+    ref = int(np.argmin(mine.magnitude()))
+    true = Rotation.from_matrix(truth) * Rotation.from_matrix(truth[ref]).inv()
+    return float(np.degrees(np.median((mine.inv() * true).magnitude()[seen])))
+
+
 def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]:
     import torch
 
@@ -105,9 +122,12 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
     from evsplat.data.dataset import load_dataset
     from evsplat.model.gaussians import PARAM_NAMES
     from evsplat.projection import project
+    from evsplat.scenes import get_scene, scene_objects
     from evsplat.train.loop import Trainer
 
     data = load_dataset(data_dir)
+    prims = get_scene(scene, tiny=True).primitives
+    roots = {o.name: prims[o.parts[0]] for o in scene_objects(prims)}
     cfg = preset("tiny")
     cfg.seed, cfg.schedule.iterations, cfg.schedule.grad_norms_every = args.seed, args.iters, 0
     trainer = Trainer(data, cfg, args.out / "warm" / scene)
@@ -128,10 +148,12 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
         seconds = time.perf_counter() - start
         motion = trainer.renderer.motion
         found, drawn = np.zeros((0, len(times), 2)), np.zeros((0, len(times)), dtype=bool)
+        turned = np.zeros((0, len(times), 4))
         if motion is not None:
             clock = [trainer.renderer.time(t) for t in times]
             with torch.no_grad():
                 at = [(motion.centres + motion.at(u)[1]).cpu().numpy() for u in clock]
+                turned = np.stack([motion.at(u)[0].double().cpu().numpy() for u in clock], 1)
                 spans = motion.spans.cpu().numpy()
             found = np.stack(
                 [project(c.astype(np.float64), p, data.K)[0] for c, p in zip(at, poses)], 1
@@ -146,7 +168,10 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
             truth = np.stack([project(c[None], p, data.K)[0][0] for c, p in zip(centres, poses)])
             seen = (truth >= 0).all(1) & (truth[:, 0] < data.width) & (truth[:, 1] < data.height)
             score = follow_score(*nearest(found, drawn, truth), seen)
-            out.append(Score(scene, setting, len(found), track.name, *score, seconds))
+            pose = roots[track.name].pose
+            rot = np.stack([pose(t * 1e-6)[:3, :3] for t in times])
+            turn = turn_error(turned[score[0][0]], rot, seen) if score[0] else None
+            out.append(Score(scene, setting, len(found), track.name, *score, turn, seconds))
     return out
 
 
@@ -154,12 +179,13 @@ def table(scores: list[Score]) -> list[str]:
     """The markdown table of ``scores``."""
     lines = [
         "| scene | setting | objects | true object | followed by | median px | less offset "
-        "| 90% px | missed | seeding s |",
-        "|---|---|---:|---|---|---:|---:|---:|---:|---:|",
+        "| 90% px | missed | turn ° | seeding s |",
+        "|---|---|---:|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for s in scores:
         cells = [s.scene, s.setting, str(s.objects), s.name, ", ".join(map(str, s.followed_by))]
         cells += [fmt(s.median, 1), fmt(s.steady, 1), fmt(s.p90, 1), f"{s.missed:.0%}"]
+        cells.append(fmt(s.turn, 0))
         cells.append(fmt(s.seconds, 1))
         lines.append("| " + " | ".join(cells) + " |")
     return lines

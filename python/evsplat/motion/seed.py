@@ -15,6 +15,7 @@ from evsplat.config import MoverConfig
 from evsplat.model.densify import set_rows
 from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
 from evsplat.model.motion import ObjectMotion
+from evsplat.motion import sphere
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
 from evsplat.motion.paths import turn_angles, turns, two_ends
@@ -133,36 +134,96 @@ def smear(
     return out
 
 
+def carried(
+    views: Views, t_us: int, half_us: int, velocity: np.ndarray
+) -> tuple[np.ndarray, ...] | None:
+    """(pixel centres [E,2], seconds from ``t_us`` [E], polarity [E], the centres carried back
+    to ``t_us`` by the image ``velocity`` [2] px/s) of the events within ``half_us`` of it;
+    None beyond the data or where held out."""
+    data = views.data
+    t0, t1 = max(t_us - half_us, data.t_start_us), min(t_us + half_us, data.t_end_us)
+    if t1 <= t0 or not views.allowed(t0, t1):
+        return None
+    ev = data.events.read(t0, t1, TURN_WINDOW_EVENTS)
+    dt = (ev.t - t_us) * 1e-6
+    xy = np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5
+    return xy, dt, ev.p, xy - velocity[None] * dt[:, None]
+
+
 def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
     """The object's turn rate (rad/s) at each sighting: ``turn.turn_rate`` on the events of a
     ``mc.turn_window`` window that its region holds, carried back by its image velocity; NaN
     where the turn sharpens them by less than ``mc.turn_min_gain``."""
-    data = views.data
-    half_us = max(int(mc.turn_window * (data.t_end_us - data.t_start_us)) // 2, 1)
+    half_us, top = turn_window(views, mc)
     times, centres = track.times_us, track.centres
     velocity = np.gradient(centres, times * 1e-6, axis=0) if len(times) > 1 else 0.0 * centres
     out = np.full(len(times), np.nan)
     for i, k in enumerate(sorted(track.blobs)):
         mask = track.blobs[k].mask
-        t0 = max(int(times[i]) - half_us, data.t_start_us)
-        t1 = min(int(times[i]) + half_us, data.t_end_us)
-        if t1 <= t0 or not views.allowed(t0, t1):
-            continue  # beyond the data, or held out
-        ev = data.events.read(t0, t1, TURN_WINDOW_EVENTS)
-        dt = (ev.t - times[i]) * 1e-6
-        xy = np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5
-        back = np.floor(xy - velocity[i][None] * dt[:, None]).astype(np.int64)
+        got = carried(views, int(times[i]), half_us, velocity[i])
+        if got is None:
+            continue
+        xy, dt, p, back = got
+        back = np.floor(back).astype(np.int64)
         inside = in_image(back, mask.shape)
         inside[inside] = mask[back[inside, 1], back[inside, 0]]
         if inside.sum() < mc.turn_min_events:
             continue
-        window = WindowEvents(xy[inside], dt[inside], ev.p[inside])
-        # At one radian per window an edge's events smear over the whole object: no faster.
-        top = 1.0 / max(2 * half_us * 1e-6, 1e-9)
+        window = WindowEvents(xy[inside], dt[inside], p[inside])
         rate, gain = turn_rate(window, track.blobs[k].centre, velocity[i], top, mask.shape)
         if gain >= mc.turn_min_gain:
             out[i] = rate
     return out
+
+
+def turn_window(views: Views, mc: MoverConfig) -> tuple[int, float]:
+    """(half the turn's window, µs; the fastest turn sought, rad/s: at one radian per window an
+    edge's events smear over the whole object)."""
+    data = views.data
+    half_us = max(int(mc.turn_window * (data.t_end_us - data.t_start_us)) // 2, 1)
+    return half_us, 1.0 / (2 * half_us * 1e-6)
+
+
+def sphere_turn(
+    views: Views, track: Track, middle: np.ndarray, knots: np.ndarray, t_ref: int,
+    mc: MoverConfig,
+) -> np.ndarray | None:  # fmt: skip
+    """Rotation vectors [G,3] at ``knots`` from ``t_ref`` of a round object's turn about three
+    axes (``sphere``), from its sightings clear of the border, its centres ``middle`` [F,2];
+    None where its outline is no steady ring (not round) or too few sightings show it."""
+    if not (mc.turn and mc.sphere):
+        return None
+    data, (half_us, top) = views.data, turn_window(views, mc)
+    times, radius = track.times_us, track.radius
+    velocity = np.gradient(middle, times * 1e-6, axis=0)
+    fits = []
+    for i, k in enumerate(sorted(track.blobs)):
+        got = None if touches_border(track.blobs[k].mask) else carried(  # a cut outline: no ring
+            views, int(times[i]), half_us, velocity[i])  # fmt: skip
+        if got is None:
+            continue
+        _, dt, p, back = got
+        off = back - middle[i]
+        near = np.linalg.norm(off, axis=1) < sphere.REACH * radius
+        near &= in_image(np.floor(back).astype(np.int64), (data.height, data.width))
+        fit = sphere.ring(off[near], radius) if near.sum() >= mc.turn_min_events else None
+        if fit is not None:
+            fits.append((i, off[near] - fit[0], dt[near], p[near], *fit))
+    rings = [[f[k] for f in fits] for k in (4, 6)]  # centres, contrasts
+    if len(fits) < mc.turn_min_windows or not sphere.is_round(*rings):
+        return None
+    found, omegas = [], []
+    for i, off, dt, p, centre, rho, _ in fits:
+        front = np.linalg.norm(off, axis=1) < sphere.FRONT * rho
+        if front.sum() < mc.turn_min_events:
+            continue
+        args = (off[front], dt[front], p[front], middle[i] + centre, rho, top)
+        omega = sphere.sphere_rate(*args, (data.height, data.width))
+        found.append(float(times[i]))
+        omegas.append(data.trajectory.pose(float(times[i]))[:3, :3] @ omega)  # to the world
+    if len(found) < mc.turn_min_windows:
+        return None
+    return sphere.rotvecs(np.array(found), np.array(omegas), knots, t_ref)
 
 
 Turning = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # ``turning``'s
@@ -332,11 +393,13 @@ def seed_objects(
         held = [np.interp(knots, track.times_us, path[:, j]) for j in range(3)]  # held beyond
         shifts.append(np.stack(held, 1) - path[r])
         spans.append(span(track, windows, mc.coast))
-        rotvecs.append(angles[:, None] * pose_ref[:3, 2][None])  # about the viewing axis
+        turn3 = sphere_turn(views, track, middle, knots, t_ref, mc)
+        in_plane = angles[:, None] * pose_ref[:3, 2][None]  # about the viewing axis
+        rotvecs.append(in_plane if turn3 is None else turn3)
         rate = float(np.nanmedian(rates)) if used.any() else 0.0
         numbers = {"windows": len(ks), "ends": 1 + (end < 0).any(), "depth": depth}
         numbers |= {"radius_px": track.radius, "gaussians": len(pick)}
-        numbers |= {"turn_windows": used.sum(), "turn_rate": rate}
+        numbers |= {"turn_windows": used.sum(), "turn_rate": rate, "sphere": turn3 is not None}
         stats |= {f"object{first + k}_{name}": float(v) for name, v in numbers.items()}
     poses = data.trajectory.pose(sightings.times_us.astype(np.float64))
     if is_still(poses):

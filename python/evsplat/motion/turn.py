@@ -30,19 +30,25 @@ def iwe_variance(
     shape: tuple[int, int],
 ) -> np.ndarray:
     """Variance of the IWE [R] for each turn rate ``rates`` [R] (rad/s, x towards y), events
-    carried back to dt = 0 by the image ``velocity`` [2] (px/s) and the turn about ``centre``;
-    one image per polarity (an edge's two signs would cancel), bilinear votes."""
-    h, w = shape
+    carried back to dt = 0 by the image ``velocity`` [2] (px/s) and the turn about ``centre``."""
     xy = torch.from_numpy(ev.xy - centre - velocity[None] * ev.dt[:, None])  # [E,2]
     angle = -torch.from_numpy(rates)[:, None] * torch.from_numpy(ev.dt)[None]  # [R,E]
     cos, sin = torch.cos(angle), torch.sin(angle)
     x = cos * xy[:, 0] - sin * xy[:, 1] + float(centre[0]) - 0.5
     y = sin * xy[:, 0] + cos * xy[:, 1] + float(centre[1]) - 0.5
+    return warped_variance(x, y, ev.p, shape)
+
+
+def warped_variance(x: torch.Tensor, y: torch.Tensor, p: np.ndarray, shape: tuple) -> np.ndarray:
+    """Variance [R] of each of R images of warped events at (``x``, ``y``) [R,E] (px, pixel
+    centres at whole numbers), polarity ``p`` [E]: one image per polarity (an edge's two signs
+    would cancel), bilinear votes."""
+    h, w = shape
     x0, y0 = torch.floor(x), torch.floor(y)
     fx, fy = x - x0, y - y0
-    channel = torch.from_numpy((ev.p > 0).astype(np.int64))
-    r = len(rates)
-    images = torch.zeros(r, 2, h + 2, w + 2, dtype=torch.float64)
+    channel = torch.from_numpy((p > 0).astype(np.int64))
+    r = x.shape[0]
+    images = torch.zeros(r, 2, h + 2, w + 2, dtype=x.dtype)
     flat = images.view(r, -1)
     for dx, dy, weight in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
                            (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):  # fmt: skip
