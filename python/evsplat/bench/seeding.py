@@ -152,8 +152,9 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
         if motion is not None:
             clock = [trainer.renderer.time(t) for t in times]
             with torch.no_grad():
-                at = [(motion.centres + motion.at(u)[1]).cpu().numpy() for u in clock]
-                turned = np.stack([motion.at(u)[0].double().cpu().numpy() for u in clock], 1)
+                paths = [motion.at(u) for u in clock]  # (turns, translations) at each time
+                at = [(motion.centres + trans).cpu().numpy() for _, trans in paths]
+                turned = np.stack([turn.double().cpu().numpy() for turn, _ in paths], 1)
                 spans = motion.spans.cpu().numpy()
             found = np.stack(
                 [project(c.astype(np.float64), p, data.K)[0] for c, p in zip(at, poses)], 1

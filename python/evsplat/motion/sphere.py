@@ -8,6 +8,8 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
+from evsplat.model.gaussians import quat_to_rotmat
+from evsplat.model.motion import rotvec_to_quat
 from evsplat.motion.turn import warped_variance
 
 BIN_PX = 0.5  # the ring fit's radius step
@@ -40,7 +42,9 @@ def ring(off: np.ndarray, radius: float) -> tuple[np.ndarray, float, float] | No
     radii = np.arange(*(np.round(np.array(RADII) * radius / BIN_PX)), dtype=np.int64)  # bins
     edge = radii[-1] + int(3 * RING_PX / BIN_PX) + 1
     bins = np.minimum((dist / BIN_PX).astype(np.int64), edge)
-    counts = np.stack([np.bincount(b, minlength=edge + 1) for b in bins])  # [C,bins]
+    rows = np.arange(len(centres))[:, None] * (edge + 1)  # one histogram per centre, at once
+    counts = np.bincount((rows + bins).ravel(), minlength=len(centres) * (edge + 1))
+    counts = counts.reshape(len(centres), edge + 1)  # [C,bins]
     below = np.concatenate([np.zeros((len(centres), 1)), np.cumsum(counts, 1)], 1)  # d < bin
 
     def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # events a <= d/BIN_PX < b
@@ -68,16 +72,8 @@ def is_round(centres: list[np.ndarray], contrasts: list[float]) -> bool:
 
 def turned(points: torch.Tensor, omegas: torch.Tensor, dt: torch.Tensor) -> torch.Tensor:
     """``points`` [E,3] turned back by ``omegas`` [B,3] (rad/s) over ``dt`` [E] s: [B,E,3]."""
-    v = -omegas[:, None, :] * dt[None, :, None]
-    angle = v.norm(dim=-1, keepdim=True)
-    axis = v / angle.clamp_min(1e-12)
-    along = (axis * points).sum(-1, keepdim=True)
-    cos, sin = torch.cos(angle), torch.sin(angle)
-    return (
-        points * cos
-        + torch.linalg.cross(axis, points.expand_as(axis), dim=-1) * sin
-        + (axis * along * (1 - cos))
-    )
+    turn = quat_to_rotmat(rotvec_to_quat(-omegas[:, None, :] * dt[None, :, None]))  # [B,E,3,3]
+    return torch.einsum("beij,ej->bei", turn, points)
 
 
 def sphere_rate(
