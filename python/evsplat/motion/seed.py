@@ -184,13 +184,23 @@ def turn_window(views: Views, mc: MoverConfig) -> tuple[int, float]:
     return half_us, 1.0 / (2 * half_us * 1e-6)
 
 
+@dataclass
+class Ball:
+    """A round object: its outline's centre, px from its regions' centres, and radius, px
+    (medians over its rings), and its turn's rotation vectors [G,3] at the knots."""
+
+    offset: np.ndarray
+    radius_px: float
+    rotvecs: np.ndarray
+
+
 def sphere_turn(
     views: Views, track: Track, middle: np.ndarray, knots: np.ndarray, t_ref: int,
     mc: MoverConfig,
-) -> np.ndarray | None:  # fmt: skip
-    """Rotation vectors [G,3] at ``knots`` from ``t_ref`` of a round object's turn about three
-    axes (``sphere``), from its sightings clear of the border, its centres ``middle`` [F,2];
-    None where its outline is no steady ring (not round) or too few sightings show it."""
+) -> Ball | None:  # fmt: skip
+    """A round object's outline and its turn about three axes (``sphere``) at ``knots`` from
+    ``t_ref``, from its sightings clear of the border, its centres ``middle`` [F,2]; None where
+    its outline is no steady ring (not round) or too few sightings show it."""
     if not (mc.turn and mc.sphere):
         return None
     data, (half_us, top) = views.data, turn_window(views, mc)
@@ -223,7 +233,8 @@ def sphere_turn(
         omegas.append(data.trajectory.pose(float(times[i]))[:3, :3] @ omega)  # to the world
     if len(found) < mc.turn_min_windows:
         return None
-    return sphere.rotvecs(np.array(found), np.array(omegas), knots, t_ref)
+    offset, rho = np.median(rings[0], axis=0), float(np.median([f[5] for f in fits]))
+    return Ball(offset, rho, sphere.rotvecs(np.array(found), np.array(omegas), knots, t_ref))
 
 
 Turning = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # ``turning``'s
@@ -279,6 +290,12 @@ def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tupl
             centred = Track({k: replace(home.blobs[k], centre=c) for k, c in zip(ks, middle)})
             gone |= {id(t) for t in tracks if t is not home and together(centred, t, mc)}
     return [(t, turn) for t, turn in found if id(t) not in gone]
+
+
+def on_sphere(rng: np.random.Generator, n: int) -> np.ndarray:
+    """[n,3] points spread evenly over the unit sphere."""
+    v = rng.normal(size=(n, 3))
+    return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
 
 
 def place(
@@ -368,8 +385,14 @@ def seed_objects(
             angles = np.interp(knots, track.times_us, seen)
         elif used.sum() >= mc.turn_min_windows:
             angles = turn_angles(track.times_us[used], rates[used], knots, t_ref)
+        ball = sphere_turn(views, track, middle, knots, t_ref, mc)
+        if ball is not None:  # its front at depth, its outline ``radius_px`` seen from there
+            sine = math.sin(math.atan(ball.radius_px / focal))
+            radius = sine * depth / (1.0 - sine)
         poses = data.trajectory.pose(track.times_us.astype(np.float64))
-        path = back_project(middle, np.full(len(ks), depth), poses, data.K)
+        # A ball's path is its centre's; any other object's, its front's.
+        on, deep = (middle, depth) if ball is None else (middle + ball.offset, depth + radius)
+        path = back_project(on, np.full(len(ks), deep), poses, data.K)
         back = depth + 2.0 * radius  # its front surface is at depth, its body one radius
         swept = np.flatnonzero(smear(means, track, poses, data.K, back) & free)
         share = max(int(mc.fraction * n * areas[k] / areas.sum()), mc.min_gaussians)
@@ -378,28 +401,30 @@ def seed_objects(
         pick = np.concatenate([swept, rest])
         free[pick] = False
         object_id[pick] = first + k
-        # On its shape: its reference region's pixels, from its front surface one radius deep.
-        mask = shape(track, r, middle, end, seen)
-        ys, xs = np.nonzero(mask)
-        j = rng.integers(len(xs), size=len(pick))
-        uv = np.stack([xs[j], ys[j]], 1) + rng.random((len(pick), 2))
         pose_ref = data.trajectory.pose(float(t_ref))
-        placed = back_project(uv, depth + radius * rng.random(len(pick)), pose_ref, data.K)
-        volume = mask.sum() * (depth / focal) ** 2 * radius
-        place(model, optimizer, pick, placed, (volume / max(len(pick), 1)) ** (1 / 3), mc.opacity)
+        if ball is None:  # its reference region's pixels, from its front surface one radius deep
+            mask = shape(track, r, middle, end, seen)
+            ys, xs = np.nonzero(mask)
+            j = rng.integers(len(xs), size=len(pick))
+            uv = np.stack([xs[j], ys[j]], 1) + rng.random((len(pick), 2))
+            placed = back_project(uv, depth + radius * rng.random(len(pick)), pose_ref, data.K)
+            spacing = (mask.sum() * (depth / focal) ** 2 * radius / max(len(pick), 1)) ** (1 / 3)
+        else:  # on the sphere its outline shows: a ball turns its far side into view
+            placed = path[r] + radius * on_sphere(rng, len(pick))
+            spacing = math.sqrt(4 * math.pi / max(len(pick), 1)) * radius
+        place(model, optimizer, pick, placed, spacing, mc.opacity)
         backs.append(back)
-        centres.append(placed.mean(0))
+        centres.append(placed.mean(0) if ball is None else path[r])  # what it turns about
         radii.append(radius)
         held = [np.interp(knots, track.times_us, path[:, j]) for j in range(3)]  # held beyond
         shifts.append(np.stack(held, 1) - path[r])
         spans.append(span(track, windows, mc.coast))
-        turn3 = sphere_turn(views, track, middle, knots, t_ref, mc)
         in_plane = angles[:, None] * pose_ref[:3, 2][None]  # about the viewing axis
-        rotvecs.append(in_plane if turn3 is None else turn3)
+        rotvecs.append(in_plane if ball is None else ball.rotvecs)
         rate = float(np.nanmedian(rates)) if used.any() else 0.0
         numbers = {"windows": len(ks), "ends": 1 + (end < 0).any(), "depth": depth}
         numbers |= {"radius_px": track.radius, "gaussians": len(pick)}
-        numbers |= {"turn_windows": used.sum(), "turn_rate": rate, "sphere": turn3 is not None}
+        numbers |= {"turn_windows": used.sum(), "turn_rate": rate, "sphere": ball is not None}
         stats |= {f"object{first + k}_{name}": float(v) for name, v in numbers.items()}
     poses = data.trajectory.pose(sightings.times_us.astype(np.float64))
     if is_still(poses):
