@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evsplat.motion.sphere import CONTRAST, is_round, ring, rotvecs, sphere_rate
+from evsplat.motion.sphere import CONTRAST, is_round, on_outline, ring, rotvecs, sphere_rate
 
 
 def test_ring_finds_a_balls_outline_among_its_inner_events():
@@ -35,6 +35,24 @@ def test_ring_says_none_where_the_events_pile_up_beyond_its_search():
     angle = rng.uniform(0, 2 * np.pi, 2000)
     small = 6.0 * np.stack([np.cos(angle), np.sin(angle)], 1)  # well inside 0.8 region radii
     assert ring(small + rng.normal(0, 0.3, small.shape), 16.0) is None
+
+
+def test_on_outline_places_a_ball_cut_by_the_border_by_its_arc():
+    rng = np.random.default_rng(3)
+    rho, centre = 20.5, np.array([-6.3, 2.7])  # px from the first guess
+    lo, hi = np.array([-60.0, -60.0]), np.array([8.0, 60.0])  # the border 14 px past its centre
+    angle = rng.uniform(0, 2 * np.pi, 3000)
+    unit = np.stack([np.cos(angle), np.sin(angle)], 1)
+    outline = centre + (rho + rng.normal(0, 0.4, 3000))[:, None] * unit
+    inner = centre + rho * np.sqrt(rng.random((3000, 1))) * unit
+    events = np.concatenate([outline, inner])
+    events = events[(events >= lo).all(1) & (events < hi).all(1)]  # what the camera sees
+    found = on_outline(events, rho, lo, hi, 0.5 * rho)
+    assert found is not None and np.linalg.norm(found - centre) <= 0.5  # quarter pixels
+    assert on_outline(events, rho, lo, np.array([-35.0, 60.0]), 0.5 * rho) is None  # in view:
+    # no circle within reach keeps a quarter of itself in the image.
+    disc = inner[(inner >= lo).all(1) & (inner < hi).all(1)]
+    assert on_outline(disc, rho, lo, hi, 0.5 * rho) is None  # a filled disc's edge is no ring
 
 
 def test_is_round_takes_rings_that_stand_out_and_hold_still():

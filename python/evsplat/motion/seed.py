@@ -186,10 +186,10 @@ def turn_window(views: Views, mc: MoverConfig) -> tuple[int, float]:
 
 @dataclass
 class Ball:
-    """A round object: its outline's centre, px from its regions' centres, and radius, px
-    (medians over its rings), and its turn's rotation vectors [G,3] at the knots."""
+    """A round object: its outline's centres [F,2] and radius (px), and its turn's rotation
+    vectors [G,3] at the knots."""
 
-    offset: np.ndarray
+    centres: np.ndarray
     radius_px: float
     rotvecs: np.ndarray
 
@@ -199,8 +199,9 @@ def sphere_turn(
     mc: MoverConfig,
 ) -> Ball | None:  # fmt: skip
     """A round object's outline and its turn about three axes (``sphere``) at ``knots`` from
-    ``t_ref``, from its sightings clear of the border, its centres ``middle`` [F,2]; None where
-    its outline is no steady ring (not round) or too few sightings show it."""
+    ``t_ref``, from its sightings clear of the border, its centres ``middle`` [F,2]; its
+    outline's centre also where the border cuts it (``sphere.on_outline``). None where its
+    outline is no steady ring (not round) or too few sightings show it."""
     if not (mc.turn and mc.sphere):
         return None
     data, (half_us, top) = views.data, turn_window(views, mc)
@@ -233,8 +234,20 @@ def sphere_turn(
         omegas.append(data.trajectory.pose(float(times[i]))[:3, :3] @ omega)  # to the world
     if len(found) < mc.turn_min_windows:
         return None
-    offset, rho = np.median(rings[0], axis=0), float(np.median([f[5] for f in fits]))
-    return Ball(offset, rho, sphere.rotvecs(np.array(found), np.array(omegas), knots, t_ref))
+    rho = float(np.median([f[5] for f in fits]))
+    centres = middle + np.median(rings[0], axis=0)  # its regions' usual offset, unless ...
+    for f in fits:  # ... its ring places it
+        centres[f[0]] = middle[f[0]] + f[4]
+    for i in sorted(set(range(len(times))) - {f[0] for f in fits}):  # ... or its outline's arc
+        got = carried(views, int(times[i]), half_us, velocity[i])
+        if got is not None:
+            off = got[3] - centres[i]
+            near = np.linalg.norm(off, axis=1) < sphere.REACH * rho
+            size = np.array([data.width, data.height]) - centres[i]
+            at = sphere.on_outline(off[near], rho, -centres[i], size, 0.5 * rho)
+            centres[i] += 0.0 if at is None else at
+    rotvecs = sphere.rotvecs(np.array(found), np.array(omegas), knots, t_ref)
+    return Ball(centres, rho, rotvecs)
 
 
 Turning = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # ``turning``'s
@@ -391,7 +404,7 @@ def seed_objects(
             radius = sine * depth / (1.0 - sine)
         poses = data.trajectory.pose(track.times_us.astype(np.float64))
         # A ball's path is its centre's; any other object's, its front's.
-        on, deep = (middle, depth) if ball is None else (middle + ball.offset, depth + radius)
+        on, deep = (middle, depth) if ball is None else (ball.centres, depth + radius)
         path = back_project(on, np.full(len(ks), deep), poses, data.K)
         back = depth + 2.0 * radius  # its front surface is at depth, its body one radius
         swept = np.flatnonzero(smear(means, track, poses, data.K, back) & free)

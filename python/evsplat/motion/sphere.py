@@ -23,8 +23,13 @@ STEADY_PX = 1.5
 CONTRAST = 2.5
 EPS = 1e-12  # guards the contrast's ratio
 REACH = RADII[1] + 0.5  # events within this many region radii can be on the ring
+SEEN = 0.25  # of a cut outline in the image, at least, to place it by (a quarter: an arc)
+#: A cut outline's circle is taken where its events stand out from its sides this much: on the
+#: demo's ball, circles placed 4-21 px off the truth stood out 1.2-1.9 times, those within
+#: 1.6 px 1.75-3.6 (one warm-up; docs/motion.md, "A ball's centre from its outline").
+CUT_CONTRAST = 2.0
 FRONT = 0.9  # of the ring's radius: events nearer its outline have no one depth on the sphere
-MAX_EVENTS = 1500  # the turn's contrast reads at most this many of a sighting's events
+MAX_EVENTS = 1500  # the turn's contrast and a cut outline read at most this many events
 GRIDS = ((8.0, 4), (24.0, 2), (72.0, 2))  # nested grids: step (top rate / this), half width
 STEP_US = 1000  # the turn's integration step
 
@@ -58,6 +63,34 @@ def ring(off: np.ndarray, radius: float) -> tuple[np.ndarray, float, float] | No
     if r in (0, len(radii) - 1):
         return None
     return centres[c], float(radii[r] * BIN_PX), float(on_ring[c, r] / max(sides[c, r], EPS))
+
+
+def on_outline(
+    off: np.ndarray, rho: float, lo: np.ndarray, hi: np.ndarray, reach: float
+) -> np.ndarray | None:
+    """[2] px: the centre within ``reach`` px of 0 of the circle of radius ``rho`` that the
+    events at ``off`` [E,2] pile up on most, per px of it inside the image (``lo`` to ``hi``
+    [2], px in ``off``'s frame), less its sides as in ``ring``: a ball's outline where the
+    border cuts it. None where less than ``SEEN`` of every such circle is in the image, or
+    where the best stands out from its sides less than ``CUT_CONTRAST`` times."""
+    off = off[np.linspace(0, len(off) - 1, min(len(off), MAX_EVENTS)).astype(np.int64)]
+    angles = np.linspace(0.0, 2 * np.pi, 90, endpoint=False)
+    rim = rho * np.stack([np.cos(angles), np.sin(angles)], 1)  # [A,2]
+    best = np.zeros(2)
+    for step, half in ((1.0, reach), (0.25, 1.0)):  # whole pixels, then quarters about the best
+        shifts = np.arange(-half, half + 1e-9, step)
+        centres = best + np.stack(np.meshgrid(shifts, shifts), -1).reshape(-1, 2)  # [C,2]
+        points = centres[:, None] + rim[None]
+        seen = ((points >= lo) & (points < hi)).all(-1).mean(1)  # [C] of the circle in view
+        gap = np.abs(np.linalg.norm(off[None] - centres[:, None], axis=-1) - rho)  # [C,E]
+        on = (gap < RING_PX).sum(1) / (2 * RING_PX)
+        sides = ((gap >= RING_PX) & (gap < 3 * RING_PX)).sum(1) / (4 * RING_PX)
+        score = np.where(seen >= SEEN, (on - 0.5 * sides) / np.maximum(seen, EPS), -np.inf)
+        if not np.isfinite(score).any():
+            return None
+        c = int(np.argmax(score))
+        best = centres[c]
+    return best if on[c] >= CUT_CONTRAST * sides[c] else None
 
 
 def is_round(centres: list[np.ndarray], contrasts: list[float]) -> bool:
