@@ -53,6 +53,7 @@ def test_on_outline_places_a_ball_cut_by_the_border_by_its_arc():
     # no circle within reach keeps a quarter of itself in the image.
     disc = inner[(inner >= lo).all(1) & (inner < hi).all(1)]
     assert on_outline(disc, rho, lo, hi, 0.5 * rho) is None  # a filled disc's edge is no ring
+    assert on_outline(np.zeros((0, 2)), rho, lo, hi, 0.5 * rho) is None  # no events, no ring
 
 
 def test_is_round_takes_rings_that_stand_out_and_hold_still():

@@ -240,12 +240,15 @@ def sphere_turn(
         centres[f[0]] = middle[f[0]] + f[4]
     for i in sorted(set(range(len(times))) - {f[0] for f in fits}):  # ... or its outline's arc
         got = carried(views, int(times[i]), half_us, velocity[i])
-        if got is not None:
-            off = got[3] - centres[i]
-            near = np.linalg.norm(off, axis=1) < sphere.REACH * rho
-            size = np.array([data.width, data.height]) - centres[i]
-            at = sphere.on_outline(off[near], rho, -centres[i], size, 0.5 * rho)
-            centres[i] += 0.0 if at is None else at
+        if got is None:
+            continue
+        off = got[3] - centres[i]
+        off = off[np.linalg.norm(off, axis=1) < sphere.REACH * rho]
+        if len(off) < mc.turn_min_events:
+            continue
+        size = np.array([data.width, data.height]) - centres[i]
+        at = sphere.on_outline(off, rho, -centres[i], size, 0.5 * rho)
+        centres[i] += 0.0 if at is None else at
     rotvecs = sphere.rotvecs(np.array(found), np.array(omegas), knots, t_ref)
     return Ball(centres, rho, rotvecs)
 

@@ -90,7 +90,7 @@ def on_outline(
             return None
         c = int(np.argmax(score))
         best = centres[c]
-    return best if on[c] >= CUT_CONTRAST * sides[c] else None
+    return best if on[c] > CUT_CONTRAST * sides[c] else None
 
 
 def is_round(centres: list[np.ndarray], contrasts: list[float]) -> bool:
