@@ -26,7 +26,8 @@ REACH = RADII[1] + 0.5  # events within this many region radii can be on the rin
 SEEN = 0.25  # of a cut outline in the image, at least, to place it by (a quarter: an arc)
 #: A cut outline's circle is taken where its events stand out from its sides this much: on the
 #: demo's ball, circles placed 4-21 px off the truth stood out 1.2-1.9 times, those within
-#: 1.6 px 1.75-3.6 (one warm-up; docs/motion.md, "A ball's centre from its outline").
+#: 1.6 px 1.75-3.6 (one warm-up; docs/motion.md, "A ball placed on its sphere and centred
+#: by its outline").
 CUT_CONTRAST = 2.0
 FRONT = 0.9  # of the ring's radius: events nearer its outline have no one depth on the sphere
 MAX_EVENTS = 1500  # the turn's contrast and a cut outline read at most this many events
@@ -65,6 +66,11 @@ def ring(off: np.ndarray, radius: float) -> tuple[np.ndarray, float, float] | No
     return centres[c], float(radii[r] * BIN_PX), float(on_ring[c, r] / max(sides[c, r], EPS))
 
 
+def _thinned(n: int) -> np.ndarray:
+    """Indices of at most ``MAX_EVENTS`` of ``n`` events, evenly spread over them."""
+    return np.linspace(0, n - 1, min(n, MAX_EVENTS)).astype(np.int64)
+
+
 def on_outline(
     off: np.ndarray, rho: float, lo: np.ndarray, hi: np.ndarray, reach: float
 ) -> np.ndarray | None:
@@ -73,7 +79,7 @@ def on_outline(
     [2], px in ``off``'s frame), less its sides as in ``ring``: a ball's outline where the
     border cuts it. None where less than ``SEEN`` of every such circle is in the image, or
     where the best stands out from its sides less than ``CUT_CONTRAST`` times."""
-    off = off[np.linspace(0, len(off) - 1, min(len(off), MAX_EVENTS)).astype(np.int64)]
+    off = off[_thinned(len(off))]
     angles = np.linspace(0.0, 2 * np.pi, 90, endpoint=False)
     rim = rho * np.stack([np.cos(angles), np.sin(angles)], 1)  # [A,2]
     best = np.zeros(2)
@@ -117,7 +123,7 @@ def sphere_rate(
     ``radius`` px at image ``centre`` [2] whose events ``off`` [E,2] (px from its centre,
     carried back), ``dt`` [E] s and ``p`` [E] lie on its front: the one in nested grids up to
     ``top`` / 2 whose warped events are sharpest (orthographic, a ball a few degrees wide)."""
-    keep = np.linspace(0, len(off) - 1, min(len(off), MAX_EVENTS)).astype(np.int64)
+    keep = _thinned(len(off))
     off, dt, p = off[keep], dt[keep], p[keep]
     depth = -np.sqrt(np.maximum(radius**2 - (off**2).sum(1), 0.0))  # its front faces the camera
     points = torch.from_numpy(np.concatenate([off, depth[:, None]], 1)).float()
