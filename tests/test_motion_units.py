@@ -306,6 +306,26 @@ def test_an_object_that_leaves_and_comes_back_through_the_same_border_is_one_tra
         assert max(mover.blobs) < 15
 
 
+def test_an_object_back_after_its_track_took_noise_at_the_border_is_one_track():
+    # A disc leaves through the right border; while unseen, its track takes two small noise
+    # regions on that border near where it left (a fit's residual there). It comes back 45 px
+    # lower 7 windows after it left: its exit is its last sighting of itself, not the noise.
+    shape = (96, 128)
+    per_window, truth = [], {}
+    for k in range(30):
+        out = np.array([84.0 + 4 * k, 40.0])  # last seen at window 13
+        back = np.array([138.0 - 4 * (k - 20), 85.0])  # in from window 20
+        discs = [(out, 10.0)] if k < 15 else [(back, 10.0)] if k >= 20 else []
+        discs += [((126.0, 44.0 + k - 15), 4.0)] if k in (15, 16) else []
+        truth[k] = out if k < 15 else back
+        per_window.append(regions(_ring_residual(shape, discs, seed=k), k, SEGMENT))
+    (mover,) = chain(per_window, TRACKS)
+    assert min(mover.blobs) <= 1 and set(range(21, 30)) <= set(mover.blobs)
+    for k, centre in zip(sorted(mover.blobs), mover.centres):
+        if _disc(shape, truth[k], 10.0).sum() / (np.pi * 10.0**2) >= 0.3:
+            assert np.linalg.norm(centre - truth[k]) < 1.5, (k, centre, truth[k])
+
+
 def test_align_gives_a_one_sided_objects_true_displacements():
     # A shaded ball: its outline fires mostly on one side, and that side turns from window to
     # window, so each region's residual-weighted centre leans 2-4 px a different way. Only

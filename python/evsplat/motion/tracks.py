@@ -106,8 +106,7 @@ def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
     kept = [
         t for t, e in zip(pieces, evidence) if len(t.blobs) >= s.min_windows and e >= s.min_evidence
     ]
-    # An object that left the image and came back joins the latest track it ``_returns`` to.
-    kept = _merged(kept, lambda t: min(t.blobs), lambda o, t: _returns(o, t, s), latest=True)
+    kept = _rejoined(kept, s)
     for track in kept:  # shared with another object (not noise, nor a piece of its own)
         others = [o.hidden for o in kept if o is not track]
         track.shared = {k for k, b in track.blobs.items() if any(h.get(k) is b for h in others)}
@@ -171,40 +170,61 @@ def together(a: Track, b: Track, s: MoverConfig) -> bool:
 
 
 def _merged(
-    tracks: list[Track],
-    order: Callable[[Track], int],
-    fits: Callable[[Track, Track], bool],
-    latest: bool = False,
+    tracks: list[Track], order: Callable[[Track], int], fits: Callable[[Track, Track], bool]
 ) -> list[Track]:
-    """``tracks`` in ``order``, each merged into the first (or ``latest``-ending) of those
-    before it that it ``fits``: per shared window one region (the masks' union)."""
+    """``tracks`` in ``order``, each merged into the first of those before it that it ``fits``:
+    per shared window one region (the masks' union)."""
     out: list[Track] = []
     for track in sorted(tracks, key=order):
-        homes = [o for o in out if fits(o, track)]
-        if not homes:
+        home = next((o for o in out if fits(o, track)), None)
+        if home is None:
             out.append(track)
             continue
-        home = max(homes, key=lambda o: max(o.blobs)) if latest else homes[0]
         for k, blob in track.blobs.items():
             home.blobs[k] = blob if k not in home.blobs else _union(home.blobs[k], blob)
         home.hidden |= {k: b for k, b in track.hidden.items() if k not in home.blobs}
     return out
 
 
-def _returns(gone: Track, back: Track, s: MoverConfig) -> bool:
-    """Whether ``back`` is ``gone`` coming back: it left through the border that ``back`` came
-    in through (the path between stays out of view), within reach at either's fastest speed
-    plus the regions' radii, sizes ``s.gate`` apart at most (a cut region looks smaller)."""
-    a, b = max(gone.blobs), min(back.blobs)
-    if b <= a or not borders(gone.blobs[a].mask) & borders(back.blobs[b].mask):
-        return False
-    exit_, entry = gone.blobs[a], back.blobs[b]
-    reach = max(gone.steps + back.steps, default=0.0) * (b - a) + exit_.radius + entry.radius
-    if np.linalg.norm(entry.centre - exit_.centre) > reach:
-        return False
+def _rejoined(tracks: list[Track], s: MoverConfig) -> list[Track]:
+    """``tracks``, each that is an object coming back into the image joined to the
+    latest-ending earlier track it ``_returns`` to, which keeps its sightings up to its exit."""
+    out: list[Track] = []
+    for track in sorted(tracks, key=lambda t: min(t.blobs)):
+        exits = [(o, a) for o in out if (a := _returns(o, track, s)) is not None]
+        if not exits:
+            out.append(track)
+            continue
+        home, a = max(exits, key=lambda e: max(e[0].blobs))
+        home.blobs = {k: b for k, b in home.blobs.items() if k <= a} | track.blobs
+        home.hidden |= {k: b for k, b in track.hidden.items() if k not in home.blobs}
+    return out
+
+
+def _returns(gone: Track, back: Track, s: MoverConfig) -> int | None:
+    """The window ``gone`` left the image at, if ``back`` is it coming back, else None: it left
+    through the border that ``back`` came in through (the path between stays out of view),
+    within ``s.gate`` of the reach of its fastest speed plus the regions' radii (as a track's
+    next region), sizes ``s.gate`` apart at most (a cut region looks smaller). Its exit is one
+    of its last ``s.coast`` + 1 sightings: those after it are noise it took while unseen (the
+    demo's ball, docs/motion.md), and ``back`` goes on past them."""
+    b = min(back.blobs)
+    if max(back.blobs) <= max(gone.blobs):
+        return None
     clear = [not all(touches_border(r.mask) for r in t.blobs.values()) for t in (gone, back)]
     whole = [t.radius for t, c in zip((gone, back), clear) if c]  # a cut one's looks smaller
-    return not whole or max(gone.radius, back.radius) <= s.gate * min(whole)
+    if whole and max(gone.radius, back.radius) > s.gate * min(whole):
+        return None
+    speed = max(gone.steps + back.steps, default=0.0)
+    entry = back.blobs[b]
+    for a in sorted(gone.blobs)[-(s.coast + 1) :][::-1]:
+        exit_ = gone.blobs[a]
+        if a >= b or not borders(exit_.mask) & borders(entry.mask):
+            continue
+        reach = s.gate * (speed * (b - a) + exit_.radius + entry.radius)
+        if np.linalg.norm(entry.centre - exit_.centre) <= reach:
+            return a
+    return None
 
 
 def _union(a: Blob, b: Blob) -> Blob:
