@@ -14,7 +14,7 @@ from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border
 from evsplat.motion.align import align
 from evsplat.motion.paths import turn_angles, turns, two_ends
-from evsplat.motion.seed import joined_ends, smear, span
+from evsplat.motion.seed import between_placed, joined_ends, smear, span
 from evsplat.motion.segment import Blob, floor, regions
 from evsplat.motion.tracks import Track, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
@@ -324,6 +324,25 @@ def test_an_object_back_after_its_track_took_noise_at_the_border_is_one_track():
     for k, centre in zip(sorted(mover.blobs), mover.centres):
         if _disc(shape, truth[k], 10.0).sum() / (np.pi * 10.0**2) >= 0.3:
             assert np.linalg.norm(centre - truth[k]) < 1.5, (k, centre, truth[k])
+
+
+def test_a_balls_centres_not_placed_by_its_outline_lie_between_those_that_are():
+    # A ball thrown across the view (4 px a window right, falling 0.3 px a window faster each
+    # window), sighted in windows 0-24 but 9, 10 and 18; its outline places it in some of them
+    # (the truth, within a tenth of a pixel), its region's usual offset in the others (8 px
+    # low, as where the border leaves a sliver). An unplaced one with placed ones at most 4
+    # windows apart on both sides is put on the line between them; the others keep theirs.
+    windows = np.array([k for k in range(25) if k not in (9, 10, 18)])
+    times = 12_500 * windows + 6_000
+    truth = np.stack([20.0 + 4.0 * windows, 70.0 - 6.0 * windows + 0.15 * windows**2], 1)
+    rng = np.random.default_rng(0)
+    placed = ~np.isin(windows, [3, 4, 5, 6, 12, 16, 17, 22, 24])
+    centres = truth + np.where(placed[:, None], rng.uniform(-0.1, 0.1, truth.shape), [0.0, 8.0])
+    out = between_placed(centres, placed, times, windows, gap=4)
+    between = np.isin(windows, [12, 16, 17, 22])  # placed neighbours 2-4 windows apart
+    assert np.all(np.linalg.norm(out[between] - truth[between], axis=1) < 1.0)
+    kept = ~between  # placed; or unplaced with placed neighbours 5 apart (3-6) or none after (24)
+    assert np.array_equal(out[kept], centres[kept])
 
 
 def test_align_gives_a_one_sided_objects_true_displacements():
