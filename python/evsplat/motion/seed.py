@@ -21,7 +21,7 @@ from evsplat.motion.border import in_image, touches_border
 from evsplat.motion.paths import turn_angles, turns, two_ends
 from evsplat.motion.segment import Blob, blurred, floor, regions, unexplained
 from evsplat.motion.still import behind_objects, is_still
-from evsplat.motion.tracks import Track, chain, together
+from evsplat.motion.tracks import Track, chain, filled, together
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project, project
 from evsplat.train.views import Views
@@ -265,12 +265,11 @@ def between_placed(
     most ``gap`` windows apart (an unplaced one's offset is 5-11 px off where the border leaves
     a sliver, an outline's 1-2: docs/motion.md)."""
     out, at = centres.copy(), np.flatnonzero(placed)
+    line = filled(times.astype(np.float64), placed, centres) if len(at) else centres
     for i in np.flatnonzero(~placed):
         a, b = at[at < i], at[at > i]
-        if not (len(a) and len(b)) or windows[b[0]] - windows[a[-1]] > gap:
-            continue
-        w = (times[i] - times[a[-1]]) / max(float(times[b[0]] - times[a[-1]]), 1.0)
-        out[i] = (1.0 - w) * centres[a[-1]] + w * centres[b[0]]
+        if len(a) and len(b) and windows[b[0]] - windows[a[-1]] <= gap:
+            out[i] = line[i]
     return out
 
 

@@ -18,6 +18,15 @@ JUMP = 2.0  # a step over twice the track's median is not its own motion (docs/m
 RIGID = 0.5  # pieces whose offset holds within half their size move as one (ditto)
 
 
+def filled(at: np.ndarray, known: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values`` [F,D] at ``at`` [F], those not ``known`` [F] (some are) linear between the
+    known ones (held beyond them)."""
+    out = values.copy()
+    cols = [np.interp(at[~known], at[known], values[known, j]) for j in range(values.shape[1])]
+    out[~known] = np.stack(cols, 1)
+    return out
+
+
 def step_lengths(windows: np.ndarray, centres: np.ndarray) -> np.ndarray:
     """[F-1] px per window between the ``centres`` [F,2] sighted at the ``windows`` [F]."""
     return np.linalg.norm(np.diff(centres, axis=0), axis=1) / np.diff(windows)
@@ -44,10 +53,7 @@ class Track:
         ks = sorted(self.blobs)
         out = np.stack([self.blobs[k].centre for k in ks])
         own = np.array([k not in self.shared for k in ks])
-        if own.any() and not own.all():
-            w = np.array(ks, dtype=np.float64)
-            out[~own] = np.stack([np.interp(w[~own], w[own], out[own, j]) for j in range(2)], 1)
-        return out
+        return filled(np.array(ks, dtype=np.float64), own, out) if own.any() else out
 
     @property
     def radius(self) -> float:
@@ -180,10 +186,16 @@ def _merged(
         if home is None:
             out.append(track)
             continue
-        for k, blob in track.blobs.items():
-            home.blobs[k] = blob if k not in home.blobs else _union(home.blobs[k], blob)
-        home.hidden |= {k: b for k, b in track.hidden.items() if k not in home.blobs}
+        _absorb(home, track)
     return out
+
+
+def _absorb(home: Track, track: Track) -> None:
+    """``track``'s sightings added to ``home``'s: per shared window one region (the masks'
+    union); its hidden windows where ``home`` has none."""
+    for k, blob in track.blobs.items():
+        home.blobs[k] = blob if k not in home.blobs else _union(home.blobs[k], blob)
+    home.hidden |= {k: b for k, b in track.hidden.items() if k not in home.blobs}
 
 
 def _rejoined(tracks: list[Track], s: MoverConfig) -> list[Track]:
@@ -196,8 +208,8 @@ def _rejoined(tracks: list[Track], s: MoverConfig) -> list[Track]:
             out.append(track)
             continue
         home, a = max(exits, key=lambda e: max(e[0].blobs))
-        home.blobs = {k: b for k, b in home.blobs.items() if k <= a} | track.blobs
-        home.hidden |= {k: b for k, b in track.hidden.items() if k not in home.blobs}
+        home.blobs = {k: b for k, b in home.blobs.items() if k <= a}
+        _absorb(home, track)
     return out
 
 
