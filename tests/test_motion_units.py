@@ -15,7 +15,7 @@ from evsplat.motion import border
 from evsplat.motion.align import align
 from evsplat.motion.paths import turn_angles, turns, two_ends
 from evsplat.motion.seed import between_placed, joined_ends, smear, span
-from evsplat.motion.segment import Blob, floor, regions
+from evsplat.motion.segment import Blob, floor, made_by_events, pooled, regions
 from evsplat.motion.tracks import Track, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project, project, project_points, world_to_camera
@@ -117,6 +117,24 @@ def test_a_still_cameras_empty_background_does_not_swell_the_regions():
     for blob, (centre, radius) in zip(blobs, discs):
         assert np.linalg.norm(blob.centre - centre) < 1.0
         assert radius <= blob.radius <= radius + 3
+
+
+def test_a_change_the_render_draws_where_no_event_fired_is_no_mover():
+    # A still camera: a disc 1.0 brighter in log intensity than the wall (5 events of C = 0.2)
+    # moves 4 px right and fires its leading and trailing edges. The
+    # render has half of that change, and the whole of a disc that moves where nothing is (an
+    # object's Gaussians strayed off it). Both leave a residual; only the first made events.
+    shape, c = (96, 96), 0.2
+
+    def moved(x, y):  # the log change as the disc moves from x to x + 4
+        return _disc(shape, (x + 4, y), 10.0).astype(float) - _disc(shape, (x, y), 10.0)
+
+    esi = torch.from_numpy(moved(28.0, 30.0))
+    change = torch.from_numpy(0.5 * moved(28.0, 30.0) + moved(60.0, 70.0))
+    found = regions(pooled(esi - change, SEGMENT.pool), 0, SEGMENT, floor(c, c, SEGMENT.pool))
+    assert len(found) == 2
+    kept = made_by_events(found, pooled(esi, SEGMENT.pool), pooled(change, SEGMENT.pool), 0.1)
+    assert len(kept) == 1 and np.linalg.norm(kept[0].centre - (30.0, 30.0)) < 2.0
 
 
 def test_pieces_of_one_object_are_one_region():

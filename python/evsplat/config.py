@@ -147,6 +147,7 @@ class MoverConfig:
     coast: int = 3  # windows a track lives on unseen and not hidden in another's region
     min_windows: int = 4  # a track seen in fewer windows is noise
     min_evidence: float = 30.0  # a track's region peaks above `high`, summed: less is noise
+    events: float = 0.1  # a region's events: at least this share of the render's change there
     together: float = 1.5  # tracks within this many summed radii in most windows are one object
     align: float = 0.5  # a centre moves at most this many radii to match the object's template
     depth_quantile: float = 0.25  # of the static render's depth in its regions: its front

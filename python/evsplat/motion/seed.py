@@ -19,7 +19,7 @@ from evsplat.motion import sphere
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
 from evsplat.motion.paths import turn_angles, turns, two_ends
-from evsplat.motion.segment import Blob, blurred, floor, regions, unexplained
+from evsplat.motion.segment import Blob, blurred, floor, made_by_events, pooled, regions
 from evsplat.motion.still import behind_objects, is_still
 from evsplat.motion.tracks import Track, chain, filled, together
 from evsplat.motion.turn import WindowEvents, turn_rate
@@ -63,9 +63,11 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
     for mid in mids:
         t0, t1 = int(mid) - half, int(mid) + half
         start, end = (renderer.render(t, views.pose(t)) for t in (t0, t1))
-        change = views.log_image(end) - views.log_image(start)
-        residual = unexplained(views.esi(t0, t1)[0], change, mc.pool)
-        blobs.append(regions(residual, int(mid), mc, least))
+        change, esi = views.log_image(end) - views.log_image(start), views.esi(t0, t1)[0]
+        residual = pooled(esi - change, mc.pool)
+        found = regions(residual, int(mid), mc, least)
+        drawn = pooled(change, mc.pool)
+        blobs.append(made_by_events(found, pooled(esi, mc.pool), drawn, mc.events))
         residuals.append(residual)
         depth.append(np.where(end.alpha.cpu().numpy() > OPAQUE, end.depth.cpu().numpy(), 0.0))
     return Sightings(mids, blobs, residuals, depth)

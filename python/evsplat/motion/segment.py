@@ -33,12 +33,22 @@ class Blob:
         return float(np.sqrt(self.area / np.pi))
 
 
-def unexplained(esi: Tensor, predicted: Tensor, pool: int) -> np.ndarray:
-    """[H,W] float64 residual |ESI - predicted log change| after ``pool`` px box averaging
-    (stride 1); of [C,H,W] inputs, the sum of the channels' magnitudes."""
-    x = (esi - predicted).double().reshape(-1, 1, *esi.shape[-2:])
+def pooled(x: Tensor, pool: int) -> np.ndarray:
+    """[H,W] float64 magnitude of ``x`` after ``pool`` px box averaging (stride 1); of [C,H,W],
+    the sum of the channels' magnitudes. Of ESI - predicted log change: the residual."""
+    x = x.double().reshape(-1, 1, *x.shape[-2:])
     smooth = F.avg_pool2d(x, pool, stride=1, padding=pool // 2, count_include_pad=False)
-    return smooth.abs().sum((0, 1))[: esi.shape[-2], : esi.shape[-1]].cpu().numpy()
+    return smooth.abs().sum((0, 1))[: x.shape[-2], : x.shape[-1]].cpu().numpy()
+
+
+def made_by_events(
+    blobs: list[Blob], events: np.ndarray, drawn: np.ndarray, share: float
+) -> list[Blob]:
+    """The ``blobs`` whose ``events`` (``pooled`` ESI [H,W]) sum to at least ``share`` of the
+    render's change there (``drawn``, ``pooled`` [H,W]). Where the render changes and the events
+    do not, it draws something where nothing is (the warm-up's smear of a mover, an object's
+    Gaussians strayed off it): the model's own error, which training mends, not a mover."""
+    return [b for b in blobs if events[b.mask].sum() >= share * drawn[b.mask].sum()]
 
 
 def floor(c_pos: float, c_neg: float, pool: int) -> float:
