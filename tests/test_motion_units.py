@@ -4,6 +4,8 @@ rate the events were made with, the path's ends against straight-line motion."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import torch
@@ -14,7 +16,7 @@ from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border
 from evsplat.motion.align import align
 from evsplat.motion.paths import turn_angles, turns, two_ends
-from evsplat.motion.seed import between_placed, joined_ends, smear, span
+from evsplat.motion.seed import between_placed, joined_ends, projected, smear, span
 from evsplat.motion.segment import Blob, floor, made_by_events, pooled, regions
 from evsplat.motion.tracks import Track, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
@@ -89,6 +91,28 @@ def _ring_residual(shape, discs, seed=0):
     for centre, radius in discs:
         r += 0.5 * (_disc(shape, centre, radius) & ~_disc(shape, centre, radius - 2))
     return r
+
+
+def test_projected_gives_each_objects_pixel_centre_and_radius_on_its_path():
+    # Two objects, 0.2 m and 0.1 m in radius, 2 m and 4 m in front of a camera at the origin
+    # (f = 128 px, principal point 48, 48); the first slides 1 m along x over the sequence. At
+    # its middle the first is at x = 0.5 m: 48 + 128 * 0.5 / 2 = 80 px, radius 128 * 0.2 / 2.
+    g, f = 5, 128.0
+    trans = torch.zeros(2, g, 3)
+    trans[0, :, 0] = torch.linspace(0, 1, g)
+    motion = ObjectMotion(
+        torch.tensor([[0.0, 0.0, 2.0], [-1.0, 0.5, 4.0]]), torch.tensor([0.2, 0.1]), trans,
+        torch.zeros(2, g, 3),
+    )  # fmt: skip
+    K = np.array([[f, 0.0, 48.0], [0.0, f, 48.0], [0.0, 0.0, 1.0]])
+    still = SimpleNamespace(pose=lambda t_us: np.eye(4))
+    views = SimpleNamespace(
+        data=SimpleNamespace(trajectory=still, K=K),
+        renderer=SimpleNamespace(time=lambda t_us: t_us / 1e6),
+    )
+    uv, radii = projected(motion, views, 500_000.0)
+    assert np.allclose(uv, [[80.0, 48.0], [16.0, 64.0]], atol=1e-4)
+    assert np.allclose(radii, [12.8, 3.2], atol=1e-5)
 
 
 def test_regions_finds_every_object_at_its_place_and_none_in_noise():
