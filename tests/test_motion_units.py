@@ -157,7 +157,7 @@ def test_a_change_the_render_draws_where_no_event_fired_is_no_mover():
     change = torch.from_numpy(0.5 * moved(28.0, 30.0) + moved(60.0, 70.0))
     found = regions(pooled(esi - change, SEGMENT.pool), 0, SEGMENT, floor(c, c, SEGMENT.pool))
     assert len(found) == 2
-    kept = made_by_events(found, pooled(esi, SEGMENT.pool), pooled(change, SEGMENT.pool), 0.1)
+    kept = made_by_events(found, esi, change, SEGMENT.pool, 0.1)
     assert len(kept) == 1 and np.linalg.norm(kept[0].centre - (30.0, 30.0)) < 2.0
 
 

@@ -66,8 +66,7 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
         change, esi = views.log_image(end) - views.log_image(start), views.esi(t0, t1)[0]
         residual = pooled(esi - change, mc.pool)
         found = regions(residual, int(mid), mc, least)
-        drawn = pooled(change, mc.pool)
-        blobs.append(made_by_events(found, pooled(esi, mc.pool), drawn, mc.events))
+        blobs.append(made_by_events(found, esi, change, mc.pool, mc.events))
         residuals.append(residual)
         depth.append(np.where(end.alpha.cpu().numpy() > OPAQUE, end.depth.cpu().numpy(), 0.0))
     return Sightings(mids, blobs, residuals, depth)
@@ -415,9 +414,9 @@ def seed_objects(
     areas = np.array([np.median([b.area for b in t.blobs.values()]) for t in tracks])
     # Shares by area among all objects, the known ones too (seen at the sequence's middle): else
     # one found at the second look takes all of ``mc.fraction`` (a 4 px one 900 of 6000).
-    mid_us = 0.5 * (data.t_start_us + data.t_end_us)
-    drawn = np.pi * projected(known[0], views, mid_us)[1] ** 2 if known else np.zeros(0)
-    total = areas.sum() + drawn.sum()
+    mid_us = (data.t_start_us + data.t_end_us) // 2
+    known_areas = np.pi * projected(known[0], views, mid_us)[1] ** 2 if known else np.zeros(0)
+    total = areas.sum() + known_areas.sum()
     knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
     windows = np.array([views.renderer.time(t) for t in sightings.times_us])  # the spans' clock
     centres, radii, shifts, rotvecs, spans, backs = ([] for _ in range(6))

@@ -42,12 +42,15 @@ def pooled(x: Tensor, pool: int) -> np.ndarray:
 
 
 def made_by_events(
-    blobs: list[Blob], events: np.ndarray, drawn: np.ndarray, share: float
+    blobs: list[Blob], esi: Tensor, predicted: Tensor, pool: int, share: float
 ) -> list[Blob]:
-    """The ``blobs`` whose ``events`` (``pooled`` ESI [H,W]) sum to at least ``share`` of the
-    render's change there (``drawn``, ``pooled`` [H,W]). Where the render changes and the events
-    do not, it draws something where nothing is (the warm-up's smear of a mover, an object's
-    Gaussians strayed off it): the model's own error, which training mends, not a mover."""
+    """The ``blobs`` over which the ``esi``'s magnitude (``pooled``) sums to at least ``share`` of
+    the ``predicted`` log change's. Where the render changes and the events do not, it draws
+    something where nothing is (the warm-up's smear of a mover, an object's Gaussians strayed
+    off it): the model's own error, which training mends, not a mover."""
+    if not blobs:
+        return blobs
+    events, drawn = pooled(esi, pool), pooled(predicted, pool)
     return [b for b in blobs if events[b.mask].sum() >= share * drawn[b.mask].sum()]
 
 
