@@ -16,7 +16,7 @@ from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border
 from evsplat.motion.align import align
 from evsplat.motion.paths import turn_angles, turns, two_ends
-from evsplat.motion.seed import between_placed, joined_ends, projected, smear, span
+from evsplat.motion.seed import between_placed, in_view, joined_ends, projected, slid, smear, span
 from evsplat.motion.segment import Blob, floor, made_by_events, pooled, regions
 from evsplat.motion.tracks import Track, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
@@ -590,6 +590,35 @@ def test_an_object_is_hidden_only_beyond_where_it_came_in_or_went_out_through_th
     # Within ``coast`` windows of the sequence's ends it may have been in view, unseen.
     assert span(track(3, 16), times, coast=3) == [-inf, inf]
     assert span(track(4, 15), times, coast=3) == pytest.approx([times[4] - half, times[15] + half])
+
+
+def test_an_object_that_came_in_and_went_out_is_drawn_sliding_while_partly_in_view():
+    # A still camera (f = 128 px, 96 x 96 px) sees an object 0.1 m in radius (6.4 px) 2 m away
+    # slide along x at 2 m/s: its centre at u = -16 + 128 t px. Its sightings, 0.3-0.7 s, are
+    # where it was whole; its disc overlaps the image for -6.4 < u < 102.4, 0.075 < t < 0.925 s:
+    # it is drawn from the knot before (0.07 s) to the knot after (0.93 s), faded outside them.
+    sighted = np.linspace(300_000, 700_000, 5)
+    path = np.stack([-1.0 + 2.0 * sighted * 1e-6, np.zeros(5), np.full(5, 2.0)], 1)
+    knots = np.linspace(0, 1_000_000, 101)
+    truth = np.stack([-1.0 + 2.0 * knots * 1e-6, np.zeros(101), np.full(101, 2.0)], 1)
+    held = slid(path, sighted, knots, [True, True], 4)
+    assert np.allclose(held, truth, atol=1e-9)  # carried on at its velocity both ways
+    stays = slid(path, sighted, knots, [False, True], 4)
+    assert np.allclose(stays[knots < 300_000], path[0]) and np.allclose(stays[-1], truth[-1])
+    views = SimpleNamespace(
+        data=SimpleNamespace(
+            trajectory=SimpleNamespace(pose=lambda t_us: np.eye(4)),
+            K=np.array([[128.0, 0.0, 48.0], [0.0, 128.0, 48.0], [0.0, 0.0, 1.0]]),
+            width=96,
+            height=96,
+        ),
+        renderer=SimpleNamespace(time=lambda t_us: t_us / 1e6),
+    )
+    inf = float("inf")
+    assert in_view(held, knots, [0.28, 0.72], 0.1, views) == pytest.approx([0.07, 0.93])
+    assert in_view(held, knots, [-inf, 0.72], 0.1, views) == pytest.approx([-inf, 0.93])
+    # Held at its first sighting, in view: unseen there so long, it was not there yet.
+    assert in_view(stays, knots, [0.28, 0.72], 0.1, views) == pytest.approx([0.28, 0.93])
 
 
 def test_back_project_inverts_the_projection():

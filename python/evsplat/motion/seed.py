@@ -94,6 +94,52 @@ def span(track: Track, times: np.ndarray, coast: int) -> list[float]:
     return [times[ks[0]] - step if enters else -inf, times[ks[-1]] + step if leaves else inf]
 
 
+def slid(
+    path: np.ndarray, times_us: np.ndarray, at_us: np.ndarray, ends: list[bool], n: int
+) -> np.ndarray:
+    """The object's ``path`` [F,3] at its sightings' ``times_us`` [F], read at ``at_us`` [G]:
+    linear between its sightings and held beyond them; but before its first sighting where it
+    came in through the border, and after its last where it went out (``ends``), carried on at
+    the velocity fitted to its first (last) ``n`` sightings: it was partly in view, unseen."""
+    out = np.stack([np.interp(at_us, times_us, path[:, j]) for j in range(3)], 1)
+    for end, i, used, beyond in (
+        (ends[0], 0, slice(None, n), at_us < times_us[0]),
+        (ends[1], -1, slice(-n, None), at_us > times_us[-1]),
+    ):
+        t = times_us[used].astype(np.float64)
+        if end and len(t) >= 2:
+            velocity = np.polyfit(t - t.mean(), path[used], 1)[0]  # [3] per µs
+            out[beyond] = path[i] + (at_us[beyond, None] - times_us[i]) * velocity
+    return out
+
+
+def in_view(
+    held: np.ndarray, knots: np.ndarray, ends: list[float], radius: float, views: Views
+) -> list[float]:
+    """The span ``ends`` (normalised times, ``span``'s) widened to where the object's disc of
+    ``radius`` on its path ``held`` [G,3] at ``knots`` [G] (µs) overlaps the image: to the
+    nearest knot it is out of view at, so that at the next, in view, it has faded in (0.96 of
+    its opacity with the default 61 knots and a fade of 1/48). Not where its path keeps it in
+    view all along: unseen so long, it was not there (`blobs`' wall sliding in along the border
+    was drawn there from the start, and its Gaussians crossed the ball's; docs/motion.md)."""
+    data = views.data
+    seen = []
+    for point, t_us in zip(held, knots.tolist()):
+        uv, z = project(point[None], data.trajectory.pose(t_us), data.K)
+        r = radius * float(data.K[0, 0]) / max(float(z[0]), 1e-6)
+        size = np.array([data.width, data.height])
+        seen.append(bool(z[0] > 0) and bool(((uv[0] > -r) & (uv[0] < size + r)).all()))
+    times = np.array([views.renderer.time(t) for t in knots.tolist()])
+    out = [*ends]
+    if np.isfinite(ends[0]):
+        gone = [g for g in range(len(knots)) if times[g] < ends[0] and not seen[g]]
+        out[0] = min(ends[0], times[gone[-1]]) if gone else ends[0]
+    if np.isfinite(ends[1]):
+        gone = [g for g in range(len(knots)) if times[g] > ends[1] and not seen[g]]
+        out[1] = max(ends[1], times[gone[0]]) if gone else ends[1]
+    return out
+
+
 def reference(track: Track) -> int:
     """The window to place the object at: its clearest sighting, clear of the border if any."""
     ks = sorted(track.blobs)
@@ -462,9 +508,10 @@ def seed_objects(
         backs.append(back)
         centres.append(placed.mean(0) if ball is None else path[r])  # what it turns about
         radii.append(radius)
-        held = [np.interp(knots, track.times_us, path[:, j]) for j in range(3)]  # held beyond
-        shifts.append(np.stack(held, 1) - path[r])
-        spans.append(span(track, windows, mc.coast))
+        edges = span(track, windows, mc.coast)
+        held = slid(path, track.times_us, knots, [np.isfinite(e) for e in edges], mc.min_windows)
+        shifts.append(held - path[r])
+        spans.append(in_view(held, knots, edges, radius, views))
         in_plane = angles[:, None] * pose_ref[:3, 2][None]  # about the viewing axis
         rotvecs.append(in_plane if ball is None else ball.rotvecs)
         rate = float(np.nanmedian(rates)) if used.any() else 0.0
