@@ -113,6 +113,12 @@ def test_projected_gives_each_objects_pixel_centre_and_radius_on_its_path():
     uv, radii = projected(motion, views, 500_000.0)
     assert np.allclose(uv, [[80.0, 48.0], [16.0, 64.0]], atol=1e-4)
     assert np.allclose(radii, [12.8, 3.2], atol=1e-5)
+    # Carried 5 m back along the ray it is behind the camera: no place in the image, no size.
+    trans[1, :, 2] = torch.linspace(0, -10, g)
+    behind = ObjectMotion(motion.centres, motion.radii, trans, torch.zeros(2, g, 3))
+    uv, radii = projected(behind, views, 500_000.0)
+    assert np.allclose(uv[0], [80.0, 48.0], atol=1e-4) and np.isnan(uv[1]).all()
+    assert radii[1] == 0.0 and np.isfinite(radii).all()
 
 
 def test_regions_finds_every_object_at_its_place_and_none_in_noise():

@@ -407,11 +407,14 @@ def place(
 
 
 def projected(motion: ObjectMotion, views: Views, t_us: float) -> tuple[np.ndarray, np.ndarray]:
-    """(pixel centres [K,2], radii [K] px) of the objects of ``motion`` at ``t_us``."""
+    """(pixel centres [K,2], radii [K] px) of the objects of ``motion`` at ``t_us``; NaN and 0
+    for one behind the camera (a path carried on past its sightings can get there)."""
     data = views.data
     at = (motion.centres + motion.at(views.renderer.time(t_us))[1]).detach().cpu().numpy()
     uv, z = project(at, data.trajectory.pose(t_us), data.K)
-    return uv, motion.radii.cpu().numpy() * float(data.K[0, 0]) / np.maximum(z, 1e-6)
+    ahead = z > 0
+    radii = motion.radii.cpu().numpy() * float(data.K[0, 0]) / np.where(ahead, z, 1.0)
+    return np.where(ahead[:, None], uv, np.nan), np.where(ahead, radii, 0.0)
 
 
 def known_object(track: Track, motion: ObjectMotion, views: Views) -> bool:
