@@ -93,6 +93,17 @@ def _ring_residual(shape, discs, seed=0):
     return r
 
 
+def _still_camera(f: float) -> SimpleNamespace:
+    """The ``Views`` that ``seed.projected`` and ``seed.in_view`` read: a camera at the origin
+    for good (focal ``f`` px, 96 x 96 px, principal point 48, 48), times in seconds."""
+    K = np.array([[f, 0.0, 48.0], [0.0, f, 48.0], [0.0, 0.0, 1.0]])
+    still = SimpleNamespace(pose=lambda t_us: np.eye(4))
+    return SimpleNamespace(
+        data=SimpleNamespace(trajectory=still, K=K, width=96, height=96),
+        renderer=SimpleNamespace(time=lambda t_us: t_us / 1e6),
+    )
+
+
 def test_projected_gives_each_objects_pixel_centre_and_radius_on_its_path():
     # Two objects, 0.2 m and 0.1 m in radius, 2 m and 4 m in front of a camera at the origin
     # (f = 128 px, principal point 48, 48); the first slides 1 m along x over the sequence. At
@@ -104,12 +115,7 @@ def test_projected_gives_each_objects_pixel_centre_and_radius_on_its_path():
         torch.tensor([[0.0, 0.0, 2.0], [-1.0, 0.5, 4.0]]), torch.tensor([0.2, 0.1]), trans,
         torch.zeros(2, g, 3),
     )  # fmt: skip
-    K = np.array([[f, 0.0, 48.0], [0.0, f, 48.0], [0.0, 0.0, 1.0]])
-    still = SimpleNamespace(pose=lambda t_us: np.eye(4))
-    views = SimpleNamespace(
-        data=SimpleNamespace(trajectory=still, K=K),
-        renderer=SimpleNamespace(time=lambda t_us: t_us / 1e6),
-    )
+    views = _still_camera(f)
     uv, radii = projected(motion, views, 500_000.0)
     assert np.allclose(uv, [[80.0, 48.0], [16.0, 64.0]], atol=1e-4)
     assert np.allclose(radii, [12.8, 3.2], atol=1e-5)
@@ -611,15 +617,7 @@ def test_an_object_that_came_in_and_went_out_is_drawn_sliding_while_partly_in_vi
     assert np.allclose(held, truth, atol=1e-9)  # carried on at its velocity both ways
     stays = slid(path, sighted, knots, [False, True], 4)
     assert np.allclose(stays[knots < 300_000], path[0]) and np.allclose(stays[-1], truth[-1])
-    views = SimpleNamespace(
-        data=SimpleNamespace(
-            trajectory=SimpleNamespace(pose=lambda t_us: np.eye(4)),
-            K=np.array([[128.0, 0.0, 48.0], [0.0, 128.0, 48.0], [0.0, 0.0, 1.0]]),
-            width=96,
-            height=96,
-        ),
-        renderer=SimpleNamespace(time=lambda t_us: t_us / 1e6),
-    )
+    views = _still_camera(128.0)
     inf = float("inf")
     assert in_view(held, knots, [0.28, 0.72], 0.1, views) == pytest.approx([0.07, 0.93])
     assert in_view(held, knots, [-inf, 0.72], 0.1, views) == pytest.approx([-inf, 0.93])

@@ -113,6 +113,18 @@ def slid(
     return out
 
 
+def disc(
+    points: np.ndarray, radii: np.ndarray, c2w: np.ndarray, K: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(pixel centres [N,2], radii [N] px) of balls at ``points`` [N,3] of ``radii`` [N] seen
+    from ``c2w``; NaN and 0 for one behind the camera (a path carried on past its sightings can
+    get there)."""
+    uv, z = project(points, c2w, K)
+    ahead = z > 0
+    px = radii * float(K[0, 0]) / np.where(ahead, z, 1.0)
+    return np.where(ahead[:, None], uv, np.nan), np.where(ahead, px, 0.0)
+
+
 def in_view(
     held: np.ndarray, knots: np.ndarray, ends: list[float], radius: float, views: Views
 ) -> list[float]:
@@ -123,21 +135,14 @@ def in_view(
     view all along: unseen so long, it was not there (`blobs`' wall sliding in along the border
     was drawn there from the start, and its Gaussians crossed the ball's; docs/motion.md)."""
     data = views.data
-    seen = []
+    size, seen = np.array([data.width, data.height]), []
     for point, t_us in zip(held, knots.tolist()):
-        uv, z = project(point[None], data.trajectory.pose(t_us), data.K)
-        r = radius * float(data.K[0, 0]) / max(float(z[0]), 1e-6)
-        size = np.array([data.width, data.height])
-        seen.append(bool(z[0] > 0) and bool(((uv[0] > -r) & (uv[0] < size + r)).all()))
-    times = np.array([views.renderer.time(t) for t in knots.tolist()])
-    out = [*ends]
-    if np.isfinite(ends[0]):
-        gone = [g for g in range(len(knots)) if times[g] < ends[0] and not seen[g]]
-        out[0] = min(ends[0], times[gone[-1]]) if gone else ends[0]
-    if np.isfinite(ends[1]):
-        gone = [g for g in range(len(knots)) if times[g] > ends[1] and not seen[g]]
-        out[1] = max(ends[1], times[gone[0]]) if gone else ends[1]
-    return out
+        uv, r = disc(point[None], np.array([radius]), data.trajectory.pose(t_us), data.K)
+        seen.append(bool(((uv[0] > -r[0]) & (uv[0] < size + r[0])).all()))  # NaN behind: False
+    times = [views.renderer.time(t) for t in knots.tolist()]
+    before = [g for g, t in enumerate(times) if t < ends[0] and not seen[g]]
+    after = [g for g, t in enumerate(times) if t > ends[1] and not seen[g]]
+    return [times[before[-1]] if before else ends[0], times[after[0]] if after else ends[1]]
 
 
 def reference(track: Track) -> int:
@@ -407,14 +412,10 @@ def place(
 
 
 def projected(motion: ObjectMotion, views: Views, t_us: float) -> tuple[np.ndarray, np.ndarray]:
-    """(pixel centres [K,2], radii [K] px) of the objects of ``motion`` at ``t_us``; NaN and 0
-    for one behind the camera (a path carried on past its sightings can get there)."""
+    """``disc`` of the objects of ``motion`` at ``t_us``."""
     data = views.data
     at = (motion.centres + motion.at(views.renderer.time(t_us))[1]).detach().cpu().numpy()
-    uv, z = project(at, data.trajectory.pose(t_us), data.K)
-    ahead = z > 0
-    radii = motion.radii.cpu().numpy() * float(data.K[0, 0]) / np.where(ahead, z, 1.0)
-    return np.where(ahead[:, None], uv, np.nan), np.where(ahead, radii, 0.0)
+    return disc(at, motion.radii.cpu().numpy(), data.trajectory.pose(t_us), data.K)
 
 
 def known_object(track: Track, motion: ObjectMotion, views: Views) -> bool:
