@@ -613,12 +613,19 @@ def test_an_object_that_came_in_and_went_out_is_drawn_sliding_while_partly_in_vi
     path = np.stack([-1.0 + 2.0 * sighted * 1e-6, np.zeros(5), np.full(5, 2.0)], 1)
     knots = np.linspace(0, 1_000_000, 101)
     truth = np.stack([-1.0 + 2.0 * knots * 1e-6, np.zeros(101), np.full(101, 2.0)], 1)
-    held = slid(path, sighted, knots, [True, True], 4)
-    assert np.allclose(held, truth, atol=1e-9)  # carried on at its velocity both ways
-    stays = slid(path, sighted, knots, [False, True], 4)
-    assert np.allclose(stays[knots < 300_000], path[0]) and np.allclose(stays[-1], truth[-1])
-    views = _still_camera(128.0)
     inf = float("inf")
+    held = slid(path, sighted, knots, [inf, inf], 4)
+    assert np.allclose(held, truth, atol=1e-9)  # carried on at its velocity both ways
+    stays = slid(path, sighted, knots, [0.0, inf], 4)
+    assert np.allclose(stays[knots < 300_000], path[0]) and np.allclose(stays[-1], truth[-1])
+    # Carried on for at most 0.1 s (as long as a track may go unseen), then held.
+    brief = slid(path, sighted, knots, [100_000.0, 100_000.0], 4)
+    early, late = knots <= 200_000, knots >= 800_000
+    assert np.allclose(brief[early], truth[knots == 200_000]) and np.allclose(
+        brief[late], truth[knots == 800_000]
+    )
+    assert np.allclose(brief[~early & ~late], truth[~early & ~late], atol=1e-9)
+    views = _still_camera(128.0)
     assert in_view(held, knots, [0.28, 0.72], 0.1, views) == pytest.approx([0.07, 0.93])
     assert in_view(held, knots, [-inf, 0.72], 0.1, views) == pytest.approx([-inf, 0.93])
     # Held at its first sighting, in view: unseen there so long, it was not there yet.

@@ -95,21 +95,23 @@ def span(track: Track, times: np.ndarray, coast: int) -> list[float]:
 
 
 def slid(
-    path: np.ndarray, times_us: np.ndarray, at_us: np.ndarray, ends: list[bool], n: int
+    path: np.ndarray, times_us: np.ndarray, at_us: np.ndarray, reach: list[float], n: int
 ) -> np.ndarray:
     """The object's ``path`` [F,3] at its sightings' ``times_us`` [F], read at ``at_us`` [G]:
-    linear between its sightings and held beyond them; but before its first sighting where it
-    came in through the border, and after its last where it went out (``ends``), carried on at
-    the velocity fitted to its first (last) ``n`` sightings: it was partly in view, unseen."""
+    linear between its sightings; before the first (after the last) carried on for up to
+    ``reach`` µs at the velocity fitted to its first (last) ``n`` sightings, then held. It may
+    have moved unseen: for as long as a track may go unseen inside the image, and, where it
+    came in (went out) through the border, for as long as it was partly in view."""
     out = np.stack([np.interp(at_us, times_us, path[:, j]) for j in range(3)], 1)
-    for end, i, used, beyond in (
-        (ends[0], 0, slice(None, n), at_us < times_us[0]),
-        (ends[1], -1, slice(-n, None), at_us > times_us[-1]),
+    for most, i, used, beyond in (
+        (reach[0], 0, slice(None, n), at_us < times_us[0]),
+        (reach[1], -1, slice(-n, None), at_us > times_us[-1]),
     ):
         t = times_us[used].astype(np.float64)
-        if end and len(t) >= 2:
+        if most > 0 and len(t) >= 2:
             velocity = np.polyfit(t - t.mean(), path[used], 1)[0]  # [3] per µs
-            out[beyond] = path[i] + (at_us[beyond, None] - times_us[i]) * velocity
+            dt = np.clip(at_us[beyond, None] - times_us[i], -most, most)
+            out[beyond] = path[i] + dt * velocity
     return out
 
 
@@ -469,6 +471,9 @@ def seed_objects(
     total = areas.sum() + known_areas.sum()
     knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
     windows = np.array([views.renderer.time(t) for t in sightings.times_us])  # the spans' clock
+    # How long an object inside the image may have moved unseen: ``coast`` windows (``chain``).
+    spacing = np.diff(sightings.times_us)
+    unseen_us = (mc.coast + 1) * float(spacing.mean()) if spacing.size else 0.0
     centres, radii, shifts, rotvecs, spans, backs = ([] for _ in range(6))
     for k, (track, (rates, middle, end, seen)) in enumerate(found):
         depth = object_depth(track, sightings, mc.depth_quantile) or float(np.mean(depth_range))
@@ -513,7 +518,8 @@ def seed_objects(
         centres.append(placed.mean(0) if ball is None else path[r])  # what it turns about
         radii.append(radius)
         edges = span(track, windows, mc.coast)
-        held = slid(path, track.times_us, knots, [np.isfinite(e) for e in edges], mc.min_windows)
+        reach = [np.inf if np.isfinite(e) else unseen_us for e in edges]
+        held = slid(path, track.times_us, knots, reach, mc.min_windows)
         shifts.append(held - path[r])
         spans.append(in_view(held, knots, edges, radius, views))
         in_plane = angles[:, None] * pose_ref[:3, 2][None]  # about the viewing axis
