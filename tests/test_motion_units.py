@@ -560,8 +560,14 @@ def test_joined_objects_keep_their_refined_paths_and_priors():
     quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2)
     moved, _ = both.apply(means, quats, torch.tensor([0, 1]), 0.5)
     assert torch.allclose(moved, torch.tensor([[1.0, 1.0, 1.0], [5.0, 5.0, 5.0]]))
-    # Each keeps its own prior: the first object's refinement costs, the second's start not.
-    assert torch.allclose(both.prior_loss(), torch.tensor(0.5 * 3.0))
+    # Each keeps its own prior: the first object's refinement costs (3 per knot at 1 radius on
+    # each axis, three knots), the second's start not; averaged over the two objects.
+    assert torch.allclose(both.prior_loss(), torch.tensor(3.0 * 3.0 / 2))
+    # A single knot off costs what it would alone, not diluted by the knots that are not.
+    with torch.no_grad():
+        both.translations.copy_(both.prior_translations)
+        both.translations[1, 0, 0] += 2.0 * 3.0  # knot 0 of the second, three of its radii
+    assert torch.allclose(both.prior_loss(), torch.tensor(9.0 / 2))
 
 
 def test_an_object_is_visible_only_inside_its_span():

@@ -163,7 +163,7 @@ class MoverConfig:
     knots: int = 61  # knots of the objects' rigid paths over the sequence
     path_lr: float = 1e-3  # Adam's rate on the paths' translations (world units)
     turn_lr: float = 1e-3  # Adam's rate on the paths' rotation vectors (rad)
-    track_weight: float = 1.0  # the prior holding the paths near the events' (0 = off)
+    track_weight: float = 1.0  # the prior holding each knot near the events' path (0 = off)
     again: float = 0.3  # look again at this fraction of the run, against all found (0 = off)
     residual: bool = True  # the MLP adds a non-rigid residual to the objects' rigid motion
 
