@@ -568,6 +568,11 @@ def test_joined_objects_keep_their_refined_paths_and_priors():
         both.translations.copy_(both.prior_translations)
         both.translations[1, 0, 0] += 2.0 * 3.0  # knot 0 of the second, three of its radii
     assert torch.allclose(both.prior_loss(), torch.tensor(9.0 / 2))
+    # A turn off at one knot is averaged over the knots (0.3 rad at one of three).
+    with torch.no_grad():
+        both.translations.copy_(both.prior_translations)
+        both.rotvecs[0, 1, 2] += 0.3
+    assert torch.allclose(both.prior_loss(), torch.tensor(0.09 / 3 / 2))
 
 
 def test_an_object_is_visible_only_inside_its_span():

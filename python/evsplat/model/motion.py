@@ -102,14 +102,15 @@ class ObjectMotion(nn.Module):
         return out
 
     def prior_loss(self) -> Tensor:
-        """Squared distance of the paths from their starting values, translations in object
-        radii and rotations in radians: summed over the knots, each held on its own (a mean
-        over them let one knot go 15-20 px off where the demo's ball leaves the image,
-        docs/motion.md), and averaged over the objects."""
+        """Squared distance of the paths from their starting values: translations in object
+        radii summed over the knots, each held on its own (a mean over them let one knot go
+        15-20 px off where the demo's ball leaves the image), rotations in radians averaged
+        over them (held per knot, the clock's turn was refined less: 2 dB lower; docs/motion.md);
+        both averaged over the objects."""
         scale = self.radii.clamp_min(1e-6)[:, None, None]
         off = (self.translations - self.prior_translations) / scale
         turn = self.rotvecs - self.prior_rotvecs
-        return ((off**2).sum(-1) + (turn**2).sum(-1)).sum(-1).mean()
+        return (off**2).sum(-1).sum(-1).mean() + (turn**2).sum(-1).mean()
 
     def joined(self, more: ObjectMotion) -> ObjectMotion:
         """These objects as refined so far, then ``more``'s; each keeps its own track prior."""
