@@ -110,7 +110,7 @@ class ObjectMotion(nn.Module):
         scale = self.radii.clamp_min(1e-6)[:, None, None]
         off = (self.translations - self.prior_translations) / scale
         turn = self.rotvecs - self.prior_rotvecs
-        return (off**2).sum(-1).sum(-1).mean() + (turn**2).sum(-1).mean()
+        return (off**2).sum((-2, -1)).mean() + (turn**2).sum(-1).mean()
 
     def joined(self, more: ObjectMotion) -> ObjectMotion:
         """These objects as refined so far, then ``more``'s; each keeps its own track prior."""
