@@ -4,6 +4,7 @@ rate the events were made with, the path's ends against straight-line motion."""
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -12,7 +13,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from evsplat.config import MoverConfig
-from evsplat.model.motion import ObjectMotion, quat_multiply, rotvec_to_quat
+from evsplat.model.motion import FREE, ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border
 from evsplat.motion.align import align
 from evsplat.motion.paths import turn_angles, turns, two_ends
@@ -560,14 +561,23 @@ def test_joined_objects_keep_their_refined_paths_and_priors():
     quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2)
     moved, _ = both.apply(means, quats, torch.tensor([0, 1]), 0.5)
     assert torch.allclose(moved, torch.tensor([[1.0, 1.0, 1.0], [5.0, 5.0, 5.0]]))
-    # Each keeps its own prior: the first object's refinement costs (3 per knot at 1 radius on
-    # each axis, three knots), the second's start not; averaged over the two objects.
-    assert torch.allclose(both.prior_loss(), torch.tensor(3.0 * 3.0 / 2))
+    # Each keeps its own prior: the first object's refinement costs (sqrt(3) radii per knot,
+    # beyond FREE, squared, three knots), the second's start not; averaged over the two objects.
+    beyond = math.sqrt(3.0) - FREE
+    assert torch.allclose(both.prior_loss(), torch.tensor(3 * beyond**2 / 2))
     # A single knot off costs what it would alone, not diluted by the knots that are not.
     with torch.no_grad():
         both.translations.copy_(both.prior_translations)
         both.translations[1, 0, 0] += 2.0 * 3.0  # knot 0 of the second, three of its radii
-    assert torch.allclose(both.prior_loss(), torch.tensor(9.0 / 2))
+    assert torch.allclose(both.prior_loss(), torch.tensor((3.0 - FREE) ** 2 / 2))
+    # Within FREE of its seeded place a knot is free, its gradient finite (0 there too).
+    with torch.no_grad():
+        both.translations.copy_(both.prior_translations)
+        both.translations[1, 2, 1] += 2.0 * 0.9 * FREE
+    both.translations.grad = None
+    both.prior_loss().backward()
+    assert float(both.prior_loss().detach()) == 0.0
+    assert torch.isfinite(both.translations.grad).all() and not both.translations.grad.any()
     # A turn off at one knot is averaged over the knots (0.3 rad at one of three).
     with torch.no_grad():
         both.translations.copy_(both.prior_translations)
