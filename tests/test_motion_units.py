@@ -575,8 +575,9 @@ def test_joined_objects_keep_their_refined_paths_and_priors():
         both.translations.copy_(both.prior_translations)
         both.translations[1, 2, 1] += 2.0 * 0.9 * FREE
     both.translations.grad = None
-    both.prior_loss().backward()
-    assert float(both.prior_loss().detach()) == 0.0
+    loss = both.prior_loss()
+    loss.backward()
+    assert float(loss.detach()) == 0.0
     assert torch.isfinite(both.translations.grad).all() and not both.translations.grad.any()
     # A turn off at one knot is averaged over the knots (0.3 rad at one of three).
     with torch.no_grad():
