@@ -275,6 +275,25 @@ def test_a_track_keeps_its_object_when_a_new_region_starts_beside_it():
     assert all(np.linalg.norm(c - truth[k]) < 1.0 for k, c in zip(range(30), track.centres))
 
 
+def test_two_tracked_objects_joined_into_one_region_are_split_again():
+    # Two discs pass 22 px apart: at window 13 their rings are pieces that ``join`` unites (at
+    # 14-16 one piece, which cannot be split). Each piece is the one a confirmed track predicts
+    # nearest, so the region is split and each track keeps its own disc there.
+    shape, dy = (96, 128), 22.0
+    per_window, truth = [], []
+    for k in range(30):
+        a, b = (20.0 + 3 * k, 48.0 - dy / 2), (108.0 - 3 * k, 48.0 + dy / 2)
+        truth.append((np.array(a), np.array(b)))
+        per_window.append(regions(_ring_residual(shape, [(a, 8.0), (b, 8.0)], seed=k), k, SEGMENT))
+    assert len(per_window[13]) == 1 and len(per_window[13][0].parts) == 2
+    tracks = chain(per_window, TRACKS)
+    assert len(tracks) == 2
+    for track in tracks:
+        own = np.argmin([np.linalg.norm(track.blobs[0].centre - c) for c in truth[0]])
+        assert 13 in track.blobs and 13 not in track.shared
+        assert np.linalg.norm(track.blobs[13].centre - truth[13][own]) < 1.0
+
+
 def test_a_track_that_jumps_onto_noise_does_not_take_a_far_object():
     # A disc moving 2 px per window is lost at window 10, where a small noise region 22 px ahead
     # takes its track. Three windows on, another object appears 60 px further: at the jump's

@@ -4,7 +4,7 @@ the residual's own robust spread (nothing here knows a scene's contrast, size or
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch.nn.functional as F
@@ -26,6 +26,7 @@ class Blob:
     mask: np.ndarray  # [H,W] bool, the closed region
     area: float  # px
     contrast: float  # the region's peak residual above the median, in robust sigmas
+    parts: tuple[Blob, ...] = ()  # the pieces ``join`` united into it (none: one piece)
 
     @property
     def radius(self) -> float:
@@ -89,23 +90,27 @@ def regions(residual: np.ndarray, t_us: int, s: MoverConfig, least: float = 0.0)
         for k, top, size in zip(index, peak, area)
         if size >= s.min_area_px and top >= med + s.high * sigma
     ]
-    blobs = [_blob(mask, energy * mask, t_us, c) for mask, c in _joined(kept, s.join)]
+    blobs = []
+    for mask, c, pieces in _joined(kept, s.join):
+        parts = tuple(_blob(m, energy * m, t_us, pc) for m, pc in pieces) if len(pieces) > 1 else ()
+        blobs.append(replace(_blob(mask, energy * mask, t_us, c), parts=parts))
     return sorted(blobs, key=lambda b: -b.area)
 
 
-def _joined(parts: list[tuple[np.ndarray, float]], join: float) -> list[tuple[np.ndarray, float]]:
+def _joined(pieces: list[tuple[np.ndarray, float]], join: float) -> list[tuple]:
     """The pieces (mask, contrast) with those of one object united (a sparse texture's events
-    fall apart): two are one where their gap is under ``join`` x the larger one's radius."""
-    parts, i = list(parts), 0
+    fall apart): two are one where their gap is under ``join`` x the larger one's radius; each
+    (mask, contrast, the pieces united in it)."""
+    parts, i = [(m, c, [(m, c)]) for m, c in pieces], 0
     while i < len(parts):
         mask = parts[i][0]
         reach = ndimage.distance_transform_edt(~mask)
-        gap = [reach[m].min() / np.sqrt(max(mask.sum(), m.sum()) / np.pi) for m, _ in parts]
+        gap = [reach[m].min() / np.sqrt(max(mask.sum(), m.sum()) / np.pi) for m, _, _ in parts]
         j = next((j for j in range(i + 1, len(parts)) if gap[j] <= join), None)
         if j is None:
             i += 1
             continue
-        union = (mask | parts[j][0], max(parts[i][1], parts[j][1]))
+        union = (mask | parts[j][0], max(parts[i][1], parts[j][1]), parts[i][2] + parts[j][2])
         parts, i = [p for k, p in enumerate(parts) if k not in (i, j)] + [union], 0
     return parts
 

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -90,6 +91,7 @@ def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
     live: list[Track] = []
     done: list[Track] = []
     for k, blobs in enumerate(per_window):
+        blobs = _split(live, blobs, k, s)
         taken = _assign(live, blobs, k, s)
         for track in live:
             if k in track.blobs:
@@ -119,6 +121,35 @@ def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
     for track in kept:  # only the objects kept (the shape fit is the costly part)
         track.blobs = uncut(track.blobs, set(track.blobs) - track.shared)
     return sorted(kept, key=lambda t: -len(t.blobs))
+
+
+def _split(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> list[Blob]:
+    """Window ``k``'s ``blobs``, each joined from pieces that two or more confirmed ``live``
+    tracks reach (each the piece nearest its predicted centre, within its gate) split into one
+    region per such piece, the other pieces each with the nearest of them: two objects that
+    came near, not pieces of one."""
+    out = []
+    for blob in blobs:
+        seeds: set[int] = set()
+        for track in live:
+            if len(track.blobs) < s.min_windows or not blob.parts:
+                continue
+            guess, speed = track.predict(k)
+            reach = s.gate * max(track.radius, speed * (track.missed + 1))
+            d = [float(np.linalg.norm(p.centre - guess)) for p in blob.parts]
+            n = int(np.argmin(d))
+            if d[n] <= reach + blob.parts[n].radius * s.gate:
+                seeds.add(n)
+        if len(seeds) < 2:
+            out.append(blob)
+            continue
+        groups: dict[int, list[Blob]] = {n: [] for n in sorted(seeds)}
+        for part in blob.parts:
+            near = min(groups, key=lambda n: np.linalg.norm(blob.parts[n].centre - part.centre))
+            groups[near].append(part)
+        for parts in groups.values():
+            out.append(functools.reduce(_union, parts))
+    return out
 
 
 def _host(guess: np.ndarray, blobs: list[Blob]) -> Blob | None:
