@@ -128,17 +128,16 @@ def _split(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> list
     tracks reach (each the piece nearest its predicted centre, within its gate) split into one
     region per such piece, the other pieces each with the nearest of them: two objects that
     came near, not pieces of one."""
+    if not any(b.parts for b in blobs):
+        return blobs
+    gates = [_gate(t, k, s) for t in live if len(t.blobs) >= s.min_windows]
     out = []
     for blob in blobs:
         seeds: set[int] = set()
-        for track in live:
-            if len(track.blobs) < s.min_windows or not blob.parts:
-                continue
-            guess, speed = track.predict(k)
-            reach = s.gate * max(track.radius, speed * (track.missed + 1))
+        for guess, reach in gates if blob.parts else ():
             d = [float(np.linalg.norm(p.centre - guess)) for p in blob.parts]
             n = int(np.argmin(d))
-            if d[n] <= reach + blob.parts[n].radius * s.gate:
+            if _in_gate(d[n], reach, blob.parts[n], s):
                 seeds.add(n)
         if len(seeds) < 2:
             out.append(blob)
@@ -147,9 +146,21 @@ def _split(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> list
         for part in blob.parts:
             near = min(groups, key=lambda n: np.linalg.norm(blob.parts[n].centre - part.centre))
             groups[near].append(part)
-        for parts in groups.values():
-            out.append(functools.reduce(_union, parts))
+        out += [functools.reduce(_union, parts) for parts in groups.values()]
     return out
+
+
+def _gate(track: Track, k: int, s: MoverConfig) -> tuple[np.ndarray, float]:
+    """(``track``'s predicted centre at window ``k``, how far from it its object may be: ``s.gate``
+    x its size or its steps since its last sighting)."""
+    guess, speed = track.predict(k)
+    return guess, s.gate * max(track.radius, speed * (track.missed + 1))
+
+
+def _in_gate(d: float, reach: float, blob: Blob, s: MoverConfig) -> bool:
+    """Whether a region ``blob`` whose centre is ``d`` px from a track's prediction is within
+    the track's ``reach`` (``_gate``) widened by ``s.gate`` x the region's size."""
+    return d <= reach + blob.radius * s.gate
 
 
 def _host(guess: np.ndarray, blobs: list[Blob]) -> Blob | None:
@@ -173,14 +184,13 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
         free = [j for j in range(len(blobs)) if j not in taken]
         cost = np.full((len(tracks), len(free)), UNASSIGNED)
         for i, track in enumerate(tracks):
-            guess, speed = track.predict(k)
-            reach = s.gate * max(track.radius, speed * (track.missed + 1))
+            guess, reach = _gate(track, k, s)
             # Unseen since a sighting at a border, it left the image: it comes back there.
             out = borders(track.blobs[max(track.blobs)].mask) if track.missed else set()
             for n, j in enumerate(free):
                 d = float(np.linalg.norm(blobs[j].centre - guess))
                 back = not out or out & sides[j]
-                if d <= reach + blobs[j].radius * s.gate and back:
+                if _in_gate(d, reach, blobs[j], s) and back:
                     cost[i, n] = d
         for i, n in zip(*linear_sum_assignment(cost)):
             if cost[i, n] < UNASSIGNED:
