@@ -91,9 +91,17 @@ def test_an_unknown_scene_is_a_one_line_error(capsys, tmp_path):
     assert not list(tmp_path.iterdir())  # nothing simulated
 
 
-def test_every_true_object_of_a_scene_gets_a_row(capsys, tmp_path):
-    assert main(["bench", "seeding", "--scenes", "enter_leave", "--out", str(tmp_path)]) == 0
+def test_every_true_object_of_a_scene_gets_a_row_and_a_kept_warm_up_seeds_the_same(
+    capsys, tmp_path
+):
+    args = ["bench", "seeding", "--scenes", "enter_leave", "--out", str(tmp_path)]
+    kept = ["--warm-ups", str(tmp_path / "kept")]
+    assert main(args + kept) == 0
     rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| enter_leave |")]
+    assert [p.name for p in (tmp_path / "kept").iterdir()] == ["enter_leave-seed0-iters2000.pt"]
+    assert main(args + kept) == 0  # from the kept warm-up: the same objects and distances
+    again = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| enter_leave |")]
+    assert [r.split("|")[:-2] for r in again] == [r.split("|")[:-2] for r in rows]
     names = sorted({r.split("|")[4].strip() for r in rows})
     assert names == ["box", "sphere"]
     for row in rows[-2:]:  # the closing table's
@@ -101,3 +109,12 @@ def test_every_true_object_of_a_scene_gets_a_row(capsys, tmp_path):
         assert int(cells[2]) >= 1  # objects seeded
         assert float(cells[5]) >= 0.0  # a median distance, in px
         assert 0.0 <= float(cells[9]) <= 180.0  # the turn's error, degrees
+
+
+def test_an_unreadable_kept_warm_up_is_a_one_line_error(capsys, tmp_path):
+    (tmp_path / "kept").mkdir()
+    (tmp_path / "kept" / "enter_leave-seed0-iters2000.pt").write_text("not torch\n")
+    args = ["--scenes", "enter_leave", "--out", str(tmp_path), "--warm-ups", str(tmp_path / "kept")]
+    assert main(["bench", "seeding", *args]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "enter_leave-seed0-iters2000.pt" in err[0] and "delete" in err[0]

@@ -69,6 +69,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out", type=Path, default=Path("runs/bench-seeding"), help="datasets and warm-up runs"
     )
+    parser.add_argument(
+        "--warm-ups",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="keep each warm-up in DIR and start from the one kept there for the same scene, "
+        "seed and schedule: two versions of the code then seed from the same evidence (two "
+        "warm-ups of one seed differ by the rasterizer's float atomics)",
+    )
 
 
 def nearest(found: np.ndarray, drawn: np.ndarray, truth: np.ndarray) -> tuple:
@@ -119,7 +128,9 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
 
     from evsplat.config import preset
     from evsplat.config_fields import apply
+    from evsplat.data.atomic import write_atomic
     from evsplat.data.dataset import load_dataset
+    from evsplat.errors import EvsplatError
     from evsplat.model.gaussians import PARAM_NAMES
     from evsplat.projection import project
     from evsplat.scenes import get_scene, scene_objects
@@ -131,10 +142,22 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
     cfg = preset("tiny")
     cfg.seed, cfg.schedule.iterations, cfg.schedule.grad_norms_every = args.seed, args.iters, 0
     trainer = Trainer(data, cfg, args.out / "warm" / scene)
-    for it in range(cfg.schedule.warmup_end):
-        trainer.step(it)
+    kept = (
+        args.warm_ups / f"{scene}-seed{args.seed}-iters{args.iters}.pt" if args.warm_ups else None
+    )
+    if kept is not None and kept.exists():
+        try:
+            warm = torch.load(kept, map_location=trainer.device)
+        except Exception:  # torch's messages run over many lines: one line names the file
+            raise EvsplatError(f"{kept}: not a kept warm-up; delete it to warm up again") from None
+    else:
+        for it in range(cfg.schedule.warmup_end):
+            trainer.step(it)
+        warm = {k: getattr(trainer.model, k).detach().clone() for k in PARAM_NAMES}
+        if kept is not None:
+            kept.parent.mkdir(parents=True, exist_ok=True)
+            write_atomic(kept, lambda tmp: torch.save(warm, tmp))
     trainer.renderer.mlp = None  # the warm-up's static model, as the seeding sees it
-    warm = {k: getattr(trainer.model, k).detach().clone() for k in PARAM_NAMES}
     times = np.linspace(data.t_start_us, data.t_end_us, TIMES + 2)[1:-1]
     poses = data.trajectory.pose(times)
     out = []
