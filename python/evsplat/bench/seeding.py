@@ -131,7 +131,7 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
     from evsplat.data.atomic import write_atomic
     from evsplat.data.dataset import load_dataset
     from evsplat.errors import EvsplatError
-    from evsplat.model.gaussians import PARAM_NAMES
+    from evsplat.model.gaussians import PARAM_NAMES, GaussianModel
     from evsplat.projection import project
     from evsplat.scenes import get_scene, scene_objects
     from evsplat.train.loop import Trainer
@@ -146,17 +146,18 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
         args.warm_ups / f"{scene}-seed{args.seed}-iters{args.iters}.pt" if args.warm_ups else None
     )
     if kept is not None and kept.exists():
-        try:
-            warm = torch.load(kept, map_location=trainer.device)
+        try:  # the checkpoint's own check: a file of other tensors is refused too
+            model = GaussianModel.from_checkpoint(torch.load(kept, map_location="cpu"))
         except Exception:  # torch's messages run over many lines: one line names the file
             raise EvsplatError(f"{kept}: not a kept warm-up; delete it to warm up again") from None
+        warm = {k: getattr(model, k).detach().to(trainer.device) for k in PARAM_NAMES}
     else:
         for it in range(cfg.schedule.warmup_end):
             trainer.step(it)
         warm = {k: getattr(trainer.model, k).detach().clone() for k in PARAM_NAMES}
         if kept is not None:
             kept.parent.mkdir(parents=True, exist_ok=True)
-            write_atomic(kept, lambda tmp: torch.save(warm, tmp))
+            write_atomic(kept, lambda tmp: torch.save(trainer.model.state_for_checkpoint(), tmp))
     trainer.renderer.mlp = None  # the warm-up's static model, as the seeding sees it
     times = np.linspace(data.t_start_us, data.t_end_us, TIMES + 2)[1:-1]
     poses = data.trajectory.pose(times)
