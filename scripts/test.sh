@@ -12,5 +12,5 @@ cargo clippy --workspace --all-targets --release -q -- -D warnings
 ruff check python tests
 echo "== pytest"
 # Exit code 5 (no tests collected) is a failure too: set -e stops on it.
-python -m pytest -q -m "not benchmark" "$@"
+python -m pytest -q -m "not benchmark" --durations=20 "$@"
 echo "all tests passed in $(( $(date +%s) - start )) s"

@@ -566,6 +566,21 @@ def test_a_card_broken_into_tracks_at_its_hops_is_one_object_and_its_other_end_n
     assert (found[1][1][2] == 1).all()
 
 
+def test_a_balls_rim_read_as_two_ends_about_its_centre_is_a_piece_of_the_ball():
+    # A ball (20 px radius) seen whole in windows 0-29; a small region on its rim, now on one
+    # side, now on the other (hops at 8 and 16), reads as a two-ended object whose centre is
+    # the ball's. It explains less of the events than the ball: it is the piece, not the ball.
+    centre, d = np.array([40.0, 45.0]), np.array([17.0, 4.0])
+    mc = MoverConfig(turn=False, coast=3, together=1.5, min_windows=4)
+    ball = _tip_track(centre, np.zeros(2), range(30), np.ones(30), radius=20.0)
+    later = np.arange(4, 26)
+    rim = _tip_track(centre, d, later, np.where((later >= 8) & (later < 16), -1.0, 1.0))
+    assert (joined_ends([rim], views=None, mc=mc)[0][1][2] < 0).any()  # alone: two ends
+    found = joined_ends([ball, rim], views=None, mc=mc)
+    assert [id(t) for t, _ in found] == [id(ball)]
+    assert (found[0][1][2] == 1).all()
+
+
 def test_joined_objects_keep_their_refined_paths_and_priors():
     first = ObjectMotion(
         torch.zeros(1, 3), torch.ones(1), torch.zeros(1, 3, 3), torch.zeros(1, 3, 3)
