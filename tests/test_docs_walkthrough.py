@@ -44,6 +44,8 @@ SKIPS = {
     r"^(OMP_NUM_THREADS=1 )?evsplat bench raster\b": "minutes of 512x512 renders "
     "(tests/test_raster.py checks the rasterizer)",
     r"^evsplat bench decode\b": "20 M events per format (tests/test_bench_decode.py runs it small)",
+    r"^evsplat bench seeding\b": "a warm-up per scene and setting, minutes "
+    "(tests/test_bench_seeding.py runs it on one scene)",
     r"--device cuda\b|^evsplat bench gpu\b": "needs a CUDA GPU",
     r"^evsplat simulate (?!.*--tiny)": "a full-size scene: minutes of simulation (`--tiny` runs)",
 }
