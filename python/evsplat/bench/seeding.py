@@ -150,14 +150,14 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
             model = GaussianModel.from_checkpoint(torch.load(kept, map_location="cpu"))
         except Exception:  # torch's messages run over many lines: one line names the file
             raise EvsplatError(f"{kept}: not a kept warm-up; delete it to warm up again") from None
-        warm = {k: getattr(model, k).detach().to(trainer.device) for k in PARAM_NAMES}
     else:
         for it in range(cfg.schedule.warmup_end):
             trainer.step(it)
-        warm = {k: getattr(trainer.model, k).detach().clone() for k in PARAM_NAMES}
+        model = trainer.model
         if kept is not None:
             kept.parent.mkdir(parents=True, exist_ok=True)
-            write_atomic(kept, lambda tmp: torch.save(trainer.model.state_for_checkpoint(), tmp))
+            write_atomic(kept, lambda tmp: torch.save(model.state_for_checkpoint(), tmp))
+    warm = {k: getattr(model, k).detach().to(trainer.device).clone() for k in PARAM_NAMES}
     trainer.renderer.mlp = None  # the warm-up's static model, as the seeding sees it
     times = np.linspace(data.t_start_us, data.t_end_us, TIMES + 2)[1:-1]
     poses = data.trajectory.pose(times)

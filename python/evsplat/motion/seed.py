@@ -353,7 +353,7 @@ def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tupl
     made one: a track that starts at most ``mc.coast`` + 1 windows past another's end and ends
     after it joins it where the two hop between two ends (``two_ends``). A track together with
     a two-ended object's centre (``tracks.together``) is its other end firing at once, unless
-    it shows more of the object (``evidence``): then the "ends" were pieces of its edge."""
+    it explains more of the events (``Track.area``): then the "ends" were pieces of its edge."""
     gone: set[int] = set()  # ids of the tracks that are part of another
     turns: dict[int, Turning] = {}  # a joined track's, from its join's test
     for track in sorted(tracks, key=lambda t: min(t.blobs)):
@@ -380,16 +380,11 @@ def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tupl
             ks = sorted(home.blobs)
             centred = Track({k: replace(home.blobs[k], centre=c) for k, c in zip(ks, middle)})
             near = [t for t in tracks if t is not home and together(centred, t, mc)]
-            if any(evidence(t) > evidence(home) for t in near):
+            if any(t.area > home.area for t in near):
                 gone.add(id(home))  # the ball's rim, read as two ends about its centre
             else:
                 gone |= {id(t) for t in near}
     return [(t, turn) for t, turn in found if id(t) not in gone]
-
-
-def evidence(track: Track) -> float:
-    """How much of the events a track explains: its regions' summed area (px x windows)."""
-    return float(sum(b.area for b in track.blobs.values()))
 
 
 def on_sphere(rng: np.random.Generator, n: int) -> np.ndarray:

@@ -65,6 +65,11 @@ class Track:
         return float(np.median([b.radius for b in whole]))
 
     @property
+    def area(self) -> float:
+        """How much of the events it explains: its regions' summed area (px x windows)."""
+        return float(sum(b.area for b in self.blobs.values()))
+
+    @property
     def steps(self) -> list[float]:
         """Px per window between its consecutive sightings."""
         ks = sorted(self.blobs)
