@@ -220,10 +220,10 @@ def run(args: argparse.Namespace) -> int:
     from evsplat.config import preset
     from evsplat.config_fields import apply
     from evsplat.errors import EvsplatError
-    from evsplat.scenes import scene_names
+    from evsplat.scenes import is_scene
 
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
-    unknown = [s for s in scenes if s not in scene_names()]
+    unknown = [s for s in scenes if not is_scene(s)]
     if unknown:
         raise EvsplatError(f"--scenes: unknown {', '.join(unknown)}; see `evsplat simulate --help`")
     for setting in args.against:  # a misspelt setting fails now, not after the warm-ups

@@ -26,7 +26,14 @@ def _scene_list(width: int = 78) -> str:
         textwrap.fill(text, width, initial_indent=f"  {name:<10} ", subsequent_indent=" " * 13)
         for name, text in scene_descriptions().items()
     ]
-    return "built-in scenes:\n" + "\n".join(rows)
+    drawn = textwrap.fill(
+        "a scene drawn at random from N (0, 1, ...): one to three movers of random shape, "
+        "size, depth, texture, path and turn, under a still or a hand-held camera",
+        width,
+        initial_indent=f"  {'drawn-N':<10} ",
+        subsequent_indent=" " * 13,
+    )
+    return "built-in scenes:\n" + "\n".join([*rows, drawn])
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,7 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     # Raw epilog: keep one scene per entry instead of argparse's single re-wrapped paragraph.
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.epilog = _scene_list()
-    parser.add_argument("--scene", required=True, help=f"scene name: {', '.join(scene_names())}")
+    parser.add_argument(
+        "--scene", required=True, help=f"scene name: {', '.join(scene_names())}, or drawn-N"
+    )
     parser.add_argument(
         "--out", required=True, help="output dataset folder (must not exist or be empty)"
     )

@@ -11,7 +11,7 @@ import numpy as np
 
 from evsplat import _core
 from evsplat.errors import EvsplatError
-from evsplat.scenes import held_out, library, multi_object
+from evsplat.scenes import drawn, held_out, library, multi_object
 from evsplat.scenes.geometry import Primitive
 
 SCENES = library.SCENES | multi_object.SCENES | held_out.SCENES
@@ -134,6 +134,24 @@ class Scene:
         return [r.render(c2w, poses)[2] for r in self._object_renderers]
 
 
+def is_scene(name: str) -> bool:
+    """Whether ``name`` is a built-in scene or a drawn one (``drawn-N``)."""
+    return name in SCENES or drawn.seed_of(name) is not None
+
+
+def scene_spec(name: str) -> dict:
+    """The built-in scene ``name``'s primitives, camera and words, or a drawn one's."""
+    if name in SCENES:
+        return SCENES[name]()
+    n = drawn.seed_of(name)
+    if n is None:
+        raise EvsplatError(
+            f"unknown scene '{name}'; choose one of: {', '.join(SCENES)}, or drawn-N "
+            "(N = 0, 1, ...: a scene drawn at random)"
+        )
+    return drawn.drawn(n)
+
+
 def scene_names() -> list[str]:
     """Names of the built-in scenes."""
     return list(SCENES)
@@ -152,9 +170,9 @@ def get_scene(
 ) -> Scene:
     """The built-in scene `name` at its full size (400x400; duck 600x400), at `size` = (W, H),
     or as the tiny variant (longer side 96 px, zoomed in 1.6x, 0.6 s) for tests and the demo;
-    each pixel the mean of `samples` x `samples` rays over its area."""
-    if name not in SCENES:
-        raise EvsplatError(f"unknown scene '{name}'; choose one of: {', '.join(SCENES)}")
+    each pixel the mean of `samples` x `samples` rays over its area. `name` may be drawn-N, a
+    scene drawn at random (``scenes.drawn``)."""
+    spec = scene_spec(name)
     top = _core.MAX_PIXEL_SAMPLES
     if (
         isinstance(samples, bool)
@@ -165,7 +183,6 @@ def get_scene(
             f"--samples {samples!r}: rays per pixel side must be an odd number from 1 to {top} "
             "(1 = one ray through each pixel centre)"
         )
-    spec = SCENES[name]()
     bw, bh = spec["base_size"]
     if size is not None:
         w, h = (int(v) for v in size)

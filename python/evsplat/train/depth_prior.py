@@ -175,9 +175,9 @@ def make_depth_prior(kind: str, dataset) -> DepthPrior | None:
 
 def _scene_of(dataset):
     """The built-in scene a simulated dataset came from, or None for other data."""
-    from evsplat.scenes import get_scene, scene_names
+    from evsplat.scenes import get_scene, is_scene
 
     meta = dataset.meta
-    if meta.get("generator") != "evsplat simulate" or meta.get("scene") not in scene_names():
+    if meta.get("generator") != "evsplat simulate" or not is_scene(str(meta.get("scene"))):
         return None
     return get_scene(meta["scene"], size=(meta["width"], meta["height"]), tiny=meta["tiny"])
