@@ -50,10 +50,18 @@ if ! command -v uv >/dev/null; then
     say "installing uv into .venv"
     "$VENV/bin/python" -m pip install -q uv
 fi
-deps_hash=$(sha256sum pyproject.toml | cut -c1-16)
+# "bytecode" in the hash: a .venv installed before that step gets it once.
+deps_hash=$( (cat pyproject.toml; echo bytecode) | sha256sum | cut -c1-16)
 if [ "$(cat "$VENV/.evsplat-deps" 2>/dev/null)" != "$deps_hash" ]; then
     say "installing Python dependencies into .venv"
     uv pip install -q --python "$VENV/bin/python" -r pyproject.toml --extra test --extra ray "maturin>=1.5,<2"
+    # uv writes no .pyc files, and where PYTHONDONTWRITEBYTECODE is set no process does either:
+    # each Python process (a sweep cell, a test's CLI child) then compiled torch's sources again,
+    # ~10 s of CPU on 2 cores. Some files are for a newer Python than this one (torch's test
+    # helpers in 3.12 syntax), so compileall's exit status is not a failure of the set-up.
+    say "compiling their bytecode (once, a minute or two)"
+    site=$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_path("purelib"))')
+    "$VENV/bin/python" -m compileall -q -j 0 "$site" >/dev/null || true
     echo "$deps_hash" >"$VENV/.evsplat-deps"
 fi
 
