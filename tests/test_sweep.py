@@ -3,6 +3,8 @@ nothing, half-written attempts are never results, and bad cells fail alone with 
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import shutil
 import sys
@@ -13,7 +15,7 @@ import pytest
 from evsplat.cli import main
 from evsplat.config import preset
 from evsplat.errors import EvsplatError
-from evsplat.sweep import Cell, SweepOptions, code_version, run_sweep, store
+from evsplat.sweep import Cell, SweepOptions, SweepResult, code_version, run_sweep, store
 
 ITERS = 6
 
@@ -31,6 +33,19 @@ def quiet() -> SweepOptions:
     return SweepOptions(progress=False)
 
 
+@pytest.fixture(scope="module")
+def serial(tiny_scene, tmp_path_factory) -> tuple[list[Cell], Path, SweepResult, str]:
+    """Three cells (seeds 0-2) run one at a time with the progress bar on: the cells, their
+    output folder, the result and what the bar wrote. One sweep for the two tests that compare
+    it with a direct run and with cells run at once: a cell is a training process (~15 s)."""
+    data = tiny_scene("ball")
+    cells = [Cell("ball", data, tiny_config(), seed=s, labels={"seed_label": s}) for s in (0, 1, 2)]
+    out = tmp_path_factory.mktemp("serial") / "sweep"
+    with contextlib.redirect_stderr(io.StringIO()) as err:
+        result = run_sweep(cells, out, SweepOptions())
+    return cells, out, result, err.getvalue()
+
+
 def test_the_key_names_scene_config_seed_and_code_but_not_the_labels():
     cell = Cell("ball", Path("/d/ball"), tiny_config(), seed=1, labels={"variant": "a"})
     key = cell.key("v1")
@@ -46,21 +61,17 @@ def test_the_key_names_scene_config_seed_and_code_but_not_the_labels():
     assert code_version().startswith("0.")
 
 
-def test_local_sweep_scores_like_a_direct_run_and_a_rerun_executes_nothing(
-    tiny_scene, tmp_path, capsys
-):
+def test_local_sweep_scores_like_a_direct_run_and_a_rerun_executes_nothing(serial, tmp_path):
     from evsplat.config import TrainConfig
     from evsplat.data.dataset import load_dataset
     from evsplat.eval import evaluate
     from evsplat.render import Renderer
     from evsplat.train import train
 
-    data = tiny_scene("ball")
-    cells = [Cell("ball", data, tiny_config(), seed=s, labels={"seed_label": s}) for s in (0, 1)]
-    first = run_sweep(cells, tmp_path / "sweep", SweepOptions())
-    assert first.exit_code == 0 and first.executed == 2 and first.reused == 0
-    err = capsys.readouterr().err
-    assert "2/2" in err and "done 2 running 0 failed 0" in err  # the progress bar's last state
+    cells, out, first, err = serial
+    data = cells[0].data
+    assert first.exit_code == 0 and first.executed == 3 and first.reused == 0
+    assert "3/3" in err and "done 3 running 0 failed 0" in err  # the progress bar's last state
     # Oracle: the same config and seed trained directly, outside the sweep.
     cfg = TrainConfig.from_dict({**tiny_config(), "seed": 1})
     train(data, tmp_path / "direct", config=cfg, progress=False)
@@ -68,21 +79,19 @@ def test_local_sweep_scores_like_a_direct_run_and_a_rerun_executes_nothing(
     row = first.rows[1]
     assert row["seed_label"] == 1 and row["seed"] == 1 and row["iterations"] == ITERS
     assert row["psnr"] == pytest.approx(direct["psnr"], abs=0.05)
-    assert (tmp_path / "sweep" / row["run"] / "eval.json").is_file()
-    rerun = run_sweep(cells, tmp_path / "sweep", quiet())
-    assert rerun.executed == 0 and rerun.reused == 2 and rerun.rows == first.rows
-    summary = json.loads((tmp_path / "sweep" / "summary.json").read_text())
+    assert (out / row["run"] / "eval.json").is_file()
+    rerun = run_sweep(cells, out, quiet())
+    assert rerun.executed == 0 and rerun.reused == 3 and rerun.rows == first.rows
+    summary = json.loads((out / "summary.json").read_text())
     assert summary["executed"] == 0 and summary["datasets"] == [str(data)]
 
 
-def test_cells_run_at_once_in_worker_processes_score_as_one_at_a_time(tiny_scene, tmp_path):
-    data = tiny_scene("ball")
-    cells = [Cell("ball", data, tiny_config(), seed=s) for s in (0, 1, 2)]
-    serial = run_sweep(cells, tmp_path / "serial", quiet())
+def test_cells_run_at_once_in_worker_processes_score_as_one_at_a_time(serial, tmp_path):
+    cells, _, one_at_a_time, _ = serial
     pooled = run_sweep(cells, tmp_path / "pooled", SweepOptions(jobs=2, progress=False))
     assert pooled.exit_code == 0 and pooled.executed == 3
     # Oracle: the same cells run one at a time in this process.
-    for a, b in zip(serial.rows, pooled.rows):
+    for a, b in zip(one_at_a_time.rows, pooled.rows):
         assert (a["seed"], a["key"]) == (b["seed"], b["key"])
         # Not to the last digit: the backward's float atomics add in the order the threads
         # reach them, so two runs of one cell differ by ~1e-3 dB (seeds by ~0.1 dB, Table 3).
