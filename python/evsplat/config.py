@@ -146,7 +146,7 @@ class MoverConfig:
     gate: float = 1.5  # a region joins a track within this many radii (or steps) of its guess
     coast: int = 3  # windows a track lives on unseen and not hidden in another's region
     min_windows: int = 4  # a track seen in fewer windows is noise
-    min_evidence: float = 30.0  # a track's region peaks above `high`, summed: less is noise
+    min_evidence: float = 30.0  # a track's peaks over `high` summed: less is noise (moving camera)
     events: float = 0.1  # a region's events: at least this share of the render's change there
     together: float = 1.5  # tracks within this many summed radii in most windows are one object
     align: float = 0.5  # a centre moves at most this many radii to match the object's template

@@ -450,7 +450,9 @@ def seed_objects(
     before and each Gaussian's; only new objects are seeded then, and the motion holds all."""
     data = views.data
     sightings = sight(views, mc)
-    tracks = chain(sightings.blobs, mc)
+    poses = data.trajectory.pose(sightings.times_us.astype(np.float64))
+    still = is_still(poses)
+    tracks = chain(sightings.blobs, mc, still)
     energy = [blurred(r, mc.blur_px) for r in sightings.residual]
     tracks = [align(t, energy, mc.align) for t in tracks]
     if known is not None:
@@ -534,8 +536,7 @@ def seed_objects(
         numbers |= {"radius_px": track.radius, "gaussians": len(pick)}
         numbers |= {"turn_windows": used.sum(), "turn_rate": rate, "sphere": ball is not None}
         stats |= {f"object{first + k}_{name}": float(v) for name, v in numbers.items()}
-    poses = data.trajectory.pose(sightings.times_us.astype(np.float64))
-    if is_still(poses):
+    if still:
         footprint = views.renderer.render(int(sightings.times_us[0]), poses[0]).meta["radii"]
         drawn = footprint.cpu().numpy().reshape(-1) > 0
         z = project(model.means.detach().cpu().numpy().astype(np.float64), poses[0], data.K)[1]

@@ -90,9 +90,12 @@ class Track:
         return last + velocity * (held / max(speed, 1e-9)) * (window - ks[-1]), held
 
 
-def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
+def chain(per_window: list[list[Blob]], s: MoverConfig, still: bool = False) -> list[Track]:
     """Tracks through the windows' regions (``per_window[k]``: window k's), noise dropped and
-    fragments joined; the longest first."""
+    fragments joined; the longest first. Under a ``still`` camera the static model draws no
+    change, so every region is the events' own (``segment.made_by_events``), none the warm-up's
+    error that ``s.min_evidence`` drops: a tumbling card's first 14 windows summed 14.4
+    (drawn-4, docs/motion.md "Drawn scenes")."""
     live: list[Track] = []
     done: list[Track] = []
     for k, blobs in enumerate(per_window):
@@ -116,9 +119,8 @@ def chain(per_window: list[list[Blob]], s: MoverConfig) -> list[Track]:
         live += [Track({k: b}) for j, b in enumerate(blobs) if j not in taken]
     pieces = _merged(done + live, lambda t: -len(t.blobs), lambda o, t: together(o, t, s))
     evidence = [sum(max(b.contrast - s.high, 0.0) for b in t.blobs.values()) for t in pieces]
-    kept = [
-        t for t, e in zip(pieces, evidence) if len(t.blobs) >= s.min_windows and e >= s.min_evidence
-    ]
+    least = 0.0 if still else s.min_evidence
+    kept = [t for t, e in zip(pieces, evidence) if len(t.blobs) >= s.min_windows and e >= least]
     kept = _rejoined(kept, s)
     for track in kept:  # shared with another object (not noise, nor a piece of its own)
         others = [o.hidden for o in kept if o is not track]
