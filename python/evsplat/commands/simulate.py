@@ -26,9 +26,10 @@ def _scene_list(width: int = 78) -> str:
         textwrap.fill(text, width, initial_indent=f"  {name:<10} ", subsequent_indent=" " * 13)
         for name, text in scene_descriptions().items()
     ]
+    from evsplat.scenes.drawn import SUMMARY
+
     drawn = textwrap.fill(
-        "a scene drawn at random from N (0, 1, ...): one to three movers of random shape, "
-        "size, depth, texture, path and turn, under a still or a hand-held camera",
+        SUMMARY,
         width,
         initial_indent=f"  {'drawn-N':<10} ",
         subsequent_indent=" " * 13,

@@ -17,21 +17,41 @@ import re
 
 import numpy as np
 
-from evsplat.scenes.geometry import Primitive, checker, noise, rot, sphere_segments, static, trans
+from evsplat.scenes.geometry import (
+    Primitive,
+    Texture,
+    checker,
+    noise,
+    rot,
+    sphere_segments,
+    static,
+    trans,
+)
 from evsplat.scenes.library import camera_path, room
 
 PATTERN = re.compile(r"drawn-(\d{1,9})")
 SLOT_M = 0.6  # depth step between the movers' slots (m): more than any mover's radius
 NEAREST_M = 2.0  # the nearest slot's depth (m); the back wall is at 5
-#: Half the tiny variant's field of view per metre of depth (48 px / 161 px focal), and the share
-#: of it a mover's centre counts as in view within.
-HALF_VIEW = 48 / (1.05 * 96 * 1.6)
-INSIDE = 0.9
+INSIDE = 0.9  # of the tiny image's half width: a mover's centre within it counts as in view
 MIN_IN_VIEW = 0.5  # of the tiny variant's duration, each mover's centre in view at least
-TINY_S = 0.6
 TRIES = 200  # paths drawn per mover until one is in view long enough
 STILL_CAMERA = 1 / 3  # the chance of a still camera (most real recordings)
 TILT = 0.7  # most a mover starts tilted out of the image plane (rad): a card's face 0.76 seen
+
+
+#: What ``evsplat simulate --help`` says of them.
+SUMMARY = (
+    "a scene drawn at random from N (0, 1, ...): one to three movers of random shape, size, "
+    "depth, texture, path and turn, under a still or a hand-held camera"
+)
+
+
+def tiny_view() -> tuple[float, float]:
+    """(half the tiny variant's (square) field of view per metre of depth, its duration in
+    seconds), from ``evsplat.scenes``' constants (imported here: that package imports this one)."""
+    from evsplat.scenes import FOCAL_PER_HEIGHT, TINY_DURATION_US, TINY_SIZE, TINY_ZOOM
+
+    return (TINY_SIZE / 2) / (FOCAL_PER_HEIGHT * TINY_SIZE * TINY_ZOOM), TINY_DURATION_US * 1e-6
 
 
 def seed_of(name: str) -> int | None:
@@ -52,7 +72,7 @@ def _pair(rng: np.random.Generator) -> tuple[list[float], list[float]]:
             return a, b
 
 
-def _texture(rng: np.random.Generator, kind: str, size: tuple[float, ...]) -> tuple:
+def _texture(rng: np.random.Generator, kind: str, size: tuple[float, ...]) -> tuple[Texture, str]:
     """(texture, its words): checkered, mottled, or (a sphere) beach-ball segments."""
     a, b = _pair(rng)
     choice = rng.choice(
@@ -72,7 +92,8 @@ def _path(rng: np.random.Generator, depth: float, camera, mode: str):
     """(centre at time t in seconds, speed m/s): straight with a sideways sway, from a start
     in view (or beside it, when it ``enter``s), or held still (``turn`` in place); drawn again
     until its centre is in view for ``MIN_IN_VIEW`` of the tiny duration."""
-    half = HALF_VIEW * depth
+    half_view, duration = tiny_view()
+    half = half_view * depth
     for _ in range(TRIES):
         start = rng.uniform(-0.8, 0.8, 2) * half
         if mode == "enter":
@@ -90,11 +111,11 @@ def _path(rng: np.random.Generator, depth: float, camera, mode: str):
             return np.array([xy[0], xy[1], depth])
 
         seen = 0
-        times = np.linspace(0.0, TINY_S, 31)
+        times = np.linspace(0.0, duration, 31)
         for t in times:
             c2w = camera(float(t))
             x, y, z = c2w[:3, :3].T @ (centre(float(t)) - c2w[:3, 3])
-            seen += z > 0 and max(abs(x), abs(y)) <= INSIDE * HALF_VIEW * z
+            seen += z > 0 and max(abs(x), abs(y)) <= INSIDE * half_view * z
         if seen >= MIN_IN_VIEW * len(times):
             return centre, speed
     raise RuntimeError("no path in view: the drawing's ranges are wrong")  # a bug, not input
