@@ -18,7 +18,7 @@ from evsplat.motion import border
 from evsplat.motion.align import align
 from evsplat.motion.paths import turn_angles, turns, two_ends
 from evsplat.motion.seed import between_placed, in_view, joined_ends, projected, slid, smear, span
-from evsplat.motion.segment import Blob, floor, made_by_events, pooled, regions
+from evsplat.motion.segment import Blob, apart, floor, made_by_events, pooled, regions
 from evsplat.motion.tracks import Track, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project, project, project_points, world_to_camera
@@ -172,6 +172,37 @@ def test_a_change_the_render_draws_where_no_event_fired_is_no_mover():
     assert len(found) == 2
     kept = made_by_events(found, esi, change, SEGMENT.pool, 0.1)
     assert len(kept) == 1 and np.linalg.norm(kept[0].centre - (30.0, 30.0)) < 2.0
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_slow_faint_object_is_found_by_a_longer_window_and_a_fast_one_only_once(seed):
+    # A moving camera's residual noise everywhere; a small disc 0.3 brighter in log intensity
+    # crawling at 0.1 px/ms, and a large one 1.0 brighter at 1 px/ms. In a 9 ms window the
+    # crawler's edges move 0.9 px, a sliver that the pool and the blur spread under ``high``;
+    # in 36 ms, 3.6 px. The fast disc's longer-window crescents lie on its short-window region.
+    shape = (96, 96)
+    slow, fast = ((30.0, 30.0), 6.0, 0.1, 0.3), ((60.0, 60.0), 12.0, 1.0, 1.0)
+
+    def window(ms):
+        change = np.random.default_rng(seed).normal(0.0, 0.1, shape)
+        for (x, y), radius, speed, contrast in (slow, fast):
+            d = 0.5 * speed * ms
+            change += contrast * (
+                _cover(shape, (x + d, y), radius) - _cover(shape, (x - d, y), radius)
+            )
+        return regions(pooled(torch.from_numpy(change), SEGMENT.pool), 0, SEGMENT)
+
+    short, longer = window(9), window(36)
+    assert [np.linalg.norm(b.centre - fast[0]) < 1.0 for b in short] == [True]
+    (added,) = apart(longer, short)
+    assert np.linalg.norm(added.centre - slow[0]) < 1.0
+
+
+def _cover(shape, centre, radius, k=4):
+    """[H,W] the share of each pixel that the disc covers (``k`` x ``k`` samples per pixel)."""
+    ys, xs = np.mgrid[0 : shape[0] * k, 0 : shape[1] * k] + 0.5
+    inside = (xs / k - centre[0]) ** 2 + (ys / k - centre[1]) ** 2 <= radius**2
+    return inside.reshape(shape[0], k, shape[1], k).mean((1, 3))
 
 
 def test_pieces_of_one_object_are_one_region():

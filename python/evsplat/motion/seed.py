@@ -19,7 +19,15 @@ from evsplat.motion import sphere
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
 from evsplat.motion.paths import turn_angles, turns, two_ends
-from evsplat.motion.segment import Blob, blurred, floor, made_by_events, pooled, regions
+from evsplat.motion.segment import (
+    Blob,
+    apart,
+    blurred,
+    floor,
+    made_by_events,
+    pooled,
+    regions,
+)
 from evsplat.motion.still import behind_objects, is_still
 from evsplat.motion.tracks import Track, chain, filled, together
 from evsplat.motion.turn import WindowEvents, turn_rate
@@ -53,23 +61,38 @@ class Sightings:
 @torch.no_grad()
 def sight(views: Views, mc: MoverConfig) -> Sightings:
     """Segment ``mc.windows`` short windows spread over the sequence against what the renderer
-    draws (after the warm-up, the static model; later, everything found so far)."""
-    data, renderer = views.data, views.renderer
+    draws (after the warm-up, the static model; later, everything found so far); with
+    ``mc.slow_window``, also a longer window about each middle, whose regions are added where
+    they are ``apart`` from the short window's."""
+    data = views.data
     least = floor(data.c_pos, data.c_neg, mc.pool)
     half = max(int(mc.window * (data.t_end_us - data.t_start_us)) // 2, 1)
     mids = np.linspace(data.t_start_us + half, data.t_end_us - half, mc.windows).astype(np.int64)
     mids = mids[[views.allowed(int(m) - half, int(m) + half) for m in mids]]  # held out: unread
+    slow = max(int(mc.slow_window * (data.t_end_us - data.t_start_us)) // 2, half)
     blobs, residuals, depth = [], [], []
     for mid in mids:
-        t0, t1 = int(mid) - half, int(mid) + half
-        start, end = (renderer.render(t, views.pose(t)) for t in (t0, t1))
-        change, esi = views.log_image(end) - views.log_image(start), views.esi(t0, t1)[0]
-        residual = pooled(esi - change, mc.pool)
-        found = regions(residual, int(mid), mc, least)
-        blobs.append(made_by_events(found, esi, change, mc.pool, mc.events))
+        residual, found, kept, end = _segment(views, int(mid), half, mc, least)
+        if slow > half:  # a slow or small object fires too few events in the short window
+            t0, t1 = max(int(mid) - slow, data.t_start_us), min(int(mid) + slow, data.t_end_us)
+            if views.allowed(t0, t1):
+                kept += apart(_segment(views, int(mid), slow, mc, least)[2], found)
+        blobs.append(kept)
         residuals.append(residual)
         depth.append(np.where(end.alpha.cpu().numpy() > OPAQUE, end.depth.cpu().numpy(), 0.0))
     return Sightings(mids, blobs, residuals, depth)
+
+
+def _segment(views: Views, mid: int, half: int, mc: MoverConfig, least: float) -> tuple:
+    """(residual, regions, those ``made_by_events``, the render at the end) of the window of
+    ``half`` µs each side of ``mid``, clipped to the data."""
+    data = views.data
+    t0, t1 = max(mid - half, data.t_start_us), min(mid + half, data.t_end_us)
+    start, end = (views.renderer.render(t, views.pose(t)) for t in (t0, t1))
+    change, esi = views.log_image(end) - views.log_image(start), views.esi(t0, t1)[0]
+    residual = pooled(esi - change, mc.pool)
+    found = regions(residual, mid, mc, least)
+    return residual, found, made_by_events(found, esi, change, mc.pool, mc.events), end
 
 
 def object_depth(track: Track, sightings: Sightings, quantile: float) -> float | None:

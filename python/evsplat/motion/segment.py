@@ -55,6 +55,16 @@ def made_by_events(
     return [b for b in blobs if events[b.mask].sum() >= share * drawn[b.mask].sum()]
 
 
+def apart(more: list[Blob], found: list[Blob]) -> list[Blob]:
+    """The regions ``more`` (a longer window's) that overlap none of ``found`` (the short
+    window's about the same middle, before ``made_by_events``): what only the longer window
+    shows, not an object the short one has, smeared over its longer path."""
+    if not found:
+        return more
+    taken = np.any([b.mask for b in found], axis=0)
+    return [b for b in more if not (b.mask & taken).any()]
+
+
 def floor(c_pos: float, c_neg: float, pool: int) -> float:
     """The least robust sigma the residual is measured in: one event's log step over a ``pool``
     px box (under a still camera the background's MAD is zero, and any trace of an event would
