@@ -32,6 +32,7 @@ from evsplat.motion.still import behind_objects, is_still
 from evsplat.motion.tracks import Track, chain, filled, together
 from evsplat.motion.turn import WindowEvents, turn_rate
 from evsplat.projection import back_project, project
+from evsplat.render import RenderOut
 from evsplat.train.views import Views
 
 #: Most events a turn window reads, thinned past it (one object's turn needs a few thousand).
@@ -73,21 +74,26 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
     blobs, residuals, depth = [], [], []
     for mid in mids:
         residual, found, kept, end = _segment(views, int(mid), half, mc, least)
-        if slow > half:  # a slow or small object fires too few events in the short window
-            t0, t1 = max(int(mid) - slow, data.t_start_us), min(int(mid) + slow, data.t_end_us)
-            if views.allowed(t0, t1):
-                kept += apart(_segment(views, int(mid), slow, mc, least)[2], found)
+        # A slow or small object fires too few events in the short window.
+        if slow > half and views.allowed(*_clipped(views, int(mid), slow)):
+            kept += apart(_segment(views, int(mid), slow, mc, least)[2], found)
         blobs.append(kept)
         residuals.append(residual)
         depth.append(np.where(end.alpha.cpu().numpy() > OPAQUE, end.depth.cpu().numpy(), 0.0))
     return Sightings(mids, blobs, residuals, depth)
 
 
-def _segment(views: Views, mid: int, half: int, mc: MoverConfig, least: float) -> tuple:
-    """(residual, regions, those ``made_by_events``, the render at the end) of the window of
-    ``half`` µs each side of ``mid``, clipped to the data."""
-    data = views.data
-    t0, t1 = max(mid - half, data.t_start_us), min(mid + half, data.t_end_us)
+def _clipped(views: Views, mid: int, half: int) -> tuple[int, int]:
+    """The window of ``half`` µs each side of ``mid``, clipped to the data."""
+    return max(mid - half, views.data.t_start_us), min(mid + half, views.data.t_end_us)
+
+
+def _segment(
+    views: Views, mid: int, half: int, mc: MoverConfig, least: float
+) -> tuple[np.ndarray, list[Blob], list[Blob], RenderOut]:
+    """(residual, regions, those ``made_by_events``, the render at the end) of the window
+    ``_clipped`` about ``mid``."""
+    t0, t1 = _clipped(views, mid, half)
     start, end = (views.renderer.render(t, views.pose(t)) for t in (t0, t1))
     change, esi = views.log_image(end) - views.log_image(start), views.esi(t0, t1)[0]
     residual = pooled(esi - change, mc.pool)
