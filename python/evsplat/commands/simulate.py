@@ -21,13 +21,12 @@ def _size(text: str) -> tuple[int, int]:
 def _scene_list(width: int = 78) -> str:
     """The built-in scenes with their descriptions, for the help's epilog."""
     from evsplat.scenes import scene_descriptions
+    from evsplat.scenes.drawn import SUMMARY
 
     rows = [
         textwrap.fill(text, width, initial_indent=f"  {name:<10} ", subsequent_indent=" " * 13)
         for name, text in scene_descriptions().items()
     ]
-    from evsplat.scenes.drawn import SUMMARY
-
     drawn = textwrap.fill(
         SUMMARY,
         width,

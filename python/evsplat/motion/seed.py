@@ -69,7 +69,7 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
     least = floor(data.c_pos, data.c_neg, mc.pool)
     half = max(int(mc.window * (data.t_end_us - data.t_start_us)) // 2, 1)
     mids = np.linspace(data.t_start_us + half, data.t_end_us - half, mc.windows).astype(np.int64)
-    mids = mids[[views.allowed(int(m) - half, int(m) + half) for m in mids]]  # held out: unread
+    mids = mids[[views.allowed(*_clipped(views, int(m), half)) for m in mids]]  # held out: unread
     slow = max(int(mc.slow_window * (data.t_end_us - data.t_start_us)) // 2, half)
     blobs, residuals, depth = [], [], []
     for mid in mids:
@@ -479,8 +479,8 @@ def seed_objects(
     before and each Gaussian's; only new objects are seeded then, and the motion holds all."""
     data = views.data
     sightings = sight(views, mc)
-    poses = data.trajectory.pose(sightings.times_us.astype(np.float64))
-    still = is_still(poses)
+    seen_from = data.trajectory.pose(sightings.times_us.astype(np.float64))  # [W,4,4]
+    still = is_still(seen_from)
     tracks = chain(sightings.blobs, mc, still)
     energy = [blurred(r, mc.blur_px) for r in sightings.residual]
     tracks = [align(t, energy, mc.align) for t in tracks]
@@ -566,11 +566,12 @@ def seed_objects(
         numbers |= {"turn_windows": used.sum(), "turn_rate": rate, "sphere": ball is not None}
         stats |= {f"object{first + k}_{name}": float(v) for name, v in numbers.items()}
     if still:
-        footprint = views.renderer.render(int(sightings.times_us[0]), poses[0]).meta["radii"]
+        c2w = seen_from[0]  # the camera's one pose
+        footprint = views.renderer.render(int(sightings.times_us[0]), c2w).meta["radii"]
         drawn = footprint.cpu().numpy().reshape(-1) > 0
-        z = project(model.means.detach().cpu().numpy().astype(np.float64), poses[0], data.K)[1]
+        z = project(model.means.detach().cpu().numpy().astype(np.float64), c2w, data.K)[1]
         back = max(max(backs), float(z[object_id >= 0].max()))  # the objects found before too
-        moved = behind_objects(model, optimizer, object_id < 0, back, poses[0], data.K, drawn)
+        moved = behind_objects(model, optimizer, object_id < 0, back, c2w, data.K, drawn)
         stats["moved_behind"] = float(moved)
     parts = (centres, radii, shifts, rotvecs, spans)  # faded in and out over a window spacing
     motion = ObjectMotion(*(torch.from_numpy(np.array(p)) for p in parts), fade=1 / mc.windows)
