@@ -442,6 +442,35 @@ def test_an_object_back_after_its_track_took_noise_at_the_border_is_one_track():
             assert np.linalg.norm(centre - truth[k]) < 1.5, (k, centre, truth[k])
 
 
+def test_an_object_lost_inside_the_image_longer_than_a_track_coasts_is_one_track():
+    # A disc goes unseen for 8 windows (twice `coast` + 1) in the middle of the image, as an
+    # object that fires too little beside a brighter one does, and is found again on its
+    # course: one track. Another of its size lost in the image, and one first seen later
+    # beyond where that one could have gone (its gate), are two objects.
+    shape = (96, 128)
+    paths = {
+        "resumed": lambda k: np.array([15.0 + 3.0 * k, 30.0]),
+        "lost": lambda k: np.array([110.0 - 2.0 * k, 80.0]),
+        "new": lambda k: np.array([15.0 + 1.0 * (k - 20), 65.0]),
+    }
+    seen = {
+        "resumed": [*range(10), *range(18, 30)],
+        "lost": range(9),
+        "new": range(20, 30),
+    }
+    per_window = [
+        [_disc_blob(shape, k, paths[name](k), 8.0) for name in paths if k in seen[name]]
+        for k in range(30)
+    ]
+    tracks = chain(per_window, TRACKS)
+    assert sorted(sorted(t.blobs) for t in tracks) == sorted(list(w) for w in seen.values())
+    for track in tracks:
+        ks = sorted(track.blobs)
+        name = next(n for n in seen if list(seen[n]) == ks)
+        for k, centre in zip(ks, track.centres):
+            assert np.linalg.norm(centre - paths[name](k)) < 1e-6, (name, k)
+
+
 def test_a_balls_centres_not_placed_by_its_outline_lie_between_those_that_are():
     # A ball thrown across the view (4 px a window right, falling 0.3 px a window faster each
     # window), sighted in windows 0-24 but 9, 10 and 18; its outline places it in some of them

@@ -137,7 +137,7 @@ def _split(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> list
     came near, not pieces of one."""
     if not any(b.parts for b in blobs):
         return blobs
-    gates = [_gate(t, k, s) for t in live if len(t.blobs) >= s.min_windows]
+    gates = [_gate(t, k, s, t.missed + 1) for t in live if len(t.blobs) >= s.min_windows]
     out = []
     for blob in blobs:
         seeds: set[int] = set()
@@ -157,11 +157,11 @@ def _split(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> list
     return out
 
 
-def _gate(track: Track, k: int, s: MoverConfig) -> tuple[np.ndarray, float]:
+def _gate(track: Track, k: int, s: MoverConfig, unseen: int) -> tuple[np.ndarray, float]:
     """(``track``'s predicted centre at window ``k``, how far from it its object may be: ``s.gate``
-    x its size or its steps since its last sighting)."""
+    x its size or its steps over the ``unseen`` windows since its last sighting)."""
     guess, speed = track.predict(k)
-    return guess, s.gate * max(track.radius, speed * (track.missed + 1))
+    return guess, s.gate * max(track.radius, speed * unseen)
 
 
 def _in_gate(d: float, reach: float, blob: Blob, s: MoverConfig) -> bool:
@@ -191,7 +191,7 @@ def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set
         free = [j for j in range(len(blobs)) if j not in taken]
         cost = np.full((len(tracks), len(free)), UNASSIGNED)
         for i, track in enumerate(tracks):
-            guess, reach = _gate(track, k, s)
+            guess, reach = _gate(track, k, s, track.missed + 1)
             # Unseen since a sighting at a border, it left the image: it comes back there.
             out = borders(track.blobs[max(track.blobs)].mask) if track.missed else set()
             for n, j in enumerate(free):
@@ -267,7 +267,9 @@ def _returns(gone: Track, back: Track, s: MoverConfig) -> int | None:
     within ``s.gate`` of the reach of its fastest speed plus the regions' radii (as a track's
     next region), sizes ``s.gate`` apart at most (a cut region looks smaller). Its exit is one
     of its last ``s.coast`` + 1 sightings: those after it are noise it took while unseen (the
-    demo's ball, docs/motion.md), and ``back`` goes on past them."""
+    demo's ball, docs/motion.md), and ``back`` goes on past them. Or it was lost inside the
+    image for longer than a track coasts and ``back`` is found inside it within ``gone``'s gate
+    (``_resumes``)."""
     b = min(back.blobs)
     if max(back.blobs) <= max(gone.blobs):
         return None
@@ -275,8 +277,10 @@ def _returns(gone: Track, back: Track, s: MoverConfig) -> int | None:
     whole = [t.radius for t, c in zip((gone, back), clear) if c]  # a cut one's looks smaller
     if whole and max(gone.radius, back.radius) > s.gate * min(whole):
         return None
-    speed = max(gone.steps + back.steps, default=0.0)
+    if _resumes(gone, back, s):
+        return max(gone.blobs)
     entry = back.blobs[b]
+    speed = max(gone.steps + back.steps, default=0.0)
     for a in sorted(gone.blobs)[-(s.coast + 1) :][::-1]:
         exit_ = gone.blobs[a]
         if a >= b or not borders(exit_.mask) & borders(entry.mask):
@@ -285,6 +289,23 @@ def _returns(gone: Track, back: Track, s: MoverConfig) -> int | None:
         if np.linalg.norm(entry.centre - exit_.centre) <= reach:
             return a
     return None
+
+
+def _resumes(gone: Track, back: Track, s: MoverConfig) -> bool:
+    """Whether ``back`` starts where ``gone``, confirmed and lost inside the image more than
+    ``s.coast`` + 1 windows before, would be found: both clear of the border there and
+    ``back``'s first region within ``gone``'s gate over the windows between, as if it had
+    coasted on. An object that fires too little to make a region of its own while it passes one
+    that fires more goes unseen that long (drawn-16's box, 12 windows; docs/motion.md); within
+    ``coast`` the chaining has decided already (a hop between a turning card's ends)."""
+    a, b = max(gone.blobs), min(back.blobs)
+    exit_, entry = gone.blobs[a], back.blobs[b]
+    if b - a <= s.coast + 1 or len(gone.blobs) < s.min_windows:
+        return False
+    if touches_border(exit_.mask) or touches_border(entry.mask):
+        return False
+    guess, reach = _gate(gone, b, s, b - a)
+    return _in_gate(float(np.linalg.norm(entry.centre - guess)), reach, entry, s)
 
 
 def _union(a: Blob, b: Blob) -> Blob:
