@@ -292,7 +292,7 @@ def _returns(gone: Track, back: Track, s: MoverConfig) -> int | None:
 
 
 def _resumes(gone: Track, back: Track, s: MoverConfig) -> bool:
-    """Whether ``back`` starts where ``gone``, confirmed and lost inside the image more than
+    """Whether ``back`` starts where ``gone``, a kept track lost inside the image more than
     ``s.coast`` + 1 windows before, would be found: both clear of the border there and
     ``back``'s first region within ``gone``'s gate over the windows between, as if it had
     coasted on. An object that fires too little to make a region of its own while it passes one
@@ -300,9 +300,7 @@ def _resumes(gone: Track, back: Track, s: MoverConfig) -> bool:
     ``coast`` the chaining has decided already (a hop between a turning card's ends)."""
     a, b = max(gone.blobs), min(back.blobs)
     exit_, entry = gone.blobs[a], back.blobs[b]
-    if b - a <= s.coast + 1 or len(gone.blobs) < s.min_windows:
-        return False
-    if touches_border(exit_.mask) or touches_border(entry.mask):
+    if b - a <= s.coast + 1 or touches_border(exit_.mask) or touches_border(entry.mask):
         return False
     guess, reach = _gate(gone, b, s, b - a)
     return _in_gate(float(np.linalg.norm(entry.centre - guess)), reach, entry, s)
