@@ -69,18 +69,21 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
     least = floor(data.c_pos, data.c_neg, mc.pool)
     half = max(int(mc.window * (data.t_end_us - data.t_start_us)) // 2, 1)
     mids = np.linspace(data.t_start_us + half, data.t_end_us - half, mc.windows).astype(np.int64)
-    mids = mids[[views.allowed(*_clipped(views, int(m), half)) for m in mids]]  # held out: unread
+    windows = [(m, _clipped(views, m, half)) for m in mids.tolist()]
+    windows = [(m, w) for m, w in windows if views.allowed(*w)]  # held out: unread
     slow = max(int(mc.slow_window * (data.t_end_us - data.t_start_us)) // 2, half)
     blobs, residuals, depth = [], [], []
-    for mid in mids:
-        residual, found, kept, end = _segment(views, int(mid), half, mc, least)
+    for mid, window in windows:
+        residual, found, kept, end = _segment(views, mid, window, mc, least)
         # A slow or small object fires too few events in the short window.
-        if slow > half and views.allowed(*_clipped(views, int(mid), slow)):
-            kept += apart(_segment(views, int(mid), slow, mc, least)[2], found)
+        longer = _clipped(views, mid, slow)
+        if slow > half and views.allowed(*longer):
+            kept += apart(_segment(views, mid, longer, mc, least)[2], found)
         blobs.append(kept)
         residuals.append(residual)
         depth.append(np.where(end.alpha.cpu().numpy() > OPAQUE, end.depth.cpu().numpy(), 0.0))
-    return Sightings(mids, blobs, residuals, depth)
+    times = np.array([m for m, _ in windows], dtype=np.int64)
+    return Sightings(times, blobs, residuals, depth)
 
 
 def _clipped(views: Views, mid: int, half: int) -> tuple[int, int]:
@@ -89,11 +92,11 @@ def _clipped(views: Views, mid: int, half: int) -> tuple[int, int]:
 
 
 def _segment(
-    views: Views, mid: int, half: int, mc: MoverConfig, least: float
+    views: Views, mid: int, window: tuple[int, int], mc: MoverConfig, least: float
 ) -> tuple[np.ndarray, list[Blob], list[Blob], RenderOut]:
-    """(residual, regions, those ``made_by_events``, the render at the end) of the window
-    ``_clipped`` about ``mid``."""
-    t0, t1 = _clipped(views, mid, half)
+    """(residual, regions timed at ``mid``, those ``made_by_events``, the render at the end) of
+    the ``window`` (µs, ``_clipped`` about ``mid``): the one its caller checked is readable."""
+    t0, t1 = window
     start, end = (views.renderer.render(t, views.pose(t)) for t in (t0, t1))
     change, esi = views.log_image(end) - views.log_image(start), views.esi(t0, t1)[0]
     residual = pooled(esi - change, mc.pool)
