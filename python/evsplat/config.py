@@ -167,6 +167,9 @@ class MoverConfig:
     track_weight: float = 1.0  # the prior holding each knot near the events' path (0 = off)
     again: float = 0.3  # look again at this fraction of the run, against all found (0 = off)
     residual: bool = True  # the MLP adds a non-rigid residual to the objects' rigid motion
+    # For built-in synthetic scenes only: none | turn | path | both of the simulator's true motion
+    # for the objects found (an upper bound; train/motion_oracle.py)
+    oracle: str = "none"
 
 
 @dataclass

@@ -565,7 +565,7 @@ def seed_objects(
         rotvecs.append(in_plane if ball is None else ball.rotvecs)
         rate = float(np.nanmedian(rates)) if used.any() else 0.0
         numbers = {"windows": len(ks), "ends": 1 + (end < 0).any(), "depth": depth}
-        numbers |= {"radius_px": track.radius, "gaussians": len(pick)}
+        numbers |= {"radius_px": track.radius, "gaussians": len(pick), "t_ref_us": t_ref}
         numbers |= {"turn_windows": used.sum(), "turn_rate": rate, "sphere": ball is not None}
         stats |= {f"object{first + k}_{name}": float(v) for name, v in numbers.items()}
     if still:

@@ -149,12 +149,12 @@ def make_depth_prior(kind: str, dataset) -> DepthPrior | None:
             return PrecomputedDepthPrior(folder)
         if vggt_status() is None:
             kind = "vggt"
-        elif _scene_of(dataset) is not None:
+        elif simulated_scene(dataset) is not None:
             kind = "oracle"
         else:
             return None
     if kind == "oracle":
-        scene = _scene_of(dataset)
+        scene = simulated_scene(dataset)
         if scene is None:
             raise EvsplatError(
                 f"{dataset.root}: the oracle depth prior needs a built-in synthetic scene "
@@ -173,7 +173,7 @@ def make_depth_prior(kind: str, dataset) -> DepthPrior | None:
     )
 
 
-def _scene_of(dataset):
+def simulated_scene(dataset):
     """The built-in scene a simulated dataset came from, or None for other data."""
     from evsplat.scenes import get_scene, is_scene
 
