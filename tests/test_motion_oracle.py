@@ -96,7 +96,8 @@ def test_a_turn_past_half_a_revolution_is_unwrapped_from_the_reference_time() ->
     centre = get_scene(name, tiny=True).object_centre(t_ref, 0)
     motion = _seeded(centre[None])
     apply_oracle(motion, {"object0_t_ref_us": float(t_ref)}, "turn", data)
-    angles = motion.rotvecs[0].detach().double().numpy() @ np.array([0.0, 0.0, 1.0])  # it turns about z
+    # It turns about the world's z axis.
+    angles = motion.rotvecs[0].detach().double().numpy() @ np.array([0.0, 0.0, 1.0])
     steps = np.diff(angles)
     assert np.abs(steps).max() < 0.2  # no jump of a whole turn between knots
     np.testing.assert_allclose(angles[-1] - angles[0], 8.0 * 0.6, rtol=1e-3)
