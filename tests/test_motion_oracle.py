@@ -14,7 +14,7 @@ import torch
 from evsplat.errors import EvsplatError
 from evsplat.model.motion import ObjectMotion
 from evsplat.scenes import get_scene
-from evsplat.train.motion_oracle import apply_oracle, check_mode
+from evsplat.train.motion_oracle import apply_oracle, true_scene
 
 KNOTS = 61
 
@@ -56,9 +56,7 @@ def test_a_point_on_a_found_object_moves_as_the_true_object_moves_it(mode: str) 
     order = [2, 0, 1]
     centres = truths[order] + np.array([0.02, -0.01, 0.0])
     motion = _seeded(centres)
-    seeded = {f"object{k}_t_ref_us": float(t_ref) for k in range(3)}
-    seeded["object0_windows"] = 20.0  # other numbers of the seeding are left alone
-    stats = apply_oracle(motion, seeded, mode, data)
+    stats = apply_oracle(motion, {k: t_ref for k in range(3)}, mode, scene, data)
 
     assert [stats[f"object{k}_oracle_match"] for k in range(3)] == order
     knots = np.linspace(0, scene.duration_us, KNOTS)
@@ -95,7 +93,7 @@ def test_a_turn_past_half_a_revolution_is_unwrapped_from_the_reference_time() ->
     data = _dataset(name)
     centre = get_scene(name, tiny=True).object_centre(t_ref, 0)
     motion = _seeded(centre[None])
-    apply_oracle(motion, {"object0_t_ref_us": float(t_ref)}, "turn", data)
+    apply_oracle(motion, {0: t_ref}, "turn", get_scene(name, tiny=True), data)
     # It turns about the world's z axis.
     angles = motion.rotvecs[0].detach().double().numpy() @ np.array([0.0, 0.0, 1.0])
     steps = np.diff(angles)
@@ -107,7 +105,7 @@ def test_a_turn_past_half_a_revolution_is_unwrapped_from_the_reference_time() ->
 def test_the_oracle_refuses_other_data_and_unknown_modes() -> None:
     real = SimpleNamespace(root=Path("data/davis"), meta={"generator": "evsplat convert"})
     with pytest.raises(EvsplatError, match="needs a built-in synthetic scene"):
-        check_mode("both", real)
-    check_mode("none", real)
+        true_scene("both", real)
+    assert true_scene("none", real) is None
     with pytest.raises(EvsplatError, match="expected one of none, turn, path, both"):
-        check_mode("true", _dataset("ball"))
+        true_scene("true", _dataset("ball"))

@@ -6,7 +6,7 @@ lift them to ``paths``; here, Gaussians placed on each object's shape and an ``O
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -42,11 +42,13 @@ OPAQUE = 0.5  # rendered alpha above which the static model's depth is read
 
 @dataclass
 class Seeded:
-    """Numbers for the log; the objects' motion and each Gaussian's object (None: none)."""
+    """Numbers for the log; the objects' motion and each Gaussian's object (None: none); the
+    objects found here, by id, and the reference time (µs) each was placed at."""
 
     stats: dict[str, float]
     motion: ObjectMotion | None
     object_id: torch.Tensor | None
+    references_us: dict[int, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -514,6 +516,7 @@ def seed_objects(
     spacing = np.diff(sightings.times_us)
     unseen_us = (mc.coast + 1) * float(spacing.mean()) if spacing.size else 0.0
     centres, radii, shifts, rotvecs, spans, backs = ([] for _ in range(6))
+    references_us = {}
     for k, (track, (rates, middle, end, seen)) in enumerate(found):
         depth = object_depth(track, sightings, mc.depth_quantile) or float(np.mean(depth_range))
         ks, ref = sorted(track.blobs), reference(track)
@@ -565,9 +568,10 @@ def seed_objects(
         rotvecs.append(in_plane if ball is None else ball.rotvecs)
         rate = float(np.nanmedian(rates)) if used.any() else 0.0
         numbers = {"windows": len(ks), "ends": 1 + (end < 0).any(), "depth": depth}
-        numbers |= {"radius_px": track.radius, "gaussians": len(pick), "t_ref_us": t_ref}
+        numbers |= {"radius_px": track.radius, "gaussians": len(pick)}
         numbers |= {"turn_windows": used.sum(), "turn_rate": rate, "sphere": ball is not None}
         stats |= {f"object{first + k}_{name}": float(v) for name, v in numbers.items()}
+        references_us[first + k] = t_ref
     if still:
         c2w = seen_from[0]  # the camera's one pose
         footprint = views.renderer.render(int(sightings.times_us[0]), c2w).meta["radii"]
@@ -580,4 +584,4 @@ def seed_objects(
     motion = ObjectMotion(*(torch.from_numpy(np.array(p)) for p in parts), fade=1 / mc.windows)
     device = model.means.device
     motion = motion.to(device) if known is None else known[0].joined(motion)
-    return Seeded(stats, motion, torch.from_numpy(object_id).to(device))
+    return Seeded(stats, motion, torch.from_numpy(object_id).to(device), references_us)

@@ -92,13 +92,19 @@ class Scene:
         out = np.stack([self.camera(float(s) * 1e-6) for s in t.reshape(-1)])
         return out.reshape(*t.shape, 4, 4)
 
-    def object_centre(self, t_us: int | float, k: int = 0) -> np.ndarray | None:
-        """World position float64[3] (metres) of moving object `k` at `t_us` (its root
-        primitive's origin), or None when the scene has no such object."""
+    def object_pose(self, t_us: int | float, k: int = 0) -> np.ndarray | None:
+        """Pose float64[4,4] (object to world) of moving object `k` at `t_us`: its root
+        primitive's; None when the scene has no such object."""
         if k >= len(self.objects):
             return None
         root = self.primitives[self.objects[k].parts[0]]
-        return np.asarray(root.pose(float(t_us) * 1e-6), dtype=np.float64)[:3, 3].copy()
+        return np.asarray(root.pose(float(t_us) * 1e-6), dtype=np.float64)
+
+    def object_centre(self, t_us: int | float, k: int = 0) -> np.ndarray | None:
+        """World position float64[3] (metres) of moving object `k` at `t_us` (its root
+        primitive's origin), or None when the scene has no such object."""
+        pose = self.object_pose(t_us, k)
+        return None if pose is None else pose[:3, 3].copy()
 
     def object_radius(self, k: int = 0) -> float | None:
         """Radius (metres) of a sphere about object `k`'s centre that holds all its parts at

@@ -36,7 +36,7 @@ from evsplat.train.device import training_device
 from evsplat.train.gradients import first_nonfinite_grad, grad_norms_due, mlp_grad_norms
 from evsplat.train.heldout import heldout_intervals
 from evsplat.train.init import initial_gaussians, scene_extent
-from evsplat.train.motion_oracle import apply_oracle, check_mode
+from evsplat.train.motion_oracle import apply_oracle, true_scene
 from evsplat.train.objective import (
     loss_weights,
     motion_events,
@@ -74,7 +74,7 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         if cfg.loss.views < 2:
             raise EvsplatError(f"loss.views = {cfg.loss.views}: L_e needs at least 2 renders")
-        check_mode(cfg.mover.oracle, data)
+        true_scene(cfg.mover.oracle, data)  # a bad mover.oracle stops here, before training
         self.channels = 1 if data.bayer == "mono" else 3
         self.depth_range = tuple(data.meta.get("depth_range") or cfg.model.init_depth_range)
         self.extent = scene_extent(data, self.depth_range)
@@ -252,8 +252,10 @@ class Trainer:
         )
         if found.stats["objects"] > 0 and found.motion is not None:
             motion, object_id = found.motion.to(self.device), found.object_id.to(self.device)
-            if self.cfg.mover.oracle != "none":
-                found.stats |= apply_oracle(motion, found.stats, self.cfg.mover.oracle, self.data)
+            mode = self.cfg.mover.oracle  # read here: `bench seeding --against` may set it
+            if mode != "none":
+                scene = true_scene(mode, self.data)
+                found.stats |= apply_oracle(motion, found.references_us, mode, scene, self.data)
             static = r.static_mask
             r.motion, r.object_id = motion, object_id
             scene = (object_id < 0) | (not self.cfg.mover.residual)  # rigid objects skip it too

@@ -6,7 +6,7 @@ object's from the reference time on. A run's config.json says whether it was use
 
 from __future__ import annotations
 
-import re
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -17,20 +17,25 @@ from evsplat.model.motion import ObjectMotion
 from evsplat.projection import project
 from evsplat.train.depth_prior import simulated_scene
 
+if TYPE_CHECKING:
+    from evsplat.scenes import Scene
+
 MODES = ("none", "turn", "path", "both")
 UNWRAP = 3  # full turns tried either way when a rotation vector is unwrapped
-REFERENCE = re.compile(r"object(\d+)_t_ref_us")  # the seeding's numbers: an object's reference time
 
 
-def check_mode(mode: str, dataset) -> None:
-    """A one-line error for a mode not in ``MODES``, or an oracle asked of other data."""
+def true_scene(mode: str, dataset) -> Scene | None:
+    """The built-in scene whose motion ``mode`` asks for (None for "none"); a one-line error for
+    a mode not in ``MODES``, or an oracle asked of other data."""
     if mode not in MODES:
         raise EvsplatError(f"--set mover.oracle={mode}: expected one of {', '.join(MODES)}")
-    if mode != "none" and simulated_scene(dataset) is None:
+    scene = None if mode == "none" else simulated_scene(dataset)
+    if mode != "none" and scene is None:
         raise EvsplatError(
             f"{dataset.root}: mover.oracle={mode} needs a built-in synthetic scene (meta.json "
             "'scene'); leave mover.oracle=none on other data"
         )
+    return scene
 
 
 def _unwrapped(rotvecs: np.ndarray, start: int) -> np.ndarray:
@@ -49,13 +54,13 @@ def _unwrapped(rotvecs: np.ndarray, start: int) -> np.ndarray:
 
 
 @torch.no_grad()
-def apply_oracle(motion: ObjectMotion, seeded: dict[str, float], mode: str, dataset) -> dict:
-    """Give the objects just ``seeded`` (the seeding's numbers name each one's reference time)
-    the true ``mode`` motion of the scene object each is matched to, as parameters and as their
-    track prior. Numbers for the log: per object, the true object's index and how far (px) their
-    centres lay apart at the reference time."""
-    scene = simulated_scene(dataset)
-    refs_us = {int(m[1]): int(v) for key, v in seeded.items() if (m := REFERENCE.fullmatch(key))}
+def apply_oracle(
+    motion: ObjectMotion, refs_us: dict[int, int], mode: str, scene: Scene, dataset
+) -> dict:
+    """Give the objects ``refs_us`` names (id -> reference time, µs; ``Seeded.references_us``)
+    the true ``mode`` motion of the ``scene`` object each is matched to, as parameters and as
+    their track prior. Numbers for the log: per object, the true object's index and how far (px)
+    their centres lay apart at the reference time."""
     g = motion.translations.shape[1]
     knots = np.linspace(dataset.t_start_us, dataset.t_end_us, g)
     stats = {}
@@ -66,9 +71,8 @@ def apply_oracle(motion: ObjectMotion, seeded: dict[str, float], mode: str, data
         at = project(np.vstack([centre[None], truths]), seen_from, dataset.K)[0]
         apart = np.linalg.norm(at[1:] - at[0], axis=1)
         match = int(np.argmin(apart))
-        pose = scene.primitives[scene.objects[match].parts[0]].pose
-        ref = pose(t_ref * 1e-6)
-        poses = np.stack([pose(t * 1e-6) for t in knots])
+        ref = scene.object_pose(t_ref, match)
+        poses = np.stack([scene.object_pose(t, match) for t in knots])
         turned = poses[:, :3, :3] @ ref[:3, :3].T  # [G,3,3] from the reference time
         if mode in ("turn", "both"):
             start = int(np.argmin(np.abs(knots - t_ref)))
