@@ -133,12 +133,12 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
     from evsplat.errors import EvsplatError
     from evsplat.model.gaussians import PARAM_NAMES, GaussianModel
     from evsplat.projection import project
-    from evsplat.scenes import get_scene, scene_objects
+    from evsplat.scenes import get_scene
     from evsplat.train.loop import Trainer
 
     data = load_dataset(data_dir)
-    prims = get_scene(scene, tiny=True).primitives
-    roots = {o.name: prims[o.parts[0]] for o in scene_objects(prims)}
+    simulated = get_scene(scene, tiny=True)
+    index = {o.name: k for k, o in enumerate(simulated.objects)}
     cfg = preset("tiny")
     cfg.seed, cfg.schedule.iterations, cfg.schedule.grad_norms_every = args.seed, args.iters, 0
     trainer = Trainer(data, cfg, args.out / "warm" / scene)
@@ -193,8 +193,7 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
             truth = np.stack([project(c[None], p, data.K)[0][0] for c, p in zip(centres, poses)])
             seen = (truth >= 0).all(1) & (truth[:, 0] < data.width) & (truth[:, 1] < data.height)
             score = follow_score(*nearest(found, drawn, truth), seen)
-            pose = roots[track.name].pose
-            rot = np.stack([pose(t * 1e-6)[:3, :3] for t in times])
+            rot = np.stack([simulated.object_pose(t, index[track.name])[:3, :3] for t in times])
             turn = turn_error(turned[score[0][0]], rot, seen) if score[0] else None
             out.append(Score(scene, setting, len(found), track.name, *score, turn, seconds))
     return out

@@ -29,8 +29,10 @@ def true_scene(mode: str, dataset) -> Scene | None:
     a mode not in ``MODES``, or an oracle asked of other data."""
     if mode not in MODES:
         raise EvsplatError(f"--set mover.oracle={mode}: expected one of {', '.join(MODES)}")
-    scene = None if mode == "none" else simulated_scene(dataset)
-    if mode != "none" and scene is None:
+    if mode == "none":
+        return None
+    scene = simulated_scene(dataset)
+    if scene is None:
         raise EvsplatError(
             f"{dataset.root}: mover.oracle={mode} needs a built-in synthetic scene (meta.json "
             "'scene'); leave mover.oracle=none on other data"
