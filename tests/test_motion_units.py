@@ -17,7 +17,16 @@ from evsplat.model.motion import FREE, ObjectMotion, quat_multiply, rotvec_to_qu
 from evsplat.motion import border
 from evsplat.motion.align import align
 from evsplat.motion.paths import turn_angles, turns, two_ends
-from evsplat.motion.seed import between_placed, in_view, joined_ends, projected, slid, smear, span
+from evsplat.motion.seed import (
+    between_placed,
+    ends_offset,
+    in_view,
+    joined_ends,
+    projected,
+    slid,
+    smear,
+    span,
+)
 from evsplat.motion.segment import Blob, apart, floor, made_by_events, pooled, regions
 from evsplat.motion.tracks import Track, chain
 from evsplat.motion.turn import WindowEvents, turn_rate
@@ -633,8 +642,11 @@ def test_a_card_broken_into_tracks_at_its_hops_is_one_object_and_its_other_end_n
     assert (end[10:30] == -1).all() and (end[:10] == 1).all() and (end[30:] == 1).all()
     drift = np.stack([0.3 * np.arange(40), 0.1 * np.arange(40)], 1)
     assert np.linalg.norm(middle - centre - drift, axis=1).max() < 0.5
-    # Without its hops the lone object is one end, where it was seen.
+    # Its tips lie |d| from its centre: the seeding sizes the card by that, not by a tip's region.
+    assert abs(ends_offset(first, middle) - np.linalg.norm(d)) < 0.5
+    # Without its hops the lone object is one end, where it was seen, and no larger.
     assert (found[1][1][2] == 1).all()
+    assert ends_offset(alone, found[1][1][1]) == 0.0
 
 
 def test_a_balls_rim_read_as_two_ends_about_its_centre_is_a_piece_of_the_ball():

@@ -421,6 +421,13 @@ def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tupl
     return [(t, turn) for t, turn in found if id(t) not in gone]
 
 
+def ends_offset(track: Track, middle: np.ndarray) -> float:
+    """How far (px, median) the track's regions lie from its object's centres ``middle`` [F,2]:
+    0 for one end, the ends' offset for two (``paths.two_ends``): a spinning card's arms make
+    regions 10 px in radius 15 px from its centre, its tips 23 px from it (docs/motion.md)."""
+    return float(np.median(np.linalg.norm(track.centres - middle, axis=1)))
+
+
 def on_sphere(rng: np.random.Generator, n: int) -> np.ndarray:
     """[n,3] points spread evenly over the unit sphere."""
     v = rng.normal(size=(n, 3))
@@ -532,11 +539,13 @@ def seed_objects(
         if ball is not None:  # its front at depth, its outline ``radius_px`` seen from there
             sine = math.sin(math.atan(ball.radius_px / focal))
             radius = sine * depth / (1.0 - sine)
+        # Two ends reach past their regions: the smear, track prior and disc are the object's.
+        extent = radius + ends_offset(track, middle) * depth / focal
         poses = data.trajectory.pose(track.times_us.astype(np.float64))
         # A ball's path is its centre's; any other object's, its front's.
         on, deep = (middle, depth) if ball is None else (ball.centres, depth + radius)
         path = back_project(on, np.full(len(ks), deep), poses, data.K)
-        back = depth + 2.0 * radius  # its front surface is at depth, its body one radius
+        back = depth + 2.0 * extent  # its front surface is at depth, its body one radius
         swept = np.flatnonzero(smear(means, track, poses, data.K, back) & free)
         share = max(int(mc.fraction * n * areas[k] / total), mc.min_gaussians)
         rest = faintest[free[faintest]]
@@ -558,12 +567,12 @@ def seed_objects(
         place(model, optimizer, pick, placed, spacing, mc.opacity)
         backs.append(back)
         centres.append(placed.mean(0) if ball is None else path[r])  # what it turns about
-        radii.append(radius)
+        radii.append(extent)
         edges = span(track, windows, mc.coast)
         reach = [np.inf if np.isfinite(e) else unseen_us for e in edges]
         held = slid(path, track.times_us, knots, reach, mc.min_windows)
         shifts.append(held - path[r])
-        spans.append(in_view(held, knots, edges, radius, views))
+        spans.append(in_view(held, knots, edges, extent, views))
         in_plane = angles[:, None] * pose_ref[:3, 2][None]  # about the viewing axis
         rotvecs.append(in_plane if ball is None else ball.rotvecs)
         rate = float(np.nanmedian(rates)) if used.any() else 0.0
