@@ -545,7 +545,7 @@ def seed_objects(
         # A ball's path is its centre's; any other object's, its front's.
         on, deep = (middle, depth) if ball is None else (ball.centres, depth + radius)
         path = back_project(on, np.full(len(ks), deep), poses, data.K)
-        back = depth + 2.0 * extent  # its front surface is at depth, its body one radius
+        back = depth + 2.0 * extent  # its front surface at depth, its back two sizes behind
         swept = np.flatnonzero(smear(means, track, poses, data.K, back) & free)
         share = max(int(mc.fraction * n * areas[k] / total), mc.min_gaussians)
         rest = faintest[free[faintest]]
