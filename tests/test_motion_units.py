@@ -16,7 +16,7 @@ from evsplat.config import MoverConfig
 from evsplat.model.motion import FREE, ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border
 from evsplat.motion.align import align
-from evsplat.motion.paths import turn_angles, turns, two_ends
+from evsplat.motion.paths import hops, turn_angles, turns, two_ends
 from evsplat.motion.seed import (
     between_placed,
     ends_offset,
@@ -647,6 +647,41 @@ def test_a_card_broken_into_tracks_at_its_hops_is_one_object_and_its_other_end_n
     # Without its hops the lone object is one end, where it was seen, and no larger.
     assert (found[1][1][2] == 1).all()
     assert ends_offset(alone, found[1][1][1]) == 0.0
+
+
+def test_a_cards_tail_in_its_middle_after_its_arm_stops_firing_is_dropped():
+    # A card's tips (+d, -d) by turns, hops at 10 and 30 (windows 0-37); then its track, unseen,
+    # took two small regions of the card's middle (windows 39 and 41): a third "hop" that no
+    # two ends explain. Without that tail the track is the card's two ends, and the object
+    # ends at window 37 (held after it, as any object after its last sighting).
+    centre, d = np.array([40.0, 45.0]), np.array([14.0, 3.0])
+    mc = MoverConfig(turn=False, coast=3, together=1.5, min_windows=4)
+    ks = np.arange(38)
+    card = _tip_track(centre, d, ks, np.where((ks >= 10) & (ks < 30), -1.0, 1.0))
+    card.blobs |= _tip_track(centre, d, [39, 41], np.zeros(2), radius=2.5).blobs
+    ((track, (_, middle, end, _)),) = joined_ends([card], views=None, mc=mc)
+    assert sorted(track.blobs) == list(range(38))
+    assert (end[10:30] == -1).all() and (end[:10] == 1).all() and (end[30:] == 1).all()
+    drift = np.stack([0.3 * ks, 0.1 * ks], 1)
+    assert np.linalg.norm(middle - centre - drift, axis=1).max() < 0.5
+    # A tail longer than a track coasts unseen is the object's own: the track is left whole.
+    long = _tip_track(centre, d, ks, np.where((ks >= 10) & (ks < 30), -1.0, 1.0))
+    long.blobs |= _tip_track(centre, d, range(39, 47, 2), np.zeros(4), radius=2.5).blobs
+    ((track, (_, _, end, _)),) = joined_ends([long], views=None, mc=mc)
+    assert len(track.blobs) == 42 and (end == 1).all()
+
+
+def test_a_step_shorter_than_the_objects_radius_is_no_hop_between_its_ends():
+    # A region moving 2.5 px per window with one step of 6.5 px: over twice the median step,
+    # but ends at least a radius (9.9 px) from the centre lie two radii apart.
+    windows = np.arange(12)
+    centres = np.stack([2.5 * windows, np.zeros(12)], 1)
+    centres[6:, 0] += 4.0
+    hop, limit = hops(windows, centres, radius=9.9, coast=3)
+    assert limit == 5.0 and not hop.any()
+    centres[9:, 0] += 25.0  # a hop to the other end, and one over a gap longer than coast + 1
+    assert np.flatnonzero(hops(windows, centres, 9.9, coast=3)[0]).tolist() == [8]
+    assert not hops(np.r_[windows[:9], windows[9:] + 5], centres, 9.9, coast=3)[0].any()
 
 
 def test_a_balls_rim_read_as_two_ends_about_its_centre_is_a_piece_of_the_ball():

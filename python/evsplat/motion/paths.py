@@ -27,20 +27,31 @@ def turns(angles: np.ndarray | float) -> np.ndarray:
     return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
 
 
+def hops(
+    windows: np.ndarray, centres: np.ndarray, radius: float, coast: int
+) -> tuple[np.ndarray, float]:
+    """(bool [F-1]: the steps between the ``centres`` [F,2] sighted at ``windows`` [F] that hop
+    between two ends, over ``JUMP`` x the median step, at most ``coast`` + 1 windows apart and
+    at least ``radius`` long (ends at ±d with |d| >= radius lie 2|d| apart: a spinning card's
+    arm's fastest steps, 6.4 px against a limit of 6.2, are not hops; docs/motion.md); that
+    limit, px per window)."""
+    step, gap = step_lengths(windows, centres), np.diff(windows)
+    limit = JUMP * float(np.median(step)) if step.size else 0.0
+    return (step > limit) & (gap <= coast + 1) & (step * gap >= radius), limit
+
+
 def two_ends(
     windows: np.ndarray, centres: np.ndarray, angles: np.ndarray, radius: float, coast: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(centres [F,2]; ends [F], +1 where the track started, -1 at the other; turn angles [F],
     rad). An object turning in place fires at whichever end the camera's motion adds to, and its
-    track hops between them (a step over ``JUMP`` x the median, at most ``coast`` + 1 windows).
-    The ends sit at ±d about the centre, turned with it, d fitted to the hops; each hop (-2 x
-    the offset, turned) reads the turn, taking the ``angles``' drift out (docs/motion.md). Only
-    where that explains them (two hops or more, |d| >= ``radius``, no hop left in the centres);
-    else the track's own centres and ``angles``."""
+    track hops between them (``hops``). The ends sit at ±d about the centre, turned with it, d
+    fitted to the hops; each hop (-2 x the offset, turned) reads the turn, taking the
+    ``angles``' drift out (docs/motion.md). Only where that explains them (two hops or more,
+    |d| >= ``radius``, no hop left in the centres); else the track's own centres and
+    ``angles``."""
     none = (centres, np.ones(len(centres)), angles)
-    step = step_lengths(windows, centres)
-    limit = JUMP * np.median(step) if step.size else 0.0
-    hop = (step > limit) & (np.diff(windows) <= coast + 1)
+    hop, limit = hops(windows, centres, radius, coast)
     if hop.sum() < 2:
         return none
     end = np.concatenate([[1.0], (-1.0) ** np.cumsum(hop)])

@@ -18,7 +18,7 @@ from evsplat.model.motion import ObjectMotion
 from evsplat.motion import sphere
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
-from evsplat.motion.paths import turn_angles, turns, two_ends
+from evsplat.motion.paths import hops, turn_angles, turns, two_ends
 from evsplat.motion.segment import (
     Blob,
     apart,
@@ -382,6 +382,23 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
     return rates, *found
 
 
+def ends_turning(views: Views, track: Track, mc: MoverConfig) -> tuple[Track, Turning]:
+    """The ``track`` and its ``turning``; where that shows no two ends, the track less its tail
+    of at most ``mc.coast`` sightings (as long as a track coasts) after its last hop, and its
+    turning, if that shows them. A spinning card's arm that stops firing leaves its track
+    coasting, to take a region or two of the card's middle (23 px) or of both arms at once: one
+    more "hop" that no two ends explain (``spinner``, three warm-ups in five; docs/motion.md)."""
+    turn = turning(views, track, mc)
+    ks = np.array(sorted(track.blobs))
+    at = np.flatnonzero(hops(ks, track.centres, track.radius, mc.coast)[0])
+    if (turn[2] < 0).any() or not len(at) or len(ks) - 1 - at[-1] > mc.coast:
+        return track, turn
+    kept = set(ks[: at[-1] + 1].tolist())
+    cut = Track({k: b for k, b in track.blobs.items() if k in kept}, track.shared & kept)
+    again = turning(views, cut, mc)
+    return (cut, again) if (again[2] < 0).any() else (track, turn)
+
+
 def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tuple[Track, Turning]]:
     """The objects and their ``turning``, where the chaining broke one at a hop between its ends
     made one: a track that starts at most ``mc.coast`` + 1 windows past another's end and ends
@@ -398,7 +415,7 @@ def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tupl
                 continue
             later = {k: b for k, b in track.blobs.items() if k > end}
             both = Track(home.blobs | later, home.shared | (track.shared & set(later)))
-            turn = turning(views, both, mc)
+            both, turn = ends_turning(views, both, mc)
             if (turn[2] < 0).any():
                 home.blobs, home.shared = both.blobs, both.shared
                 turns[id(home)] = turn
@@ -408,7 +425,10 @@ def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tupl
     for home in tracks:
         if id(home) in gone:
             continue
-        found.append((home, turns.get(id(home)) or turning(views, home, mc)))
+        if id(home) not in turns:
+            cut, turns[id(home)] = ends_turning(views, home, mc)
+            home.blobs, home.shared = cut.blobs, cut.shared
+        found.append((home, turns[id(home)]))
         middle, end = found[-1][1][1:3]
         if (end < 0).any():  # its other end, firing at once, may be a track of its own
             ks = sorted(home.blobs)
