@@ -684,6 +684,23 @@ def test_a_step_shorter_than_the_objects_radius_is_no_hop_between_its_ends():
     assert not hops(np.r_[windows[:9], windows[9:] + 5], centres, 9.9, coast=3)[0].any()
 
 
+def test_a_card_track_resumed_on_its_other_tip_is_still_joined_at_its_hop():
+    # As above, but the chaining resumed the first track after a gap (``tracks._resumes``) on
+    # the other tip firing at once (windows 32-36): up to the gap it is the card's, joined at
+    # the hop with the second track; its resumed windows are the other end, no object.
+    centre, d = np.array([40.0, 45.0]), np.array([14.0, 3.0])
+    mc = MoverConfig(turn=False, coast=3, together=1.5, min_windows=4)
+    first = _tip_track(centre, d, range(20), np.where(np.arange(20) < 10, 1.0, -1.0))
+    first.blobs |= _tip_track(centre, d, range(32, 37), -np.ones(5)).blobs
+    later = np.arange(18, 40)
+    second = _tip_track(centre, d, later, np.where(later < 30, -1.0, 1.0))
+    ((track, (_, middle, end, _)),) = joined_ends([first, second], views=None, mc=mc)
+    assert track is first and sorted(first.blobs) == list(range(40))
+    assert (end[10:30] == -1).all() and (end[:10] == 1).all() and (end[30:] == 1).all()
+    drift = np.stack([0.3 * np.arange(40), 0.1 * np.arange(40)], 1)
+    assert np.linalg.norm(middle - centre - drift, axis=1).max() < 0.5
+
+
 def test_a_balls_rim_read_as_two_ends_about_its_centre_is_a_piece_of_the_ball():
     # A ball (20 px radius) seen whole in windows 0-29; a small region on its rim, now on one
     # side, now on the other (hops at 8 and 16), reads as a two-ended object whose centre is

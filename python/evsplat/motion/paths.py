@@ -61,7 +61,8 @@ def two_ends(
     drift = np.unwrap(np.angle(np.exp(1j * (read - 0.5 * (angles[:-1] + angles[1:])[hop]))))
     angles = angles + np.interp(windows, 0.5 * (windows[:-1] + windows[1:])[hop], drift)
     middle, d = _about_centre(centres, end, hop, angles)
-    left = (step_lengths(windows, middle)[hop] > limit).any()
+    moved = step_lengths(windows, middle)  # a hop left: over JUMP x the centre's own median step
+    left = (moved[hop] > JUMP * np.median(moved)).any()
     return none if left or np.linalg.norm(d) < radius else (middle, end, angles)
 
 

@@ -410,13 +410,21 @@ def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tupl
     for track in sorted(tracks, key=lambda t: min(t.blobs)):
         first, last = min(track.blobs), max(track.blobs)
         for home in tracks:
-            start, end = min(home.blobs), max(home.blobs)
+            ks = sorted(home.blobs)
+            # Its sightings up to a gap after ``first`` longer than a track coasts: resumed
+            # there (``tracks._resumes``), it may have taken the other end firing at once.
+            start, end = ks[0], next((a for a, b in zip(ks, ks[1:]) if b > first and b - a >
+                                      mc.coast + 1), ks[-1])  # fmt: skip
             if id(home) in gone or not (start < first <= end + mc.coast + 1 and end < last):
                 continue
             later = {k: b for k, b in track.blobs.items() if k > end}
-            both = Track(home.blobs | later, home.shared | (track.shared & set(later)))
+            own = {k: b for k, b in home.blobs.items() if k <= end}
+            both = Track(own | later, (home.shared & set(own)) | (track.shared & set(later)))
             both, turn = ends_turning(views, both, mc)
             if (turn[2] < 0).any():
+                rest = {k: b for k, b in home.blobs.items() if k > end}
+                if rest:  # a track of its own, to be tested as the other end below
+                    tracks = [*tracks, Track(rest, home.shared & set(rest))]
                 home.blobs, home.shared = both.blobs, both.shared
                 turns[id(home)] = turn
                 gone.add(id(track))
@@ -551,8 +559,12 @@ def seed_objects(
         radius = track.radius * depth / focal
         used, seen = np.isfinite(rates), seen - seen[r]
         angles = np.zeros(len(knots))  # at the knots
-        if (end < 0).any():  # the turn its two ends show, held beyond its sightings
+        if (end < 0).any():  # the turn its two ends show, beyond its sightings at its median rate
             angles = np.interp(knots, track.times_us, seen)
+            if used.any():  # as a measured turn is carried on at the rate measured last
+                t = track.times_us.astype(np.float64)
+                beyond = np.minimum(knots - t[0], 0.0) + np.maximum(knots - t[-1], 0.0)
+                angles += float(np.median(rates[used])) * beyond * 1e-6
         elif used.sum() >= mc.turn_min_windows:
             angles = turn_angles(track.times_us[used], rates[used], knots, t_ref)
         ball = sphere_turn(views, track, middle, knots, t_ref, mc)
