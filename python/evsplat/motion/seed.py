@@ -402,19 +402,22 @@ def ends_turning(views: Views, track: Track, mc: MoverConfig) -> tuple[Track, Tu
 def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tuple[Track, Turning]]:
     """The objects and their ``turning``, where the chaining broke one at a hop between its ends
     made one: a track that starts at most ``mc.coast`` + 1 windows past another's end and ends
-    after it joins it where the two hop between two ends (``two_ends``). A track together with
-    a two-ended object's centre (``tracks.together``) is its other end firing at once, unless
-    it explains more of the events (``Track.area``): then the "ends" were pieces of its edge."""
+    after it joins it where the two hop between two ends (``two_ends``); the other's end is the
+    last sighting before a gap longer than a track coasts, if any, after which its sightings
+    are a track of their own (it was resumed on the other end firing at once). A track together
+    with a two-ended object's centre (``tracks.together``) is its other end firing at once,
+    unless it explains more of the events (``Track.area``): then the "ends" were pieces of its
+    edge."""
     gone: set[int] = set()  # ids of the tracks that are part of another
     turns: dict[int, Turning] = {}  # a joined track's, from its join's test
     for track in sorted(tracks, key=lambda t: min(t.blobs)):
         first, last = min(track.blobs), max(track.blobs)
         for home in tracks:
             ks = sorted(home.blobs)
-            # Its sightings up to a gap after ``first`` longer than a track coasts: resumed
-            # there (``tracks._resumes``), it may have taken the other end firing at once.
-            start, end = ks[0], next((a for a, b in zip(ks, ks[1:]) if b > first and b - a >
-                                      mc.coast + 1), ks[-1])  # fmt: skip
+            # Up to a gap after ``first`` longer than a track coasts: resumed there
+            # (``tracks._resumes``), it may have taken the other end firing at once.
+            gaps = [a for a, b in zip(ks, ks[1:]) if b > first and b - a > mc.coast + 1]
+            start, end = ks[0], gaps[0] if gaps else ks[-1]
             if id(home) in gone or not (start < first <= end + mc.coast + 1 and end < last):
                 continue
             later = {k: b for k, b in track.blobs.items() if k > end}
