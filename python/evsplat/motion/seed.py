@@ -387,7 +387,7 @@ def ends_turning(views: Views, track: Track, mc: MoverConfig) -> tuple[Track, Tu
     of at most ``mc.coast`` sightings (as long as a track coasts) after its last hop, and its
     turning, if that shows them. A spinning card's arm that stops firing leaves its track
     coasting, to take a region or two of the card's middle (23 px) or of both arms at once: one
-    more "hop" that no two ends explain (``spinner``, three warm-ups in five; docs/motion.md)."""
+    more "hop" that no two ends explain (``spinner``: two bench warm-ups of six; docs/motion.md)."""
     turn = turning(views, track, mc)
     ks = np.array(sorted(track.blobs))
     at = np.flatnonzero(hops(ks, track.centres, track.radius, mc.coast)[0])
