@@ -23,6 +23,7 @@ from evsplat.motion.seed import (
     in_view,
     joined_ends,
     projected,
+    reference,
     slid,
     smear,
     span,
@@ -699,6 +700,17 @@ def test_a_card_track_resumed_on_its_other_tip_is_still_joined_at_its_hop():
     assert (end[10:30] == -1).all() and (end[:10] == 1).all() and (end[30:] == 1).all()
     drift = np.stack([0.3 * np.arange(40), 0.1 * np.arange(40)], 1)
     assert np.linalg.norm(middle - centre - drift, axis=1).max() < 0.5
+
+
+def test_an_object_is_placed_at_its_clearest_region_of_its_own():
+    # A disc's track whose clearest region (window 5) is shared with another object passing
+    # (``Track.shared``: that region holds both): it is placed at its clearest own region,
+    # clear of the border; with every region shared, at the clearest of all.
+    blobs = {k: _disc_blob((64, 64), k * 1000, (20.0 + k, 30.0), 6.0, 10.0 + k) for k in range(8)}
+    blobs[7] = _disc_blob((64, 64), 7000, (3.0, 30.0), 6.0, 30.0)  # cut by the border
+    track = Track(blobs, shared={5, 6})
+    assert reference(track) == 4
+    assert reference(Track(blobs, shared=set(range(8)))) == 6
 
 
 def test_a_balls_rim_read_as_two_ends_about_its_centre_is_a_piece_of_the_ball():

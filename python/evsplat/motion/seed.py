@@ -182,9 +182,11 @@ def in_view(
 
 
 def reference(track: Track) -> int:
-    """The window to place the object at: its clearest sighting, clear of the border if any."""
+    """The window to place the object at: its clearest sighting, of those whose region is its
+    own (not shared with another object, ``Track.shared``) and clear of the border if any."""
     ks = sorted(track.blobs)
-    inside = [k for k in ks if not touches_border(track.blobs[k].mask)] or ks
+    own = [k for k in ks if k not in track.shared] or ks
+    inside = [k for k in own if not touches_border(track.blobs[k].mask)] or own
     return max(inside, key=lambda k: track.blobs[k].contrast)
 
 
