@@ -51,7 +51,7 @@ def two_ends(
     |d| >= ``radius``, no hop left in the centres); else the track's own centres and
     ``angles``."""
     none = (centres, np.ones(len(centres)), angles)
-    hop, limit = hops(windows, centres, radius, coast)
+    hop = hops(windows, centres, radius, coast)[0]
     if hop.sum() < 2:
         return none
     end = np.concatenate([[1.0], (-1.0) ** np.cumsum(hop)])

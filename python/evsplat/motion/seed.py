@@ -182,12 +182,9 @@ def in_view(
 
 
 def reference(track: Track) -> int:
-    """The window to place the object at: its clearest sighting, of those whose region is its
-    own (not shared with another object, ``Track.shared``) and clear of the border if any."""
-    ks = sorted(track.blobs)
-    own = [k for k in ks if k not in track.shared] or ks
-    inside = [k for k in own if not touches_border(track.blobs[k].mask)] or own
-    return max(inside, key=lambda k: track.blobs[k].contrast)
+    """The window to place the object at: its clearest sighting of those ``Track.clear`` (its
+    own region, not shared with another object, and clear of the border if any)."""
+    return max(track.clear, key=lambda k: track.blobs[k].contrast)
 
 
 def shape(
@@ -395,8 +392,7 @@ def ends_turning(views: Views, track: Track, mc: MoverConfig) -> tuple[Track, Tu
     at = np.flatnonzero(hops(ks, track.centres, track.radius, mc.coast)[0])
     if (turn[2] < 0).any() or not len(at) or len(ks) - 1 - at[-1] > mc.coast:
         return track, turn
-    kept = set(ks[: at[-1] + 1].tolist())
-    cut = Track({k: b for k, b in track.blobs.items() if k in kept}, track.shared & kept)
+    cut = track.part(ks[0], ks[at[-1]])
     again = turning(views, cut, mc)
     return (cut, again) if (again[2] < 0).any() else (track, turn)
 
@@ -422,14 +418,13 @@ def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tupl
             start, end = ks[0], gaps[0] if gaps else ks[-1]
             if id(home) in gone or not (start < first <= end + mc.coast + 1 and end < last):
                 continue
-            later = {k: b for k, b in track.blobs.items() if k > end}
-            own = {k: b for k, b in home.blobs.items() if k <= end}
-            both = Track(own | later, (home.shared & set(own)) | (track.shared & set(later)))
+            own, later = home.part(start, end), track.part(end + 1, last)
+            both = Track(own.blobs | later.blobs, own.shared | later.shared)
             both, turn = ends_turning(views, both, mc)
             if (turn[2] < 0).any():
-                rest = {k: b for k, b in home.blobs.items() if k > end}
-                if rest:  # a track of its own, to be tested as the other end below
-                    tracks = [*tracks, Track(rest, home.shared & set(rest))]
+                rest = home.part(end + 1, ks[-1])
+                if rest.blobs:  # a track of its own, to be tested as the other end below
+                    tracks = [*tracks, rest]
                 home.blobs, home.shared = both.blobs, both.shared
                 turns[id(home)] = turn
                 gone.add(id(track))

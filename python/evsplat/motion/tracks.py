@@ -57,12 +57,18 @@ class Track:
         return filled(np.array(ks, dtype=np.float64), own, out) if own.any() else out
 
     @property
+    def clear(self) -> list[int]:
+        """Its windows, in order, whose region is its own (not ``shared``), of those clear of the
+        image border where there are any (a cut region looks smaller); each rule dropped where
+        it leaves none."""
+        ks = sorted(self.blobs)
+        own = [k for k in ks if k not in self.shared] or ks
+        return [k for k in own if not touches_border(self.blobs[k].mask)] or own
+
+    @property
     def radius(self) -> float:
-        """The object's size (px): the median of its own regions' disc radii, of those clear of
-        the image border where there are any (a cut region looks smaller)."""
-        own = [b for k, b in self.blobs.items() if k not in self.shared] or [*self.blobs.values()]
-        whole = [b for b in own if not touches_border(b.mask)] or own
-        return float(np.median([b.radius for b in whole]))
+        """The object's size (px): the median of its ``clear`` regions' disc radii."""
+        return float(np.median([self.blobs[k].radius for k in self.clear]))
 
     @property
     def area(self) -> float:
@@ -74,6 +80,11 @@ class Track:
         """Px per window between its consecutive sightings."""
         ks = sorted(self.blobs)
         return step_lengths(np.array(ks), np.stack([self.blobs[k].centre for k in ks])).tolist()
+
+    def part(self, first: int, last: int) -> Track:
+        """The track at only its sightings in windows ``first`` to ``last``."""
+        kept = {k: b for k, b in self.blobs.items() if first <= k <= last}
+        return Track(kept, self.shared & set(kept))
 
     def predict(self, window: int) -> tuple[np.ndarray, float]:
         """The object's centre at ``window``: from its last sighting (shared too, its region holds
