@@ -13,6 +13,7 @@ from evsplat.data.dataset import load_dataset
 from evsplat.data.images import read_png
 from evsplat.data.simulator import simulate_dataset
 from evsplat.eval import evaluate, format_table, headline, write_track_plot
+from evsplat.eval_objects import pooled_margin
 from evsplat.metrics import fit_log_linear, flat_fit, psnr
 from evsplat.model.gaussians import GaussianModel
 from evsplat.render import Renderer
@@ -134,3 +135,22 @@ def test_a_single_object_dataset_has_one_object_row(crossing):
     table = format_table(result)
     assert "track err (px) |" in table.splitlines()[2] and table.count("| ball |") == 1
     assert headline(result).startswith("moving object: PSNR")
+
+
+def test_the_pooled_margin_counts_each_mask_pixel_once():
+    """A sliver of 5 pixels drawn badly beside a whole view of 400 drawn well: pooled, the
+    squared errors of all 405 pixels make one PSNR (computed here by hand), where the per-frame
+    mean lets the sliver weigh as much as the whole view."""
+    gts = [np.full((20, 20, 3), 0.5), np.full((20, 20, 3), 0.5)]
+    sliver = np.zeros((20, 20), dtype=bool)
+    sliver[:5, 0] = True
+    whole = np.ones((20, 20), dtype=bool)
+    ours = [gts[0] + 0.5, gts[1] + 0.01]  # errors 0.5 and 0.01
+    flat = [gts[0] + 0.1, gts[1] + 0.1]
+    ours_mse = (5 * 0.5**2 + 400 * 0.01**2) / 405
+    want = 10 * np.log10(1 / ours_mse) - 10 * np.log10(1 / 0.1**2)
+    got = pooled_margin(ours, flat, gts, [sliver, whole])
+    assert got == pytest.approx(want, abs=1e-9)
+    per_frame = np.mean([10 * np.log10(0.01 / e**2) for e in (0.5, 0.01)])  # -14 and +20 dB
+    assert got == pytest.approx(4.97, abs=0.01) and per_frame == pytest.approx(3.01, abs=0.01)
+    assert pooled_margin([], [], [], []) is None
