@@ -58,9 +58,9 @@ def pooled_margin(
     ours: list[np.ndarray], flat: list[np.ndarray], gts: list[np.ndarray], masks: list[np.ndarray]
 ) -> float | None:
     """PSNR of ``ours`` less that of ``flat`` against ``gts``, each over the pixels of ``masks``
-    pooled over the frames (one squared error per pixel, every pixel counted once); None for
-    no frame."""
-    if not masks:
+    pooled over the frames (one squared error per pixel, every pixel counted once); None where
+    no mask holds a pixel."""
+    if not any(m.any() for m in masks):
         return None
     truth = np.concatenate([g[m] for g, m in zip(gts, masks)])
     scored = [np.concatenate([im[m] for im, m in zip(ims, masks)]) for ims in (ours, flat)]
@@ -90,8 +90,7 @@ def evaluate_objects(
         ours = [psnr(fitted[k], gts[k], views[k].mask) for k in seen]
         theirs = [psnr(flat[k], gts[k], views[k].mask) for k in seen]
         mean, mean_flat = (float(np.mean(v)) if v else None for v in (ours, theirs))
-        masks = [views[k].mask for k in seen]
-        pooled = pooled_margin(*([im[k] for k in seen] for im in (fitted, flat, gts)), masks)
+        pooled = pooled_margin(fitted, flat, gts, [v.mask for v in views])
         radius = radii.get(name)
         tracking = track_object(renderer, views, radius)
         out.append(
