@@ -7,6 +7,11 @@ import numpy as np
 
 from evsplat.motion.tracks import JUMP, step_lengths
 
+#: A region cut by the border to under half its object's area is a sliver, its centre the least
+#: sure: `enter_leave`'s sphere's first three (44-166 px of about 380) 4.3-9.5 px off, the demo's
+#: ball's cut regions of half its area or more 0.4-1.3 px (docs/motion.md, "Slivers").
+SLIVER = 0.5
+
 
 def turn_angles(
     times_us: np.ndarray, rates: np.ndarray, query_us: np.ndarray, t_ref_us: int
@@ -19,6 +24,34 @@ def turn_angles(
     angle = np.cumsum(steps)
     angle -= angle[np.searchsorted(grid, float(t_ref_us))]
     return np.interp(np.asarray(query_us, dtype=np.float64), grid, angle)
+
+
+def steadied(
+    times_us: np.ndarray, path: np.ndarray, areas: np.ndarray, cut: np.ndarray, n: int
+) -> np.ndarray:
+    """The ``path`` [F,D] sighted at ``times_us`` [F] with its first and its last run of
+    slivers (sightings ``cut`` [F] by the image border to under ``SLIVER`` of the median area
+    of those not cut; ``areas`` [F] px) read from the line fitted through that run and the ``n``
+    sightings after it (before it), each weighed by its area: a sliver's centre is the least
+    sure of all. Only where those ``n`` are whole and no window is missed from the run's first
+    to the last of them (unseen, it may have turned: the demo's ball leaving and back)."""
+    out = path.astype(np.float64, copy=True)
+    whole = np.median(areas[~cut]) if (~cut).any() else np.inf
+    sliver = cut & (areas < SLIVER * whole)
+    step = np.diff(times_us).min() if len(times_us) > 1 else 0
+    for order in (np.arange(len(cut)), np.arange(len(cut))[::-1]):
+        run = int(np.argmin(sliver[order])) if not sliver[order].all() else len(cut)
+        used = order[: run + n]
+        gaps = np.abs(np.diff(times_us[used])) > 1.5 * step
+        if run == 0 or len(used) < run + n or sliver[used].sum() > run or gaps.any():
+            continue
+        t = times_us[used].astype(np.float64)
+        t0, w = t.mean(), np.sqrt(areas[used].astype(np.float64))[:, None]
+        a = np.stack([np.ones_like(t), t - t0], 1) * w
+        fit = np.linalg.lstsq(a, path[used] * w, rcond=None)[0]  # [2,D]: place, velocity
+        ends = order[:run]
+        out[ends] = fit[0] + (times_us[ends].astype(np.float64) - t0)[:, None] * fit[1]
+    return out
 
 
 def turns(angles: np.ndarray | float) -> np.ndarray:

@@ -18,7 +18,7 @@ from evsplat.model.motion import ObjectMotion
 from evsplat.motion import sphere
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
-from evsplat.motion.paths import hops, turn_angles, turns, two_ends
+from evsplat.motion.paths import hops, steadied, turn_angles, turns, two_ends
 from evsplat.motion.segment import (
     Blob,
     apart,
@@ -577,6 +577,9 @@ def seed_objects(
         # A ball's path is its centre's; any other object's, its front's.
         on, deep = (middle, depth) if ball is None else (ball.centres, depth + radius)
         path = back_project(on, np.full(len(ks), deep), poses, data.K)
+        seen_px = np.array([track.blobs[j].area for j in ks])
+        cut = np.array([touches_border(track.blobs[j].mask) for j in ks])
+        path = steadied(track.times_us, path, seen_px, cut, mc.min_windows)
         back = depth + 2.0 * extent  # its front surface at depth, its back two sizes behind
         swept = np.flatnonzero(smear(means, track, poses, data.K, back) & free)
         share = max(int(mc.fraction * n * areas[k] / total), mc.min_gaussians)
