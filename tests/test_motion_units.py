@@ -700,9 +700,12 @@ def test_an_objects_cut_sightings_as_it_comes_in_and_goes_out_are_read_from_its_
     out = steadied(times, seen, areas, cut, n=4)
     assert np.abs(out[cut] - truth[cut]).max() < 1.5  # from 8 px off
     assert np.array_equal(out[~cut], seen[~cut])  # its clear sightings as they were
-    # Too few clear sightings beside a run to fit through: the run is left as it was.
+    # Too few clear sightings beside a run to fit through, or a run longer than they span:
+    # the run is left as it was.
     short = steadied(times[:6], seen[:6], areas[:6], cut[:6], n=4)
     assert np.array_equal(short, seen[:6])
+    long = steadied(times, seen, areas, cut, n=2)
+    assert np.array_equal(long[:3], seen[:3]) and np.abs(long[12:] - truth[12:]).max() < 2.5
 
 
 def test_a_card_track_resumed_on_its_other_tip_is_still_joined_at_its_hop():

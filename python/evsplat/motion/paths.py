@@ -33,8 +33,10 @@ def steadied(
     slivers (sightings ``cut`` [F] by the image border to under ``SLIVER`` of the median area
     of those not cut; ``areas`` [F] px) read from the line fitted through that run and the ``n``
     sightings after it (before it), each weighed by its area: a sliver's centre is the least
-    sure of all. Only where those ``n`` are whole and no window is missed from the run's first
-    to the last of them (unseen, it may have turned: the demo's ball leaving and back)."""
+    sure of all. Only where those ``n`` are whole, the run no longer than they (the line is read
+    no farther out than the whole ones it is fitted to span: `crossing`'s sphere, ten slivers as
+    it turns back into view, was carried up to 38 px off) and no window is missed from the run's
+    first to the last of them (unseen, it may have turned: the demo's ball leaving and back)."""
     out = path.astype(np.float64, copy=True)
     whole = np.median(areas[~cut]) if (~cut).any() else np.inf
     sliver = cut & (areas < SLIVER * whole)
@@ -43,7 +45,7 @@ def steadied(
         run = int(np.argmin(sliver[order])) if not sliver[order].all() else len(cut)
         used = order[: run + n]
         gaps = np.abs(np.diff(times_us[used])) > 1.5 * step
-        if run == 0 or len(used) < run + n or sliver[used].sum() > run or gaps.any():
+        if not 0 < run <= n or len(used) < run + n or sliver[used].sum() > run or gaps.any():
             continue
         t = times_us[used].astype(np.float64)
         t0, w = t.mean(), np.sqrt(areas[used].astype(np.float64))[:, None]
