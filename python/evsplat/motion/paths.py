@@ -47,12 +47,9 @@ def steadied(
         gaps = np.abs(np.diff(times_us[used])) > 1.5 * step
         if not 0 < run <= n or len(used) < run + n or sliver[used].sum() > run or gaps.any():
             continue
-        t = times_us[used].astype(np.float64)
-        t0, w = t.mean(), np.sqrt(areas[used].astype(np.float64))[:, None]
-        a = np.stack([np.ones_like(t), t - t0], 1) * w
-        fit = np.linalg.lstsq(a, path[used] * w, rcond=None)[0]  # [2,D]: place, velocity
-        ends = order[:run]
-        out[ends] = fit[0] + (times_us[ends].astype(np.float64) - t0)[:, None] * fit[1]
+        t = times_us.astype(np.float64)[:, None]
+        fit = np.polyfit(t[used, 0], path[used], 1, w=np.sqrt(areas[used]))  # [2,D]
+        out[order[:run]] = np.polyval(fit, t[order[:run]])
     return out
 
 
