@@ -200,6 +200,25 @@ def test_densifier_origin_maps_rows_after_a_step_to_rows_before():
     assert d.origin.tolist() == [0, 1, 2, 3, 4]
 
 
+def test_gaussians_ruled_out_are_pruned_with_their_clones_at_a_densification_only():
+    m = four_gaussians()
+    opt = adam_with_state(m)
+    d = Densifier(DensifyConfig(), scene_extent=1.0, total_iterations=30_000)
+    grads = torch.tensor([[1e-4, 0.0], [0.0, 1e-4], [1e-7, 0.0], [1e-7, 0.0]])
+    d.accumulate(grads, torch.tensor([3, 5, 3, 3]), W, H)
+    ruled_out = torch.tensor([True, False, False, False])  # row 0, which is also cloned
+    assert not d.densifies(601) and d.step(m, opt, 601, ruled_out) == {}
+    assert m.num_gaussians == 4
+    torch.manual_seed(0)
+    assert d.densifies(600)
+    counts = d.step(m, opt, 600, ruled_out)
+    assert counts == {"cloned": 1, "split": 1, "pruned": 3, "recycled": 0, "swept": 1}
+    # Row 0 and its clone are gone, 3 is transparent: left are 2 and the two children of 1.
+    assert d.origin.tolist() == [2, 1, 1]
+    assert torch.equal(m.sh.detach().reshape(-1), torch.tensor([2.0, 1.0, 1.0]))
+    assert_optimizer_matches_model(opt, m)
+
+
 def test_clones_and_split_children_carry_their_parents_time_parameters():
     m = four_gaussians()
     with torch.no_grad():

@@ -13,7 +13,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from evsplat.config import MoverConfig
-from evsplat.model.motion import FREE, ObjectMotion, quat_multiply, rotvec_to_quat
+from evsplat.model.motion import BEHIND, FREE, ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border
 from evsplat.motion.align import align
 from evsplat.motion.paths import hops, steadied, turn_angles, turns, two_ends
@@ -788,6 +788,42 @@ def test_joined_objects_keep_their_refined_paths_and_priors():
         both.translations.copy_(both.prior_translations)
         both.rotvecs[0, 1, 2] += 0.3
     assert torch.allclose(both.prior_loss(), torch.tensor(0.09 / 3 / 2))
+
+
+def test_the_space_an_object_passes_through_or_hides_holds_only_the_scenes_gaussians_in_it():
+    # One object of radius 0.3 centred at the origin, sliding along x by 2 m over knots at
+    # t = 0, 0.25, ..., 1 and in view over [0.25, 0.75] only: its path in view runs from
+    # x = 0.5 to x = 1.5, seen from a camera 4 m in front of it (z = -4), so the space it
+    # hides runs BEHIND radii (0.6 m) behind it, to z = 0.6. A second object, always in
+    # view, stays at (0, 5, 0).
+    slide = torch.zeros(2, 5, 3)
+    slide[0, :, 0] = torch.linspace(0.0, 2.0, 5)
+    motion = ObjectMotion(
+        torch.tensor([[0.0, 0.0, 0.0], [0.0, 5.0, 0.0]]),
+        torch.tensor([0.3, 0.3]),
+        slide,
+        torch.zeros(2, 5, 3),
+        torch.tensor([[0.25, 0.75], [-float("inf"), float("inf")]]),
+    )
+    eyes = slide[0] + torch.tensor([0.0, 0.0, -4.0])  # the camera follows it: rays along z
+    reach = BEHIND * 0.3
+    means = torch.tensor(
+        [
+            [1.0, 0.29, 0.0],  # beside the middle of the path, inside its radius
+            [1.0, 0.31, 0.0],  # just beyond it
+            [1.0, 0.0, -0.31],  # in front of it, just beyond its radius
+            [1.0, 0.2, reach + 0.05],  # behind it, within a radius of the end of its ray
+            [1.0, 0.0, reach + 0.31],  # beyond the end of its ray
+            [0.3, 0.0, 0.0],  # 0.2 before where it comes into view: inside the radius
+            [0.1, 0.0, 0.0],  # on its path, but where it was out of view
+            [1.9, 0.0, 0.0],  # likewise after it went out
+            [0.0, 5.2, 0.0],  # inside the still object's ball
+            [1.0, 0.0, 0.0],  # on the path, but one of the object's own Gaussians
+        ]
+    )
+    object_id = torch.tensor([-1, -1, -1, -1, -1, -1, -1, -1, -1, 0])
+    swept = motion.swept(means, object_id, eyes)
+    assert swept.tolist() == [True, False, False, True, False, True, False, False, True, False]
 
 
 def test_an_object_is_visible_only_inside_its_span():

@@ -117,21 +117,32 @@ class Densifier:
         wider = torch.maximum(self.max_radii, radii.reshape(-1).to(self.max_radii.dtype))
         self.max_radii = torch.where(visible, wider, self.max_radii)
 
-    def step(self, model: GaussianModel, optimizer: torch.optim.Adam, iteration: int) -> dict:
+    def densifies(self, iteration: int) -> bool:
+        """Whether ``step`` clones, splits and prunes at ``iteration``."""
+        return self.start < iteration < self.stop and iteration % self.cfg.interval == 0
+
+    def step(
+        self,
+        model: GaussianModel,
+        optimizer: torch.optim.Adam,
+        iteration: int,
+        ruled_out: Tensor | None = None,
+    ) -> dict:
         """Density control for ``iteration`` (after its optimizer step).
 
         Inside [start, stop): every ``interval`` iterations clone small / split large
         high-gradient Gaussians and prune transparent (and, after the first opacity reset, huge)
-        ones; every ``reset_interval`` iterations cap opacities at 0.01. Any time: prune the least
-        opaque Gaussians down to ``max_gaussians``. Returns the counts of what was done, empty
+        ones and those ``ruled_out`` [N] (clones of them too); every ``reset_interval``
+        iterations cap opacities at 0.01. Any time: prune the least opaque Gaussians down to
+        ``max_gaussians``. Returns the counts of what was done, empty
         when nothing was; ``origin`` maps the rows after it to the rows before (a new row to its
         clone or split parent).
         """
         cfg, counts = self.cfg, {}
         device = model.means.device
         self.origin = torch.arange(model.num_gaussians, device=device)
-        if self.start < iteration < self.stop and iteration % cfg.interval == 0:
-            counts.update(self._densify_and_prune(model, optimizer, iteration))
+        if self.densifies(iteration):
+            counts.update(self._densify_and_prune(model, optimizer, iteration, ruled_out))
         resets = self.reset_interval > 0 and 0 < iteration < self.stop
         if resets and iteration % self.reset_interval == 0:
             self._reset_opacity(model, optimizer)
@@ -144,7 +155,9 @@ class Densifier:
             counts["capped"] = excess
         return counts
 
-    def _densify_and_prune(self, model: GaussianModel, optimizer, iteration: int) -> dict:
+    def _densify_and_prune(
+        self, model: GaussianModel, optimizer, iteration: int, ruled_out: Tensor | None
+    ) -> dict:
         cfg = self.cfg
         n0, device = model.num_gaussians, model.means.device
         self._ensure_size(n0, device)
@@ -197,6 +210,8 @@ class Densifier:
         opac = model.opacities().detach()
         none = torch.zeros(n_new, dtype=torch.bool, device=device)
         prune = torch.cat([split | recycled, none]) | (opac < cfg.prune_opacity)
+        if ruled_out is not None:
+            prune |= ruled_out[self.origin]  # a clone or split child of one is ruled out too
         # 3DGS: size pruning only once opacities were reset
         if 0 < self.reset_interval < iteration:
             radii = torch.cat([self.max_radii, torch.zeros(n_new, device=device)])
@@ -210,7 +225,8 @@ class Densifier:
         self._prune(model, optimizer, ~prune)
         # Statistics restart after every density change.
         self._reset_stats(model.num_gaussians, device)
-        return {"cloned": n_clone, "split": n_split, "pruned": n_pruned, "recycled": n_recycled}
+        counts = {"cloned": n_clone, "split": n_split, "pruned": n_pruned, "recycled": n_recycled}
+        return counts | ({} if ruled_out is None else {"swept": int(ruled_out.sum())})
 
     def _split_in_time(self, new: dict[str, Tensor], n_clone: int) -> None:
         """Sample the split children (rows after ``n_clone`` of ``new``, the new parameters) of

@@ -19,6 +19,9 @@ ANGLE_EPS = 1e-6  # below this angle (rad) the half-angle terms take their Taylo
 #: ball bent 15-20 px, about one radius, where it leaves the image; docs/motion.md).
 FREE = 0.25
 DIST_EPS = 1e-12  # keeps the distance's gradient finite where a knot is at its seeded place
+#: How far behind an object (radii) the warm-up's smear of it reaches along the rays: where the
+#: seeding takes it (``motion.seed.smear``) and where it is pruned later (``swept``).
+BEHIND = 2.0
 
 
 def rotvec_to_quat(v: Tensor) -> Tensor:
@@ -105,6 +108,31 @@ class ObjectMotion(nn.Module):
         rows = object_id >= 0
         out[rows] = seen[object_id[rows]]
         return out
+
+    @torch.no_grad()
+    def swept(self, means: Tensor, object_id: Tensor, eyes: Tensor) -> Tensor:
+        """[N] bool: the scene's rows (``object_id`` -1) whose centre ``means`` [N,3] lies in
+        the space an object passes through while in view (within its radius of its path) or
+        hides from the camera (``eyes`` [G,3], its centre at each knot): within its radius of
+        the ray from its centre to ``BEHIND`` radii behind it. The warm-up spread an object's
+        events there as static Gaussians, and they draw a trail along its path."""
+        knots = torch.linspace(0.0, 1.0, self.translations.shape[1], device=means.device)
+        out = torch.zeros(means.shape[0], dtype=torch.bool, device=means.device)
+        for centre, radius, trans, (start, end) in zip(
+            self.centres, self.radii, self.translations.detach(), self.spans
+        ):
+            path = centre + trans  # [G,3]
+            ray = path - eyes
+            back = path + BEHIND * radius * ray / ray.norm(dim=-1, keepdim=True).clamp_min(DIST_EPS)
+            seen = (knots >= start) & (knots <= end)
+            pair = seen[:-1] & seen[1:]  # the path between two knots in view
+            starts = torch.cat([path[:-1][pair], path[seen]])
+            stops = torch.cat([path[1:][pair], back[seen]])
+            for a, b in zip(starts, stops):  # one segment at a time: [N,3] each
+                ab = b - a
+                along = ((means - a) @ ab / (ab @ ab).clamp_min(DIST_EPS)).clamp(0.0, 1.0)
+                out |= (means - a - along[:, None] * ab).norm(dim=-1) < radius
+        return out & (object_id < 0)
 
     def prior_loss(self) -> Tensor:
         """Squared distance of the paths from their starting values: translations in object

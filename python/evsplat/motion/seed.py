@@ -14,7 +14,7 @@ import torch
 from evsplat.config import MoverConfig
 from evsplat.model.densify import set_rows
 from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
-from evsplat.model.motion import ObjectMotion
+from evsplat.model.motion import BEHIND, ObjectMotion
 from evsplat.motion import sphere
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
@@ -580,7 +580,7 @@ def seed_objects(
         seen_px = np.array([track.blobs[j].area for j in ks])
         cut = np.array([touches_border(track.blobs[j].mask) for j in ks])
         path = steadied(track.times_us, path, seen_px, cut, mc.min_windows)
-        back = depth + 2.0 * extent  # its front surface at depth, its back two sizes behind
+        back = depth + BEHIND * extent  # its front surface at depth, its back behind
         swept = np.flatnonzero(smear(means, track, poses, data.K, back) & free)
         share = max(int(mc.fraction * n * areas[k] / total), mc.min_gaussians)
         rest = faintest[free[faintest]]

@@ -218,7 +218,7 @@ class Trainer:
             self.mlp_optimizer.step()
         self._zero_grads()
         decay_learning_rates(self.optimizer, self.mlp_optimizer, cfg, self.extent, iteration)
-        counts = self.densifier.step(self.model, self.optimizer, iteration)
+        counts = self.densifier.step(self.model, self.optimizer, iteration, self._swept(iteration))
         values.update({f"n_{k}": float(v) for k, v in counts.items()})
         static, objects = self.renderer.static_mask, self.renderer.object_id
         if counts and objects is not None:  # clones, splits and prunes change the rows
@@ -231,6 +231,17 @@ class Trainer:
             values["static_scene"] = float(self.static_scene)
         values["gaussians"] = float(self.model.means.shape[0])
         return StepResult(values, stage)
+
+    def _swept(self, iteration: int) -> torch.Tensor | None:
+        """The scene's Gaussians in the space an object passes through or hides
+        (``ObjectMotion.swept``), for the density control to prune where it runs at
+        ``iteration``."""
+        r, data = self.renderer, self.data
+        if r.motion is None or r.object_id is None or not self.densifier.densifies(iteration):
+            return None
+        knots = np.linspace(data.t_start_us, data.t_end_us, r.motion.translations.shape[1])
+        eyes = torch.from_numpy(data.trajectory.pose(knots)[:, :3, 3]).to(self.model.means)
+        return r.motion.swept(self.model.means.detach(), r.object_id, eyes)
 
     def seed_objects(self, again: bool = False) -> dict[str, float]:
         """Find the moving objects and start their motion (``motion.seed.seed_objects``); the
