@@ -790,7 +790,11 @@ def test_joined_objects_keep_their_refined_paths_and_priors():
     assert torch.allclose(both.prior_loss(), torch.tensor(0.09 / 3 / 2))
 
 
-def test_the_space_an_object_passes_through_or_hides_holds_only_the_scenes_gaussians_in_it():
+@pytest.mark.parametrize("batch", [16_384, 3])  # rows tested at once (all, or in batches)
+def test_the_space_an_object_passes_through_or_hides_holds_only_the_scenes_gaussians_in_it(
+    batch, monkeypatch
+):
+    monkeypatch.setattr("evsplat.model.motion.SWEPT_ROWS", batch)
     # One object of radius 0.3 centred at the origin, sliding along x by 2 m over knots at
     # t = 0, 0.25, ..., 1 and in view over [0.25, 0.75] only: its path in view runs from
     # x = 0.5 to x = 1.5, seen from a camera 4 m in front of it (z = -4), so the space it

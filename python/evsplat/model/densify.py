@@ -134,9 +134,9 @@ class Densifier:
         high-gradient Gaussians and prune transparent (and, after the first opacity reset, huge)
         ones and those ``ruled_out`` [N] (clones of them too); every ``reset_interval``
         iterations cap opacities at 0.01. Any time: prune the least opaque Gaussians down to
-        ``max_gaussians``. Returns the counts of what was done, empty
-        when nothing was; ``origin`` maps the rows after it to the rows before (a new row to its
-        clone or split parent).
+        ``max_gaussians``. Returns the counts of what was done, empty when nothing was;
+        ``origin`` maps the rows after it to the rows before (a new row to its clone or split
+        parent).
         """
         cfg, counts = self.cfg, {}
         device = model.means.device

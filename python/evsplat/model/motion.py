@@ -22,6 +22,7 @@ DIST_EPS = 1e-12  # keeps the distance's gradient finite where a knot is at its 
 #: How far behind an object (radii) the warm-up's smear of it reaches along the rays: where the
 #: seeding takes it (``motion.seed.smear``) and where it is pruned later (``swept``).
 BEHIND = 2.0
+SWEPT_ROWS = 16_384  # rows per batch in ``swept``: [rows, segments, 3] stays tens of MB
 
 
 def rotvec_to_quat(v: Tensor) -> Tensor:
@@ -113,9 +114,10 @@ class ObjectMotion(nn.Module):
     def swept(self, means: Tensor, object_id: Tensor, eyes: Tensor) -> Tensor:
         """[N] bool: the scene's rows (``object_id`` -1) whose centre ``means`` [N,3] lies in
         the space an object passes through while in view (within its radius of its path) or
-        hides from the camera (``eyes`` [G,3], its centre at each knot): within its radius of
-        the ray from its centre to ``BEHIND`` radii behind it. The warm-up spread an object's
-        events there as static Gaussians, and they draw a trail along its path."""
+        hides from the camera (within its radius of the ray from the camera's centre at each
+        knot, ``eyes`` [G,3], through its centre, from there to ``BEHIND`` radii behind it).
+        The warm-up spreads an object's events there as static Gaussians, and densification
+        grows more to explain them; left, they draw a trail along its path."""
         knots = torch.linspace(0.0, 1.0, self.translations.shape[1], device=means.device)
         out = torch.zeros(means.shape[0], dtype=torch.bool, device=means.device)
         for centre, radius, trans, (start, end) in zip(
@@ -126,13 +128,18 @@ class ObjectMotion(nn.Module):
             back = path + BEHIND * radius * ray / ray.norm(dim=-1, keepdim=True).clamp_min(DIST_EPS)
             seen = (knots >= start) & (knots <= end)
             pair = seen[:-1] & seen[1:]  # the path between two knots in view
-            starts = torch.cat([path[:-1][pair], path[seen]])
-            stops = torch.cat([path[1:][pair], back[seen]])
-            for a, b in zip(starts, stops):  # one segment at a time: [N,3] each
-                ab = b - a
-                along = ((means - a) @ ab / (ab @ ab).clamp_min(DIST_EPS)).clamp(0.0, 1.0)
-                out |= (means - a - along[:, None] * ab).norm(dim=-1) < radius
-        return out & (object_id < 0)
+            a = torch.cat([path[:-1][pair], path[seen]])  # [S,3] segments from a to b
+            ab = torch.cat([path[1:][pair], back[seen]]) - a
+            if a.shape[0] == 0:
+                continue
+            # Only rows in the segments' bounding box grown by the radius can be that near.
+            lo, hi = torch.minimum(a, a + ab).amin(0), torch.maximum(a, a + ab).amax(0)
+            box = ((means > lo - radius) & (means < hi + radius)).all(1) & (object_id < 0)
+            for rows in torch.nonzero(box).reshape(-1).split(SWEPT_ROWS):
+                x = means[rows, None] - a  # [R,S,3]
+                along = ((x * ab).sum(-1) / (ab * ab).sum(-1).clamp_min(DIST_EPS)).clamp(0.0, 1.0)
+                out[rows] |= ((x - along[..., None] * ab).norm(dim=-1) < radius).any(1)
+        return out
 
     def prior_loss(self) -> Tensor:
         """Squared distance of the paths from their starting values: translations in object
