@@ -8,6 +8,7 @@ scene's Gaussians (id -1) are not moved here."""
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -23,6 +24,12 @@ DIST_EPS = 1e-12  # keeps the distance's gradient finite where a knot is at its 
 #: seeding takes it (``motion.seed.smear``) and where it is pruned later (``swept``).
 BEHIND = 2.0
 SWEPT_ROWS = 16_384  # rows per batch in ``swept``: [rows, segments, 3] stays tens of MB
+
+
+def knot_times_us(t_start_us: int, t_end_us: int, knots: int) -> np.ndarray:
+    """float64 [G]: the times (µs) of ``knots`` knots spread evenly over the sequence, where
+    ``ObjectMotion.at`` reads them (normalised time 0 to 1)."""
+    return np.linspace(t_start_us, t_end_us, knots)
 
 
 def rotvec_to_quat(v: Tensor) -> Tensor:

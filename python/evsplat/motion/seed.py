@@ -14,7 +14,7 @@ import torch
 from evsplat.config import MoverConfig
 from evsplat.model.densify import set_rows
 from evsplat.model.gaussians import T_LOG_SCALE_RANGE, GaussianModel
-from evsplat.model.motion import BEHIND, ObjectMotion
+from evsplat.model.motion import BEHIND, ObjectMotion, knot_times_us
 from evsplat.motion import sphere
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
@@ -545,7 +545,7 @@ def seed_objects(
     mid_us = (data.t_start_us + data.t_end_us) // 2
     known_areas = np.pi * projected(known[0], views, mid_us)[1] ** 2 if known else np.zeros(0)
     total = areas.sum() + known_areas.sum()
-    knots = np.linspace(data.t_start_us, data.t_end_us, mc.knots)
+    knots = knot_times_us(data.t_start_us, data.t_end_us, mc.knots)
     windows = np.array([views.renderer.time(t) for t in sightings.times_us])  # the spans' clock
     # How long an object inside the image may have moved unseen: ``coast`` windows (``chain``).
     spacing = np.diff(sightings.times_us)

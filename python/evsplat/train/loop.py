@@ -25,7 +25,7 @@ from evsplat.losses.event import event_loss
 from evsplat.losses.flow import gaussian_flow_features
 from evsplat.model.deform import DeformationMLP
 from evsplat.model.densify import Densifier
-from evsplat.model.motion import ObjectMotion
+from evsplat.model.motion import ObjectMotion, knot_times_us
 from evsplat.motion.seed import seed_objects
 from evsplat.projection import viewmat
 from evsplat.render import Renderer
@@ -239,7 +239,7 @@ class Trainer:
         r, data = self.renderer, self.data
         if r.motion is None or r.object_id is None or not self.densifier.densifies(iteration):
             return None
-        knots = np.linspace(data.t_start_us, data.t_end_us, r.motion.translations.shape[1])
+        knots = knot_times_us(data.t_start_us, data.t_end_us, r.motion.translations.shape[1])
         eyes = torch.from_numpy(data.trajectory.pose(knots)[:, :3, 3]).to(self.model.means)
         return r.motion.swept(self.model.means.detach(), r.object_id, eyes)
 

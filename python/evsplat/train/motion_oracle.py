@@ -13,7 +13,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from evsplat.errors import EvsplatError
-from evsplat.model.motion import ObjectMotion
+from evsplat.model.motion import ObjectMotion, knot_times_us
 from evsplat.projection import project
 from evsplat.train.depth_prior import simulated_scene
 
@@ -64,7 +64,7 @@ def apply_oracle(
     their track prior. Numbers for the log: per object, the true object's index and how far (px)
     their centres lay apart at the reference time."""
     g = motion.translations.shape[1]
-    knots = np.linspace(dataset.t_start_us, dataset.t_end_us, g)
+    knots = knot_times_us(dataset.t_start_us, dataset.t_end_us, g)
     stats = {}
     for k, t_ref in refs_us.items():
         centre = motion.centres[k].double().cpu().numpy()
