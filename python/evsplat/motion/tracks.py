@@ -131,8 +131,8 @@ def chain(per_window: list[list[Blob]], s: MoverConfig, still: bool = False) -> 
     pieces = _merged(done + live, lambda t: -len(t.blobs), lambda o, t: together(o, t, s))
     evidence = [sum(max(b.contrast - s.high, 0.0) for b in t.blobs.values()) for t in pieces]
     least = 0.0 if still else s.min_evidence
-    kept = [t for t, e in zip(pieces, evidence) if len(t.blobs) >= s.min_windows and e >= least]
-    kept = _rejoined(kept, s)
+    long = [(t, e >= least) for t, e in zip(pieces, evidence) if len(t.blobs) >= s.min_windows]
+    kept = _rejoined([t for t, sure in long if sure], [t for t, sure in long if not sure], s)
     for track in kept:  # shared with another object (not noise, nor a piece of its own)
         others = [o.hidden for o in kept if o is not track]
         track.shared = {k for k, b in track.blobs.items() if any(h.get(k) is b for h in others)}
@@ -257,22 +257,35 @@ def _absorb(home: Track, track: Track) -> None:
     home.hidden |= {k: b for k, b in track.hidden.items() if k not in home.blobs}
 
 
-def _rejoined(tracks: list[Track], s: MoverConfig) -> list[Track]:
+def _rejoined(tracks: list[Track], faint: list[Track], s: MoverConfig) -> list[Track]:
     """``tracks``, each that is an object coming back into the image joined to the
-    latest-ending earlier track it ``_returns`` to, which keeps its sightings up to its exit."""
+    latest-ending earlier track it ``_returns`` to, which keeps its sightings up to its exit.
+    A ``faint`` track, too faint to be an object by itself, joins only one of ``tracks`` that
+    it ``_resumes`` or that resumes it (the spell before or after an object went unseen inside
+    the image: ``pair``'s ball, docs/motion.md), or is dropped: two of the static model's
+    errors are not an object together, and one at a border is not an object coming back."""
     out: list[Track] = []
-    for track in sorted(tracks, key=lambda t: min(t.blobs)):
-        exits = [(o, a) for o in out if (a := _returns(o, track, s)) is not None]
+    weak = {id(t) for t in faint}
+
+    def joins(gone: Track, back: Track) -> int | None:
+        pair = {id(gone), id(back)} & weak
+        if len(pair) == 2:
+            return None
+        return _returns(gone, back, s, through_border=not pair)
+
+    for track in sorted([*tracks, *faint], key=lambda t: min(t.blobs)):
+        exits = [(o, a) for o in out if (a := joins(o, track)) is not None]
         if not exits:
             out.append(track)
             continue
         home, a = max(exits, key=lambda e: max(e[0].blobs))
         home.blobs = {k: b for k, b in home.blobs.items() if k <= a}
         _absorb(home, track)
-    return out
+        weak.discard(id(home))  # joined to an object: part of it
+    return [t for t in out if id(t) not in weak]
 
 
-def _returns(gone: Track, back: Track, s: MoverConfig) -> int | None:
+def _returns(gone: Track, back: Track, s: MoverConfig, through_border: bool = True) -> int | None:
     """The window ``gone`` left the image at, if ``back`` is it coming back, else None: it left
     through the border that ``back`` came in through (the path between stays out of view),
     within ``s.gate`` of the reach of its fastest speed plus the regions' radii (as a track's
@@ -280,7 +293,7 @@ def _returns(gone: Track, back: Track, s: MoverConfig) -> int | None:
     of its last ``s.coast`` + 1 sightings: those after it are noise it took while unseen (the
     demo's ball, docs/motion.md), and ``back`` goes on past them. Or it was lost inside the
     image for longer than a track coasts and ``back`` is found inside it within ``gone``'s gate
-    (``_resumes``)."""
+    (``_resumes``; the only way with ``through_border`` false)."""
     b = min(back.blobs)
     if max(back.blobs) <= max(gone.blobs):
         return None
@@ -290,6 +303,8 @@ def _returns(gone: Track, back: Track, s: MoverConfig) -> int | None:
         return None
     if _resumes(gone, back, s):
         return max(gone.blobs)
+    if not through_border:
+        return None
     entry = back.blobs[b]
     speed = max(gone.steps + back.steps, default=0.0)
     for a in sorted(gone.blobs)[-(s.coast + 1) :][::-1]:
