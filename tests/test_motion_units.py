@@ -265,25 +265,25 @@ def test_a_faint_track_is_noise_under_a_moving_camera_and_an_object_under_a_stil
     assert sorted(track.blobs) == list(range(14))
 
 
-def test_a_faint_spell_of_an_object_joins_it_and_two_faint_spells_stay_noise():
+def test_faint_spells_of_an_object_join_it_where_their_evidence_together_passes():
     # A disc is seen for 8 windows, lost for 12 (it passes something that fires more) and seen
     # again on its course for 8. Its first spell peaks 2 robust sigmas over `high` (16 of
     # evidence against `min_evidence` 30: noise by itself), its second 5 (40): the first is the
-    # object's too. Were the second as faint, the two would be noise (a static model's errors
-    # are not an object together).
+    # object's too. Two spells of 2 (32 together) are one object too; two of 1.5 (24) noise.
     seen = [*range(8), *range(20, 28)]
 
-    def windows(later: float) -> list[list]:
-        peak = [TRACKS.high + (2.0 if k < 8 else later) for k in range(28)]
+    def windows(later: float, first: float = 2.0) -> list[list]:
+        peak = [TRACKS.high + (first if k < 8 else later) for k in range(28)]
         centres = [(15.0 + 3.0 * k, 50.0) for k in range(28)]
         return [
             [_disc_blob((96, 128), k, centres[k], 8.0, peak[k])] if k in seen else []
             for k in range(28)
         ]
 
-    (track,) = chain(windows(5.0), TRACKS)
-    assert sorted(track.blobs) == seen
-    assert chain(windows(2.0), TRACKS) == []
+    for later in (5.0, 2.0):
+        (track,) = chain(windows(later), TRACKS)
+        assert sorted(track.blobs) == seen
+    assert chain(windows(1.5, first=1.5), TRACKS) == []
 
 
 # A disc's centres, 2 px per window, out through the right border of a 96 x 128 image from k = 29.

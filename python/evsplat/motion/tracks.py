@@ -129,9 +129,8 @@ def chain(per_window: list[list[Blob]], s: MoverConfig, still: bool = False) -> 
         live = [t for t in live if t.missed <= s.coast]
         live += [Track({k: b}) for j, b in enumerate(blobs) if j not in taken]
     pieces = _merged(done + live, lambda t: -len(t.blobs), lambda o, t: together(o, t, s))
-    evidence = [sum(max(b.contrast - s.high, 0.0) for b in t.blobs.values()) for t in pieces]
     least = 0.0 if still else s.min_evidence
-    long = [(t, e >= least) for t, e in zip(pieces, evidence) if len(t.blobs) >= s.min_windows]
+    long = [(t, evidence(t, s) >= least) for t in pieces if len(t.blobs) >= s.min_windows]
     kept = _rejoined([t for t, sure in long if sure], [t for t, sure in long if not sure], s)
     for track in kept:  # shared with another object (not noise, nor a piece of its own)
         others = [o.hidden for o in kept if o is not track]
@@ -139,6 +138,11 @@ def chain(per_window: list[list[Blob]], s: MoverConfig, still: bool = False) -> 
     for track in kept:  # only the objects kept (the shape fit is the costly part)
         track.blobs = uncut(track.blobs, set(track.blobs) - track.shared)
     return sorted(kept, key=lambda t: -len(t.blobs))
+
+
+def evidence(track: Track, s: MoverConfig) -> float:
+    """Its regions' peaks over ``s.high`` summed (robust sigmas)."""
+    return sum(max(b.contrast - s.high, 0.0) for b in track.blobs.values())
 
 
 def _split(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> list[Blob]:
@@ -260,18 +264,16 @@ def _absorb(home: Track, track: Track) -> None:
 def _rejoined(tracks: list[Track], faint: list[Track], s: MoverConfig) -> list[Track]:
     """``tracks``, each that is an object coming back into the image joined to the
     latest-ending earlier track it ``_returns`` to, which keeps its sightings up to its exit.
-    A ``faint`` track, too faint to be an object by itself, joins only one of ``tracks`` that
-    it ``_resumes`` or that resumes it (the spell before or after an object went unseen inside
-    the image: ``pair``'s ball, docs/motion.md), or is dropped: two of the static model's
-    errors are not an object together, and one at a border is not an object coming back."""
+    A ``faint`` track, too faint to be an object by itself, joins only a track that it
+    ``_resumes`` or that resumes it (the spell before or after an object went unseen inside
+    the image: ``pair``'s ball, docs/motion.md), not one through the border (the static model's
+    errors lie along the border on ``still``); faint tracks joined only to each other are kept
+    where their ``evidence`` together passes ``s.min_evidence``, the rest dropped."""
     out: list[Track] = []
     weak = {id(t) for t in faint}
 
     def joins(gone: Track, back: Track) -> int | None:
-        pair = {id(gone), id(back)} & weak
-        if len(pair) == 2:
-            return None
-        return _returns(gone, back, s, through_border=not pair)
+        return _returns(gone, back, s, through_border=not {id(gone), id(back)} & weak)
 
     for track in sorted([*tracks, *faint], key=lambda t: min(t.blobs)):
         exits = [(o, a) for o in out if (a := joins(o, track)) is not None]
@@ -281,8 +283,9 @@ def _rejoined(tracks: list[Track], faint: list[Track], s: MoverConfig) -> list[T
         home, a = max(exits, key=lambda e: max(e[0].blobs))
         home.blobs = {k: b for k, b in home.blobs.items() if k <= a}
         _absorb(home, track)
-        weak.discard(id(home))  # joined to an object: part of it
-    return [t for t in out if id(t) not in weak]
+        if id(track) not in weak:
+            weak.discard(id(home))  # joined to an object: part of it
+    return [t for t in out if id(t) not in weak or evidence(t, s) >= s.min_evidence]
 
 
 def _returns(gone: Track, back: Track, s: MoverConfig, through_border: bool = True) -> int | None:
