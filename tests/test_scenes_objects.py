@@ -44,7 +44,7 @@ def test_each_object_group_is_one_object_and_ungrouped_movers_are_their_own():
     assert [o.parts for o in grouped.objects] == [(2,), (3,), (4,)]
 
 
-@pytest.mark.parametrize("name", NEW)
+@pytest.mark.parametrize("name", [*NEW, "pair", "paddle", "approach"])
 def test_new_scenes_movers_are_visible_at_tiny_size_and_move(name):
     scene = get_scene(name, tiny=True)
     assert (scene.width, scene.height) == (96, 96) and scene.description
@@ -56,7 +56,7 @@ def test_new_scenes_movers_are_visible_at_tiny_size_and_move(name):
         centres = np.stack([scene.object_centre(int(t), k) for t in times])
         moved = np.linalg.norm(centres - centres[0], axis=1).max()
         changed = max((m ^ masks[0]).sum() for m in masks)
-        assert moved > 0.3 or (name == "spinner" and changed > 0.5 * masks[0].sum())
+        assert moved > 0.3 or (name in ("spinner", "paddle") and changed > 0.5 * masks[0].sum())
 
 
 @pytest.mark.parametrize("name", NEW)
@@ -84,6 +84,20 @@ def test_enter_leave_one_object_enters_and_the_other_leaves():
     start, end = scene.object_masks(0), scene.object_masks(scene.duration_us)
     assert not start[0].any() and end[0].sum() > 100  # the sphere enters
     assert start[1].sum() > 100 and not end[1].any()  # the box leaves
+
+
+def test_approach_box_halts_and_ball_grows_along_its_ray():
+    scene = get_scene("approach", tiny=True)
+    box, ball = (p for p in scene.primitives if p.moving)
+    np.testing.assert_array_equal(box.pose(0.23), box.pose(0.39))  # the halt
+    assert not np.allclose(box.pose(0.1), box.pose(0.23))
+    assert not np.allclose(box.pose(0.39), box.pose(0.5))
+    first, last = scene.object_masks(0)[1], scene.object_masks(scene.duration_us)[1]
+    assert last.sum() > 2 * first.sum()  # 4.3 m to 2.7 m: (4.3 / 2.7)^2 = 2.5 times the area
+    # Seen from the camera path's centre, its bearing turns by less than its first angular
+    # radius: it moves along its ray (the camera's own motion still moves it in the picture).
+    (x0, y0, z0), (x1, y1, z1) = ball.pose(0.0)[:3, 3], ball.pose(0.6)[:3, 3]
+    assert np.hypot(x1 / z1 - x0 / z0, y1 / z1 - y0 / z0) < scene.object_radius(1) / z0
 
 
 @pytest.fixture(scope="module")

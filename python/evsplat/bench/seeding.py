@@ -29,7 +29,16 @@ from evsplat.bench.train import Case, fmt, machine_info, simulate_cases
 
 HELP = "the seeding's objects against the simulator's true paths, per scene and setting"
 TIMES = 49  # scoring times spread over the sequence (about one per segmentation window)
-DEFAULT_SCENES = ("ball", "crossing", "tumble", "spinner", "watch", "enter_leave", "pair")
+DEFAULT_SCENES = (
+    "ball",
+    "crossing",
+    "tumble",
+    "spinner",
+    "watch",
+    "enter_leave",
+    "pair",
+    "approach",
+)
 
 
 @dataclass

@@ -34,34 +34,47 @@ def paddle() -> dict:
     )
 
 
-def pair() -> dict:
-    """A long checkered bar sliding diagonally down while it tilts, and a mottled ball behind
-    it crossing the other way, green on a grey-green wall."""
+def approach() -> dict:
+    """A box that slides, halts and slides on (a mover that stops: its halt fires only the
+    camera's events, as the wall does), and a ball coming toward the camera along its ray, so
+    it grows (4.3 m to 2.7 m over the tiny variant's 0.6 s) while its bearing barely turns: it
+    moves in the picture about as much as the camera's motion moves the wall."""
 
-    def bar_pose(t: float) -> np.ndarray:
-        return trans(-0.55 + 1.6 * t, -0.35 + 0.7 * t, 2.7) @ rot("z", 0.4 + 1.5 * t)
+    def ease(u: float) -> float:
+        u = min(max(u, 0.0), 1.0)
+        return u * u * (3.0 - 2.0 * u)
+
+    def box_pose(t: float) -> np.ndarray:
+        x = (
+            -0.55
+            + 0.45 * ease(t / 0.22)
+            + 0.4 * ease((t - 0.4) / 0.22)
+            - 0.3 * ease((t - 0.75) / 0.2)
+        )
+        return trans(x, 0.25, 3.0) @ rot("y", 0.5 + 1.2 * x) @ rot("x", 0.25)
 
     def ball_pose(t: float) -> np.ndarray:
-        return trans(0.6 - 1.9 * t, 0.3 - 0.15 * t, 3.2) @ rot("y", 4.0 * t)
+        return trans(0.35 - 0.3 * t, -0.3 + 0.25 * t, 4.3 - 2.6 * t) @ rot("y", 4.0 * t)
 
     prims = room(
-        [(0.35, 0.45, 0.35), (0.25, 0.32, 0.27), (0.55, 0.6, 0.5), (0.18, 0.22, 0.2)], seed=13
+        [(0.45, 0.42, 0.3), (0.3, 0.28, 0.2), (0.6, 0.58, 0.45), (0.2, 0.2, 0.15)], seed=19
     )
-    bar = checker(6.0, 2.0, (0.95, 0.5, 0.1), (0.15, 0.1, 0.1), scale=(0.6, 0.14))
-    ball = noise(7, 5.0, 2, (0.3, 0.7, 0.35), (0.35, 0.3, 0.3))
+    box = checker(4.0, 3.0, (0.1, 0.6, 0.65), (0.5, 0.1, 0.2), scale=(0.4, 0.26))
+    ball = noise(23, 6.0, 2, (0.8, 0.35, 0.3), (0.2, 0.25, 0.2))
     prims += [
-        Primitive("quad", (0.3, 0.07), bar_pose, bar, True, "bar"),
-        Primitive("sphere", (0.2,), ball_pose, ball, True, "ball"),
+        Primitive("box", (0.2, 0.13, 0.1), box_pose, box, True, "box"),
+        Primitive("sphere", (0.18,), ball_pose, ball, True, "ball"),
     ]
     return dict(
         description=(
-            "held out: an orange-and-black bar (0.6 x 0.14 m) sliding diagonally while it tilts, "
-            "and a mottled green ball crossing the other way behind it, on a grey-green wall"
+            "held out: a checkered box that slides, halts for 0.18 s and slides on, and a "
+            "mottled red ball coming toward the camera (4.3 to 2.7 m in 0.6 s) while its bearing "
+            "barely turns, on a tiled olive wall"
         ),
         primitives=prims,
-        camera=camera_path(0.14, 0.09, 0.05, 0.04, 1.35),
+        camera=camera_path(0.15, 0.1, 0.055, 0.04, 1.25),
         base_size=(400, 400),
     )
 
 
-SCENES = {"paddle": paddle, "pair": pair}
+SCENES = {"paddle": paddle, "approach": approach}
