@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from evsplat.config import MoverConfig
 from evsplat.model.motion import BEHIND, FREE, ObjectMotion, quat_multiply, rotvec_to_quat
-from evsplat.motion import border
+from evsplat.motion import border, seed
 from evsplat.motion.align import align
 from evsplat.motion.paths import hops, steadied, turn_angles, turns, two_ends
 from evsplat.motion.seed import (
@@ -982,3 +982,31 @@ def test_a_cut_regions_whole_pixel_search_matches_pixel_by_pixel_overlaps():
         steps = np.arange(-reach, reach + 1, dtype=np.float64)
         want = border._best(offsets, seen, seen.centre, steps)
         np.testing.assert_allclose(border._coarse(shape, seen, reach), want)
+
+
+def test_a_turn_seen_in_a_few_windows_is_not_held_across_those_that_show_none(monkeypatch):
+    # A bar whose windows mostly show no turn (its events sharpen by under turn_min_gain) and
+    # 4.5 rad/s in three (where the border cuts it, `pair`): the turn is integrated with no
+    # turn between, not 4.5 rad/s held over the whole track. Where the middle windows hold no
+    # events, nothing is known there and the rate is carried.
+    windows = np.arange(20)
+    track = _tip_track(np.array([20.0, 40.0]), np.zeros(2), windows, np.ones(20), (1, 0))
+    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=400_000))
+    clear = {0, 20_000, 380_000}  # the windows whose events a turn sharpens
+    now = []
+
+    def carried(views, t_us, half_us, velocity):  # 60 events on the region's centre
+        now.append(t_us)
+        xy = np.tile(track.blobs[t_us // 20_000].centre, (60, 1))
+        return (xy, np.zeros(60), np.ones(60), xy) if events or t_us in clear else None
+
+    def turn_rate(window, centre, velocity, top, shape):
+        return (4.5, 1.0) if now[-1] in clear else (0.4, 0.01)
+
+    monkeypatch.setattr(seed, "turn_rate", turn_rate)
+    monkeypatch.setattr(seed, "carried", carried)
+    spacing_s = 20_000 * 1e-6
+    events = True
+    assert abs(seed.turning(views, track, MoverConfig())[3][-1]) <= 4.5 * 3 * spacing_s
+    events = False
+    assert np.isclose(seed.turning(views, track, MoverConfig())[3][-1], 4.5 * 19 * spacing_s)

@@ -239,8 +239,10 @@ def carried(
 
 def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
     """The object's turn rate (rad/s) at each sighting: ``turn.turn_rate`` on the events of a
-    ``mc.turn_window`` window that its region holds, carried back by its image velocity; NaN
-    where the turn sharpens them by less than ``mc.turn_min_gain``."""
+    ``mc.turn_window`` window that its region holds, carried back by its image velocity; 0
+    where the turn sharpens them by less than ``mc.turn_min_gain`` (no turn seen: a rate held
+    across such windows from a few others turned `pair`'s bar three times too fast), NaN where
+    fewer than ``mc.turn_min_events`` are in it."""
     half_us, top = turn_window(views, mc)
     times, centres = track.times_us, track.centres
     velocity = np.gradient(centres, times * 1e-6, axis=0) if len(times) > 1 else 0.0 * centres
@@ -258,9 +260,13 @@ def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
             continue
         window = WindowEvents(xy[inside], dt[inside], p[inside])
         rate, gain = turn_rate(window, track.blobs[k].centre, velocity[i], top, mask.shape)
-        if gain >= mc.turn_min_gain:
-            out[i] = rate
+        out[i] = rate if gain >= mc.turn_min_gain else 0.0
     return out
+
+
+def turned(rates: np.ndarray) -> np.ndarray:
+    """[F] bool: the sightings whose events show a turn (``turn_rates`` neither NaN nor 0)."""
+    return np.isfinite(rates) & (rates != 0)
 
 
 def turn_window(views: Views, mc: MoverConfig) -> tuple[int, float]:
@@ -368,14 +374,14 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
     from the first sighting, 0 with too few rates; with two ends, from a steady turn)."""
     ks, times = np.array(sorted(track.blobs)), track.times_us
     rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
-    used, seen = np.isfinite(rates), np.zeros(len(ks))
-    if used.sum() >= mc.turn_min_windows:
+    used, shown, seen = np.isfinite(rates), turned(rates), np.zeros(len(ks))
+    if shown.sum() >= mc.turn_min_windows:
         seen = turn_angles(times[used], rates[used], times, min(times))
     found = two_ends(ks, track.centres, seen, track.radius, mc.coast)
-    if (found[1] < 0).any() and used.sum() >= mc.turn_min_windows:
+    if (found[1] < 0).any() and shown.sum() >= mc.turn_min_windows:
         # Its regions are its ends, whose rates stray (-17 to +30 rad/s late in the spinner's
         # 8, docs/motion.md): a steady turn at their median instead, read again at the hops.
-        steady = np.median(rates[used]) * (times - times[0]) * 1e-6
+        steady = np.median(rates[shown]) * (times - times[0]) * 1e-6
         again = two_ends(ks, track.centres, steady, track.radius, mc.coast)
         found = again if (again[1] < 0).any() else found
     return rates, *found
@@ -557,15 +563,15 @@ def seed_objects(
         ks, ref = sorted(track.blobs), reference(track)
         t_ref, r = int(track.blobs[ref].t_us), ks.index(ref)
         radius = track.radius * depth / focal
-        used, seen = np.isfinite(rates), seen - seen[r]
+        used, shown, seen = np.isfinite(rates), turned(rates), seen - seen[r]
         angles = np.zeros(len(knots))  # at the knots
         if (end < 0).any():  # the turn its two ends show, beyond its sightings at its median rate
             angles = np.interp(knots, track.times_us, seen)
-            if used.any():  # as a measured turn is carried on at the rate measured last
+            if shown.any():  # as a measured turn is carried on at the rate measured last
                 t = track.times_us.astype(np.float64)
                 beyond = np.minimum(knots - t[0], 0.0) + np.maximum(knots - t[-1], 0.0)
-                angles += float(np.median(rates[used])) * beyond * 1e-6
-        elif used.sum() >= mc.turn_min_windows:
+                angles += float(np.median(rates[shown])) * beyond * 1e-6
+        elif shown.sum() >= mc.turn_min_windows:
             angles = turn_angles(track.times_us[used], rates[used], knots, t_ref)
         ball = sphere_turn(views, track, middle, knots, t_ref, mc)
         if ball is not None:  # its front at depth, its outline ``radius_px`` seen from there
@@ -610,10 +616,10 @@ def seed_objects(
         spans.append(in_view(held, knots, edges, extent, views))
         in_plane = angles[:, None] * pose_ref[:3, 2][None]  # about the viewing axis
         rotvecs.append(in_plane if ball is None else ball.rotvecs)
-        rate = float(np.nanmedian(rates)) if used.any() else 0.0
+        rate = float(np.median(rates[shown])) if shown.any() else 0.0
         numbers = {"windows": len(ks), "ends": 1 + (end < 0).any(), "depth": depth}
         numbers |= {"radius_px": track.radius, "gaussians": len(pick)}
-        numbers |= {"turn_windows": used.sum(), "turn_rate": rate, "sphere": ball is not None}
+        numbers |= {"turn_windows": shown.sum(), "turn_rate": rate, "sphere": ball is not None}
         stats |= {f"object{first + k}_{name}": float(v) for name, v in numbers.items()}
         references_us[first + k] = t_ref
     if still:
