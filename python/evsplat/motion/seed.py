@@ -564,13 +564,13 @@ def seed_objects(
         t_ref, r = int(track.blobs[ref].t_us), ks.index(ref)
         radius = track.radius * depth / focal
         used, shown, seen = np.isfinite(rates), turned(rates), seen - seen[r]
+        rate = float(np.median(rates[shown])) if shown.any() else 0.0
         angles = np.zeros(len(knots))  # at the knots
         if (end < 0).any():  # the turn its two ends show, beyond its sightings at its median rate
             angles = np.interp(knots, track.times_us, seen)
-            if shown.any():  # as a measured turn is carried on at the rate measured last
-                t = track.times_us.astype(np.float64)
-                beyond = np.minimum(knots - t[0], 0.0) + np.maximum(knots - t[-1], 0.0)
-                angles += float(np.median(rates[shown])) * beyond * 1e-6
+            t = track.times_us.astype(np.float64)  # carried on as a measured turn is
+            beyond = np.minimum(knots - t[0], 0.0) + np.maximum(knots - t[-1], 0.0)
+            angles += rate * beyond * 1e-6
         elif shown.sum() >= mc.turn_min_windows:
             angles = turn_angles(track.times_us[used], rates[used], knots, t_ref)
         ball = sphere_turn(views, track, middle, knots, t_ref, mc)
@@ -616,7 +616,6 @@ def seed_objects(
         spans.append(in_view(held, knots, edges, extent, views))
         in_plane = angles[:, None] * pose_ref[:3, 2][None]  # about the viewing axis
         rotvecs.append(in_plane if ball is None else ball.rotvecs)
-        rate = float(np.median(rates[shown])) if shown.any() else 0.0
         numbers = {"windows": len(ks), "ends": 1 + (end < 0).any(), "depth": depth}
         numbers |= {"radius_px": track.radius, "gaussians": len(pick)}
         numbers |= {"turn_windows": shown.sum(), "turn_rate": rate, "sphere": ball is not None}
