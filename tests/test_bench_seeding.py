@@ -81,6 +81,11 @@ def test_turn_error_is_the_angle_between_the_seeded_and_the_true_turn_from_the_r
     none = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))  # not turned: off by 5 rad/s x |t - 0|
     want = np.degrees(np.median(5.0 * t))
     assert turn_error(none, true, seen) == pytest.approx(want, rel=1e-6)
+    # Placed at 0.2 s (its seeded shift is zero there): its missing turn counts from there.
+    shift = np.abs(t - 0.2)
+    want = np.degrees(np.median(5.0 * np.abs(t - 0.2)))
+    assert turn_error(none, true, seen, shift) == pytest.approx(want, rel=1e-6)
+    assert turn_error(np.roll(exact, 1, axis=1), true, seen, shift) == pytest.approx(0, abs=1e-6)
     assert turn_error(none, true, np.zeros(len(t), dtype=bool)) is None
 
 

@@ -118,16 +118,23 @@ def follow_score(index: np.ndarray, offset: np.ndarray, seen: np.ndarray) -> tup
     return order, *(float(q) for q in quantiles), float(missed)
 
 
-def turn_error(seeded: np.ndarray, truth: np.ndarray, seen: np.ndarray) -> float | None:
+def turn_error(
+    seeded: np.ndarray, truth: np.ndarray, seen: np.ndarray, shift: np.ndarray | None = None
+) -> float | None:
     """Median angle (degrees) over the times ``seen`` [T] between the seeded turns ``seeded``
     [T,4] (unit quaternions w, x, y, z, world frame) and the true orientations ``truth``
-    [T,3,3], both taken from the time the seeded turn is least."""
+    [T,3,3], both taken from the object's reference time: where its seeded turn is least and,
+    of those times, its seeded ``shift`` [T] (translation length) least. Both are zero where
+    it was placed; an object seeded with no turn has its least turn at every time, and its
+    error counted from the first one would grow with how far that lies from its placing."""
     from scipy.spatial.transform import Rotation
 
     if not seen.any():
         return None
     mine = Rotation.from_quat(np.roll(seeded, -1, axis=1))  # scipy: x, y, z, w
-    ref = int(np.argmin(mine.magnitude()))
+    angle = mine.magnitude()
+    least = np.flatnonzero(angle <= angle.min() + 1e-9)
+    ref = int(least[np.argmin(shift[least])] if shift is not None else least[0])
     true = Rotation.from_matrix(truth) * Rotation.from_matrix(truth[ref]).inv()
     return float(np.degrees(np.median((mine.inv() * true).magnitude()[seen])))
 
@@ -181,13 +188,14 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
         seconds = time.perf_counter() - start
         motion = trainer.renderer.motion
         found, drawn = np.zeros((0, len(times), 2)), np.zeros((0, len(times)), dtype=bool)
-        turned = np.zeros((0, len(times), 4))
+        turned, shifts = np.zeros((0, len(times), 4)), np.zeros((0, len(times)))
         if motion is not None:
             clock = [trainer.renderer.time(t) for t in times]
             with torch.no_grad():
                 paths = [motion.at(u) for u in clock]  # (turns, translations) at each time
                 at = [(motion.centres + trans).cpu().numpy() for _, trans in paths]
                 turned = np.stack([turn.double().cpu().numpy() for turn, _ in paths], 1)
+                shifts = np.stack([t.norm(dim=-1).double().cpu().numpy() for _, t in paths], 1)
                 spans = motion.spans.cpu().numpy()
             found = np.stack(
                 [project(c.astype(np.float64), p, data.K)[0] for c, p in zip(at, poses)], 1
@@ -203,7 +211,8 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
             seen = (truth >= 0).all(1) & (truth[:, 0] < data.width) & (truth[:, 1] < data.height)
             score = follow_score(*nearest(found, drawn, truth), seen)
             rot = np.stack([simulated.object_pose(t, index[track.name])[:3, :3] for t in times])
-            turn = turn_error(turned[score[0][0]], rot, seen) if score[0] else None
+            k = score[0][0] if score[0] else None
+            turn = turn_error(turned[k], rot, seen, shifts[k]) if k is not None else None
             out.append(Score(scene, setting, len(found), track.name, *score, turn, seconds))
     return out
 
