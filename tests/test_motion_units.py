@@ -16,7 +16,7 @@ from evsplat.config import MoverConfig
 from evsplat.model.motion import BEHIND, FREE, ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border, seed
 from evsplat.motion.align import align
-from evsplat.motion.paths import hops, steadied, turn_angles, turns, two_ends
+from evsplat.motion.paths import despiked, hops, steadied, turn_angles, turns, two_ends
 from evsplat.motion.seed import (
     between_placed,
     ends_offset,
@@ -586,6 +586,30 @@ def test_turn_rate_recovers_the_spin_of_a_translating_textured_card():
     still = WindowEvents(centre + marks + velocity * dt[:, None], dt, ev.p)
     found, _ = turn_rate(still, centre, velocity, 1.0 / 0.03, (96, 96))
     assert abs(found) < 1.0
+
+
+def test_a_sighting_that_jumps_off_and_straight_back_is_read_from_its_neighbours():
+    # An object sliding 2 px per window (windows 0-19, one missed) and wobbling by up to half a
+    # pixel; at window 8 its track took a region 28 px off (a piece of it, or of another).
+    rng = np.random.default_rng(0)
+    windows = np.array([k for k in range(20) if k != 12])
+    truth = np.stack([10.0 + 2.0 * windows, 40.0 + 0.5 * windows], 1)
+    seen = truth + rng.uniform(-0.5, 0.5, truth.shape)
+    spiked = seen.copy()
+    spiked[8] += [3.0, -28.0]
+    out = despiked(windows, spiked)
+    assert np.linalg.norm(out[8] - truth[8]) < 1.0
+    assert np.array_equal(np.delete(out, 8, 0), np.delete(spiked, 8, 0))  # the rest as seen
+    # Motion, not a spike: a bounce (it turns back) and a jump to a new line are kept.
+    bounce = np.stack([10.0 + 2.0 * np.minimum(windows, 20 - windows), 40.0 + 0 * windows], 1)
+    assert np.array_equal(despiked(windows, bounce), bounce)
+    moved = seen.copy()
+    moved[8:] += [0.0, -28.0]
+    assert np.array_equal(despiked(windows, moved), moved)
+    # Two sightings off in a row are not one spike: kept.
+    twice = seen.copy()
+    twice[8:10] += [0.0, -28.0]
+    assert np.array_equal(despiked(windows, twice), twice)
 
 
 def test_turn_angles_integrate_the_rates():

@@ -53,6 +53,25 @@ def steadied(
     return out
 
 
+def despiked(windows: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """The ``centres`` [F,2] sighted at ``windows`` [F] with each that jumps off and straight
+    back (both its steps over ``JUMP`` x the median step, its two neighbours within that of
+    each other) on the line between its neighbours: a region of a piece of its object, or of
+    another, taken for one window (the clock's bells, 28 px above its centre, drew it doubled)."""
+    out = centres.astype(np.float64, copy=True)
+    step = step_lengths(windows, centres)
+    if step.size < 2:
+        return out
+    limit = JUMP * float(np.median(step))
+    for i in range(1, len(centres) - 1):
+        gap = windows[i + 1] - windows[i - 1]
+        back = np.linalg.norm(centres[i + 1] - centres[i - 1]) / gap
+        if step[i - 1] > limit and step[i] > limit and back <= limit:
+            u = (windows[i] - windows[i - 1]) / gap
+            out[i] = (1 - u) * centres[i - 1] + u * centres[i + 1]
+    return out
+
+
 def turns(angles: np.ndarray | float) -> np.ndarray:
     """[...,2,2] image-plane rotations (x right, y down) by ``angles`` [...] (rad)."""
     c, s = np.cos(angles), np.sin(angles)

@@ -18,7 +18,7 @@ from evsplat.model.motion import BEHIND, ObjectMotion, knot_times_us
 from evsplat.motion import sphere
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
-from evsplat.motion.paths import hops, steadied, turn_angles, turns, two_ends
+from evsplat.motion.paths import despiked, hops, steadied, turn_angles, turns, two_ends
 from evsplat.motion.segment import (
     Blob,
     apart,
@@ -384,6 +384,8 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
         steady = np.median(rates[shown]) * (times - times[0]) * 1e-6
         again = two_ends(ks, track.centres, steady, track.radius, mc.coast)
         found = again if (again[1] < 0).any() else found
+    if not (found[1] < 0).any():  # one end: no hop is its motion
+        found = (despiked(ks, found[0]), *found[1:])
     return rates, *found
 
 
