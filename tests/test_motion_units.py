@@ -597,19 +597,25 @@ def test_a_sighting_that_jumps_off_and_straight_back_is_read_from_its_neighbours
     seen = truth + rng.uniform(-0.5, 0.5, truth.shape)
     spiked = seen.copy()
     spiked[8] += [3.0, -28.0]
-    out = despiked(windows, spiked)
+    out = despiked(windows, spiked, 3)
     assert np.linalg.norm(out[8] - truth[8]) < 1.0
     assert np.array_equal(np.delete(out, 8, 0), np.delete(spiked, 8, 0))  # the rest as seen
     # Motion, not a spike: a bounce (it turns back) and a jump to a new line are kept.
     bounce = np.stack([10.0 + 2.0 * np.minimum(windows, 20 - windows), 40.0 + 0 * windows], 1)
-    assert np.array_equal(despiked(windows, bounce), bounce)
+    assert np.array_equal(despiked(windows, bounce, 3), bounce)
     moved = seen.copy()
     moved[8:] += [0.0, -28.0]
-    assert np.array_equal(despiked(windows, moved), moved)
-    # Two sightings off in a row are not one spike: kept.
-    twice = seen.copy()
-    twice[8:10] += [0.0, -28.0]
-    assert np.array_equal(despiked(windows, twice), twice)
+    assert np.array_equal(despiked(windows, moved, 3), moved)
+    # Three sightings off in a row (across the missed window) are put back too; four, longer
+    # than ``longest``, are kept.
+    thrice = seen.copy()
+    thrice[9:12] += [0.0, -28.0]
+    out = despiked(windows, thrice, 3)
+    assert np.abs(out[9:12] - truth[9:12]).max() < 1.5
+    assert np.array_equal(np.delete(out, [9, 10, 11], 0), np.delete(thrice, [9, 10, 11], 0))
+    four = seen.copy()
+    four[8:12] += [0.0, -28.0]
+    assert np.array_equal(despiked(windows, four, 3), four)
 
 
 def test_turn_angles_integrate_the_rates():

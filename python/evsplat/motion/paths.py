@@ -53,22 +53,27 @@ def steadied(
     return out
 
 
-def despiked(windows: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """The ``centres`` [F,2] sighted at ``windows`` [F] with each that jumps off and straight
-    back (both its steps over ``JUMP`` x the median step, its two neighbours within that of
-    each other) on the line between its neighbours: a region of a piece of its object, or of
-    another, taken for one window (the clock's bells, 28 px above its centre, drew it doubled)."""
+def despiked(windows: np.ndarray, centres: np.ndarray, longest: int) -> np.ndarray:
+    """The ``centres`` [F,2] sighted at ``windows`` [F] with each run of at most ``longest``
+    sightings that jumps off and straight back (its steps in and out both over ``JUMP`` x the
+    median step, the sightings before and after it within that of each other) on the line
+    between those two: a region of a piece of its object, or of another, taken for a window or
+    a few (the clock's bells, 28 px above its centre, drew it doubled)."""
     out = centres.astype(np.float64, copy=True)
     step = step_lengths(windows, centres)
     if step.size < 2:
         return out
     limit = JUMP * float(np.median(step))
-    for i in range(1, len(centres) - 1):
-        gap = windows[i + 1] - windows[i - 1]
-        back = np.linalg.norm(centres[i + 1] - centres[i - 1]) / gap
-        if step[i - 1] > limit and step[i] > limit and back <= limit:
-            u = (windows[i] - windows[i - 1]) / gap
-            out[i] = (1 - u) * centres[i - 1] + u * centres[i + 1]
+    i = 1
+    while i < len(centres) - 1:
+        for j in range(i + 1, min(i + longest, len(centres) - 1) + 1):  # the first one after
+            back = np.linalg.norm(centres[j] - centres[i - 1]) / (windows[j] - windows[i - 1])
+            if step[i - 1] > limit and step[j - 1] > limit and back <= limit:
+                u = (windows[i:j] - windows[i - 1]) / (windows[j] - windows[i - 1])
+                out[i:j] = (1 - u[:, None]) * centres[i - 1] + u[:, None] * centres[j]
+                i = j
+                break
+        i += 1
     return out
 
 

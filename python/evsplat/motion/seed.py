@@ -385,7 +385,7 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
         again = two_ends(ks, track.centres, steady, track.radius, mc.coast)
         found = again if (again[1] < 0).any() else found
     if not (found[1] < 0).any():  # one end: no hop is its motion
-        found = (despiked(ks, found[0]), *found[1:])
+        found = (despiked(ks, found[0], mc.coast), *found[1:])  # as long as it may go unseen
     return rates, *found
 
 
