@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evsplat.motion.tracks import JUMP, step_lengths
+from evsplat.motion.tracks import JUMP, filled, step_lengths
 
 #: A region cut by the border to under half its object's area is a sliver, its centre the least
 #: sure: `enter_leave`'s sphere's first three (44-166 px of about 380) 4.3-9.5 px off, the demo's
@@ -59,22 +59,24 @@ def despiked(windows: np.ndarray, centres: np.ndarray, longest: int) -> np.ndarr
     median step, the sightings before and after it within that of each other) on the line
     between those two: a region of a piece of its object, or of another, taken for a window or
     a few (the clock's bells, 28 px above its centre, drew it doubled)."""
-    out = centres.astype(np.float64, copy=True)
     step = step_lengths(windows, centres)
     if step.size < 2:
-        return out
+        return centres.astype(np.float64, copy=True)
     limit = JUMP * float(np.median(step))
-    i = 1
-    while i < len(centres) - 1:
-        for j in range(i + 1, min(i + longest, len(centres) - 1) + 1):  # the first one after
-            back = np.linalg.norm(centres[j] - centres[i - 1]) / (windows[j] - windows[i - 1])
-            if step[i - 1] > limit and step[j - 1] > limit and back <= limit:
-                u = (windows[i:j] - windows[i - 1]) / (windows[j] - windows[i - 1])
-                out[i:j] = (1 - u[:, None]) * centres[i - 1] + u[:, None] * centres[j]
-                i = j
-                break
+    off = np.zeros(len(centres), dtype=bool)
+    last, i = len(centres) - 1, 1
+
+    def back(j: int) -> bool:  # the step in at j is a jump, and j lies where i - 1 does
+        gap = windows[j] - windows[i - 1]
+        return step[j - 1] > limit and np.linalg.norm(centres[j] - centres[i - 1]) / gap <= limit
+
+    while i < last:
+        if step[i - 1] > limit:  # it jumps off at i: back at the first j after it that returns
+            j = next((j for j in range(i + 1, min(i + longest, last) + 1) if back(j)), None)
+            if j is not None:
+                off[i:j], i = True, j
         i += 1
-    return out
+    return filled(windows.astype(np.float64), ~off, centres.astype(np.float64))
 
 
 def turns(angles: np.ndarray | float) -> np.ndarray:
