@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evsplat.motion.tracks import JUMP, filled, step_lengths
+from evsplat.motion.tracks import filled, jump_limit, step_lengths
 
 #: A region cut by the border to under half its object's area is a sliver, its centre the least
 #: sure: `enter_leave`'s sphere's first three (44-166 px of about 380) 4.3-9.5 px off, the demo's
@@ -62,17 +62,18 @@ def despiked(windows: np.ndarray, centres: np.ndarray, longest: int) -> np.ndarr
     step = step_lengths(windows, centres)
     if step.size < 2:
         return centres.astype(np.float64, copy=True)
-    limit = JUMP * float(np.median(step))
+    limit = jump_limit(step)
     off = np.zeros(len(centres), dtype=bool)
     last, i = len(centres) - 1, 1
 
-    def back(j: int) -> bool:  # the step in at j is a jump, and j lies where i - 1 does
-        gap = windows[j] - windows[i - 1]
-        return step[j - 1] > limit and np.linalg.norm(centres[j] - centres[i - 1]) / gap <= limit
+    def back(before: int, j: int) -> bool:  # the step in at j is a jump, to where ``before`` is
+        gap = windows[j] - windows[before]
+        return step[j - 1] > limit and np.linalg.norm(centres[j] - centres[before]) / gap <= limit
 
     while i < last:
         if step[i - 1] > limit:  # it jumps off at i: back at the first j after it that returns
-            j = next((j for j in range(i + 1, min(i + longest, last) + 1) if back(j)), None)
+            ahead = range(i + 1, min(i + longest, last) + 1)
+            j = next((j for j in ahead if back(i - 1, j)), None)
             if j is not None:
                 off[i:j], i = True, j
         i += 1
@@ -94,7 +95,7 @@ def hops(
     arm's fastest steps, 6.4 px against a limit of 6.2, are not hops; docs/motion.md); that
     limit, px per window)."""
     step, gap = step_lengths(windows, centres), np.diff(windows)
-    limit = JUMP * float(np.median(step)) if step.size else 0.0
+    limit = jump_limit(step)
     return (step > limit) & (gap <= coast + 1) & (step * gap >= radius), limit
 
 
@@ -119,8 +120,8 @@ def two_ends(
     drift = np.unwrap(np.angle(np.exp(1j * (read - 0.5 * (angles[:-1] + angles[1:])[hop]))))
     angles = angles + np.interp(windows, 0.5 * (windows[:-1] + windows[1:])[hop], drift)
     middle, d = _about_centre(centres, end, hop, angles)
-    moved = step_lengths(windows, middle)  # a hop left: over JUMP x the centre's own median step
-    left = (moved[hop] > JUMP * np.median(moved)).any()
+    moved = step_lengths(windows, middle)  # a hop left: a jump of the centre's own steps
+    left = (moved[hop] > jump_limit(moved)).any()
     return none if left or np.linalg.norm(d) < radius else (middle, end, angles)
 
 

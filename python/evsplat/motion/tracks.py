@@ -33,6 +33,12 @@ def step_lengths(windows: np.ndarray, centres: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.diff(centres, axis=0), axis=1) / np.diff(windows)
 
 
+def jump_limit(steps: np.ndarray | list[float]) -> float:
+    """The longest of a track's ``steps`` [F-1] (px per window) that is its own motion: ``JUMP`` x
+    their median (0 with none)."""
+    return JUMP * float(np.median(steps)) if len(steps) else 0.0
+
+
 @dataclass
 class Track:
     """One object's regions by window index, and the windows whose region it shared with
@@ -97,7 +103,7 @@ class Track:
             return last, 0.0
         velocity = (self.blobs[own[-1]].centre - self.blobs[own[-2]].centre) / (own[-1] - own[-2])
         speed = float(np.linalg.norm(velocity))
-        held = min(speed, JUMP * float(np.median(self.steps)))
+        held = min(speed, jump_limit(self.steps))
         return last + velocity * (held / max(speed, 1e-9)) * (window - ks[-1]), held
 
 
