@@ -265,6 +265,23 @@ def test_a_faint_track_is_noise_under_a_moving_camera_and_an_object_under_a_stil
     assert sorted(track.blobs) == list(range(14))
 
 
+def test_a_track_never_clear_of_the_border_is_no_object_and_one_that_comes_in_is():
+    # A region wobbling in the corner for 20 windows, cut by the border in every one (the
+    # scene's edge coming into view as the camera moves), and a disc sliding in through the
+    # left border until it is whole: both fire strongly; only the second is an object.
+    shape = (96, 128)
+    per_window = [
+        [
+            _disc_blob(shape, k, (124.0 + (k % 3), 92.0 - (k % 2)), 7.0),
+            _disc_blob(shape, k, (-6.0 + 2.0 * k, 40.0), 8.0),
+        ]
+        for k in range(20)
+    ]
+    (track,) = chain(per_window, TRACKS)
+    assert all(track.blobs[k].centre[1] == 40.0 for k in track.blobs)
+    assert not all(border.touches_border(b.mask) for b in track.blobs.values())
+
+
 def test_faint_spells_of_an_object_join_it_where_their_evidence_together_passes():
     # A disc is seen for 8 windows, lost for 12 (it passes something that fires more) and seen
     # again on its course for 8. Its first spell peaks 2 robust sigmas over `high` (16 of

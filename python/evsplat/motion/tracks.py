@@ -138,6 +138,9 @@ def chain(per_window: list[list[Blob]], s: MoverConfig, still: bool = False) -> 
     least = 0.0 if still else s.min_evidence
     long = [(t, evidence(t, s) >= least) for t in pieces if len(t.blobs) >= s.min_windows]
     kept = _rejoined([t for t, sure in long if sure], [t for t, sure in long if not sure], s)
+    # Never seen clear of the border: the scene's edge coming into view (the demo's and blobs'
+    # corners, docs/motion.md "Tracks at the border"), or an object never seen whole to size.
+    kept = [t for t in kept if not all(touches_border(b.mask) for b in t.blobs.values())]
     for track in kept:  # shared with another object (not noise, nor a piece of its own)
         others = [o.hidden for o in kept if o is not track]
         track.shared = {k for k, b in track.blobs.items() if any(h.get(k) is b for h in others)}
