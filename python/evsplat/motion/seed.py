@@ -30,7 +30,7 @@ from evsplat.motion.segment import (
 )
 from evsplat.motion.still import behind_objects, is_still
 from evsplat.motion.tracks import Track, chain, filled, together
-from evsplat.motion.turn import WindowEvents, turn_rate
+from evsplat.motion.turn import WindowEvents, steady, turn_rate
 from evsplat.projection import back_project, project
 from evsplat.render import RenderOut
 from evsplat.train.views import Views
@@ -242,7 +242,8 @@ def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
     ``mc.turn_window`` window that its region holds, carried back by its image velocity; 0
     where the turn sharpens them by less than ``mc.turn_min_gain`` (no turn seen: a rate held
     across such windows from a few others turned `pair`'s bar three times too fast), NaN where
-    fewer than ``mc.turn_min_events`` are in it."""
+    fewer than ``mc.turn_min_events`` are in it; 0 in every window where the turns shown are not
+    ``turn.steady``."""
     half_us, top = turn_window(views, mc)
     times, centres = track.times_us, track.centres
     velocity = np.gradient(centres, times * 1e-6, axis=0) if len(times) > 1 else 0.0 * centres
@@ -261,7 +262,8 @@ def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
         window = WindowEvents(xy[inside], dt[inside], p[inside])
         rate, gain = turn_rate(window, track.blobs[k].centre, velocity[i], top, mask.shape)
         out[i] = rate if gain >= mc.turn_min_gain else 0.0
-    return out
+    shown = turned(out)
+    return out if steady(out[shown], mc.turn_min_windows) else np.where(shown, 0.0, out)
 
 
 def turned(rates: np.ndarray) -> np.ndarray:

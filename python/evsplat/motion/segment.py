@@ -15,6 +15,11 @@ from evsplat.config import MoverConfig
 
 EPS = 1e-12  # guards divisions by energies and spreads
 MAD_TO_SIGMA = 1.4826  # a normal distribution's sigma per median absolute deviation
+# A longer window's region this many times its and a short region's radii off that region's
+# centre is another object; nearer, the same object's other edge (`enter_leave` seed 3's slowly
+# starting box: one object at 1.3 px with it, two at 8.4 px without; `evsplat bench seeding`,
+# 2026-12-03, docs/motion.md).
+SEPARATE = 2.0
 
 
 @dataclass
@@ -56,13 +61,21 @@ def made_by_events(
 
 
 def apart(more: list[Blob], found: list[Blob]) -> list[Blob]:
-    """The regions ``more`` (a longer window's) that overlap none of ``found`` (the short
-    window's about the same middle, before ``made_by_events``): what only the longer window
-    shows, not an object the short one has, smeared over its longer path."""
+    """The regions ``more`` (a longer window's) that are no part of an object in ``found`` (the
+    short window's about the same middle, before ``made_by_events``): what only the longer
+    window shows. Over the longer window an object smears along its path and a slow one fires at
+    both of its edges where the short window sees one, so a region counts as another object
+    only where it overlaps none of ``found`` and its centre lies over ``SEPARATE`` x the two
+    radii from each one's."""
     if not found:
         return more
     taken = np.any([b.mask for b in found], axis=0)
-    return [b for b in more if not (b.mask & taken).any()]
+    return [
+        b
+        for b in more
+        if not (b.mask & taken).any()
+        and all(np.hypot(*(b.centre - f.centre)) > SEPARATE * (b.radius + f.radius) for f in found)
+    ]
 
 
 def floor(c_pos: float, c_neg: float, pool: int) -> float:
