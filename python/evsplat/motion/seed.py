@@ -373,18 +373,18 @@ Turning = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # ``turning``'s
 
 def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
     """(``turn_rates`` [F]; ``paths.two_ends``' centres [F,2], ends [F] and turn angles [F], rad
-    from the first sighting, 0 with too few rates; with two ends, from a steady turn)."""
+    from the first sighting, 0 with no turn shown; with two ends, from a steady turn)."""
     ks, times = np.array(sorted(track.blobs)), track.times_us
     rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
     used, shown, seen = np.isfinite(rates), turned(rates), np.zeros(len(ks))
-    if shown.sum() >= mc.turn_min_windows:
+    if shown.any():  # ``turn_rates`` shows only a steady turn, in enough windows
         seen = turn_angles(times[used], rates[used], times, min(times))
     found = two_ends(ks, track.centres, seen, track.radius, mc.coast)
-    if (found[1] < 0).any() and shown.sum() >= mc.turn_min_windows:
+    if (found[1] < 0).any() and shown.any():
         # Its regions are its ends, whose rates stray (-17 to +30 rad/s late in the spinner's
         # 8, docs/motion.md): a steady turn at their median instead, read again at the hops.
-        steady = np.median(rates[shown]) * (times - times[0]) * 1e-6
-        again = two_ends(ks, track.centres, steady, track.radius, mc.coast)
+        at_median = np.median(rates[shown]) * (times - times[0]) * 1e-6
+        again = two_ends(ks, track.centres, at_median, track.radius, mc.coast)
         found = again if (again[1] < 0).any() else found
     if not (found[1] < 0).any():  # one end: no hop is its motion
         found = (despiked(ks, found[0], mc.coast), *found[1:])  # as long as it may go unseen
@@ -575,7 +575,7 @@ def seed_objects(
             t = track.times_us.astype(np.float64)  # carried on as a measured turn is
             beyond = np.minimum(knots - t[0], 0.0) + np.maximum(knots - t[-1], 0.0)
             angles += rate * beyond * 1e-6
-        elif shown.sum() >= mc.turn_min_windows:
+        elif shown.any():
             angles = turn_angles(track.times_us[used], rates[used], knots, t_ref)
         ball = sphere_turn(views, track, middle, knots, t_ref, mc)
         if ball is not None:  # its front at depth, its outline ``radius_px`` seen from there

@@ -78,6 +78,13 @@ def apart(more: list[Blob], found: list[Blob]) -> list[Blob]:
     ]
 
 
+def robust(x: np.ndarray) -> tuple[float, float]:
+    """(median, robust sigma) of ``x``: the sigma from the median absolute deviation, which a
+    few wild values do not move."""
+    median = float(np.median(x))
+    return median, MAD_TO_SIGMA * float(np.median(np.abs(x - median)))
+
+
 def floor(c_pos: float, c_neg: float, pool: int) -> float:
     """The least robust sigma the residual is measured in: one event's log step over a ``pool``
     px box (under a still camera the background's MAD is zero, and any trace of an event would
@@ -95,8 +102,8 @@ def regions(residual: np.ndarray, t_us: int, s: MoverConfig, least: float = 0.0)
     """The moving regions of one window's ``residual`` [H,W], largest first; ``least``: the
     least robust sigma (``floor``)."""
     energy = blurred(residual, s.blur_px)
-    med = float(np.median(energy))
-    sigma = max(MAD_TO_SIGMA * float(np.median(np.abs(energy - med))), EPS, least)
+    med, spread = robust(energy)
+    sigma = max(spread, EPS, least)
     hot = energy > med + s.low * sigma
     if s.close_px > 0:
         pad = s.close_px  # padded so regions touching the border are not eroded away

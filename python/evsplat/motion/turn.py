@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from scipy import stats
 
-from evsplat.motion.segment import MAD_TO_SIGMA
+from evsplat.motion.segment import robust
 
 EPS = 1e-12  # guards the variance ratio
 GRID = 41  # turn rates tried between -max and +max; refined by a parabola
@@ -103,7 +103,6 @@ def steady(rates: np.ndarray, least: int) -> bool:
     spurious in-plane turn of either sign (`approach` seed 1's: +24, -11, +5, -6, -7, -12)."""
     if len(rates) < max(least, 2):
         return False
-    median = float(np.median(rates))
-    spread = MAD_TO_SIGMA * float(np.median(np.abs(rates - median)))
+    median, spread = robust(rates)
     error = MEDIAN_SE * spread / np.sqrt(len(rates))
     return abs(median) > float(stats.t.ppf(1.0 - STEADY_P / 2, len(rates) - 1)) * error
