@@ -10,13 +10,22 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from evsplat.config import MoverConfig
 from evsplat.model.motion import BEHIND, FREE, ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border, seed
 from evsplat.motion.align import align
-from evsplat.motion.paths import despiked, hops, steadied, turn_angles, turns, two_ends
+from evsplat.motion.paths import (
+    despiked,
+    hops,
+    partial,
+    steadied,
+    turn_angles,
+    turns,
+    two_ends,
+)
 from evsplat.motion.seed import (
     between_placed,
     ends_offset,
@@ -30,7 +39,7 @@ from evsplat.motion.seed import (
 )
 from evsplat.motion.segment import Blob, apart, floor, made_by_events, pooled, regions
 from evsplat.motion.tracks import Track, chain
-from evsplat.motion.turn import STEADY_P, WindowEvents, steady, turn_rate
+from evsplat.motion.turn import STEADY_P, WindowEvents, axis_rate, long_axis, steady, turn_rate
 from evsplat.projection import back_project, project, project_points, world_to_camera
 
 SEGMENT = MoverConfig(pool=3, blur_px=1.0, low=3.0, high=9.0, close_px=2, min_area_px=12, join=0.5)
@@ -636,25 +645,99 @@ def test_a_sighting_that_jumps_off_and_straight_back_is_read_from_its_neighbours
     seen = truth + rng.uniform(-0.5, 0.5, truth.shape)
     spiked = seen.copy()
     spiked[8] += [3.0, -28.0]
-    out = despiked(windows, spiked, 3)
+    whole = np.zeros(len(windows), dtype=bool)  # no region a piece of the object
+    out = despiked(windows, spiked, 3, whole)
     assert np.linalg.norm(out[8] - truth[8]) < 1.0
     assert np.array_equal(np.delete(out, 8, 0), np.delete(spiked, 8, 0))  # the rest as seen
     # Motion, not a spike: a bounce (it turns back) and a jump to a new line are kept.
     bounce = np.stack([10.0 + 2.0 * np.minimum(windows, 20 - windows), 40.0 + 0 * windows], 1)
-    assert np.array_equal(despiked(windows, bounce, 3), bounce)
+    assert np.array_equal(despiked(windows, bounce, 3, whole), bounce)
     moved = seen.copy()
     moved[8:] += [0.0, -28.0]
-    assert np.array_equal(despiked(windows, moved, 3), moved)
+    assert np.array_equal(despiked(windows, moved, 3, whole), moved)
     # Three sightings off in a row (across the missed window) are put back too; four, longer
     # than ``longest``, are kept.
     thrice = seen.copy()
     thrice[9:12] += [0.0, -28.0]
-    out = despiked(windows, thrice, 3)
+    out = despiked(windows, thrice, 3, whole)
     assert np.abs(out[9:12] - truth[9:12]).max() < 1.5
     assert np.array_equal(np.delete(out, [9, 10, 11], 0), np.delete(thrice, [9, 10, 11], 0))
     four = seen.copy()
     four[8:12] += [0.0, -28.0]
-    assert np.array_equal(despiked(windows, four, 3), four)
+    assert np.array_equal(despiked(windows, four, 3, whole), four)
+
+
+def test_a_last_sighting_of_a_piece_that_jumps_off_is_held_at_the_one_before():
+    # `pair`'s bar (about 400 px) sliding 2 px per window: its last region is a piece of it, 95
+    # px, 14 px off. It is held at the sighting before; a whole region that jumps, or a piece
+    # in line, is the object's and kept; likewise at the first sighting. A region cut by the
+    # border is no piece here (``steadied`` reads those from the line).
+    windows = np.arange(20)
+    truth = np.stack([10.0 + 2.0 * windows, 40.0 + 0.5 * windows], 1)
+    areas, cut = np.full(20, 400.0), np.zeros(20, dtype=bool)
+    spiked, small = truth.copy(), areas.copy()
+    spiked[-1] += [-5.0, -14.0]
+    small[-1] = 95.0
+    piece = partial(small, cut) & ~cut
+    out = despiked(windows, spiked, 3, piece)
+    assert np.array_equal(out[-1], truth[-2])
+    assert np.array_equal(out[:-1], truth[:-1])
+    assert np.array_equal(despiked(windows, spiked, 3, partial(areas, cut)), spiked)  # whole
+    assert np.array_equal(despiked(windows, truth, 3, piece), truth)  # a piece in line
+    cut[-1] = True
+    assert np.array_equal(despiked(windows, spiked, 3, partial(small, cut) & ~cut), spiked)
+    first, first_small = truth.copy(), areas.copy()
+    first[:2] += [0.0, 12.0]
+    first_small[:2] = 120.0
+    out = despiked(windows, first, 3, partial(first_small, np.zeros(20, dtype=bool)))
+    assert np.array_equal(out[:2], truth[[2, 2]])
+
+
+def _bar(shape, centre, angle, length=30.0, width=6.0):
+    """A filled bar's region: ``length`` x ``width`` px about ``centre``, its long side at
+    ``angle`` (rad, x towards y)."""
+    ys, xs = np.mgrid[0 : shape[0], 0 : shape[1]] + 0.5
+    u = (xs - centre[0]) * np.cos(angle) + (ys - centre[1]) * np.sin(angle)
+    v = -(xs - centre[0]) * np.sin(angle) + (ys - centre[1]) * np.cos(angle)
+    return (np.abs(u) <= length / 2) & (np.abs(v) <= width / 2)
+
+
+def test_long_axis_is_a_bars_angle_and_a_disc_has_none():
+    for angle in np.radians([-80.0, -30.0, 0.0, 20.0, 65.0, 90.0]):
+        got, ratio = long_axis(_bar((96, 96), (48.0, 40.0), angle))
+        assert abs(np.angle(np.exp(2j * (got - angle)))) / 2 < np.radians(1.5)
+        assert ratio > 10.0
+    assert long_axis(_disc((96, 96), (40.0, 50.0), 12.0))[1] < 1.1
+
+
+def test_a_steady_turn_is_read_from_the_long_axes_of_an_elongated_objects_regions():
+    # A bar sliding across the image while it turns, 40 windows 12 ms apart (the tiny preset's
+    # spacing), each region's edge ragged by a pixel: its rate is read within 5% at 1.5 rad/s
+    # (`pair`'s bar: 40 degrees over the track) and at 8 rad/s (over 200 degrees: the axes
+    # wrap past a half turn). A disc, a bar that does not turn, one that turns only in the
+    # second half of its windows, and a round object's moving edge (a crescent across its
+    # motion) show no steady turn.
+    rng = np.random.default_rng(0)
+    times = np.arange(40) * 12_000
+    centres = np.stack([20.0 + 1.4 * np.arange(40), 30.0 + 0.6 * np.arange(40)], 1)
+
+    def ragged(mask):
+        edge = mask ^ ndimage.binary_erosion(mask)
+        return mask ^ (edge & (rng.random(mask.shape) < 0.3))
+
+    def bars(angles):
+        return [ragged(_bar((96, 96), c, a)) for c, a in zip(centres, angles)]
+
+    t = times * 1e-6
+    for rate in (1.5, -1.5, 8.0):
+        got = axis_rate(times, bars(0.4 + rate * t), 3, 40.0)
+        assert got is not None and abs(got - rate) < 0.05 * abs(rate)
+    assert axis_rate(times, bars(np.full(40, 0.4)), 3, 40.0) is None
+    assert axis_rate(times, bars(0.4 + 3.0 * np.maximum(t - t[20], 0.0)), 3, 40.0) is None
+    discs = [ragged(_disc((96, 96), c, 10.0)) for c in centres]
+    assert axis_rate(times, discs, 3, 40.0) is None
+    edges = [_disc((96, 96), c, 10.0) & ~_disc((96, 96), c - [3.0, 1.3], 10.0) for c in centres]
+    assert axis_rate(times, [ragged(m) for m in edges], 3, 40.0) is None
 
 
 def test_turn_angles_integrate_the_rates():
@@ -1079,6 +1162,37 @@ def test_a_turn_seen_in_a_few_windows_is_not_held_across_those_that_show_none(mo
     assert abs(seed.turning(views, track, MoverConfig())[3][-1]) <= 4.5 * 3 * spacing_s
     events = False
     assert np.isclose(seed.turning(views, track, MoverConfig())[3][-1], 4.5 * 19 * spacing_s)
+
+
+def test_an_elongated_objects_turn_that_its_events_do_not_sharpen_is_read_from_its_shape(
+    monkeypatch,
+):
+    # `pair`'s bar turns 1.5 rad/s, 2.6 degrees in a turn window: its events are sharpened by
+    # a turn in 5 windows of 39. Its regions' long axes turn with it, and ``turning`` reads the
+    # turn from them (``mover.turn_axes``), not from the few windows' rates.
+    windows = np.arange(30)
+    centres = np.stack([20.0 + 1.5 * windows, 30.0 + 0.5 * windows], 1)
+    angles = 0.4 + 1.5 * windows * 0.02
+    track = Track(
+        {
+            int(k): Blob(int(k) * 20_000, c, m, float(m.sum()), 12.0)
+            for k, c, m in zip(
+                windows, centres, (_bar((96, 96), c, a) for c, a in zip(centres, angles))
+            )
+        }
+    )
+    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=600_000))
+
+    def carried(views, t_us, half_us, velocity):
+        xy = np.tile(centres[t_us // 20_000], (60, 1))
+        return xy, np.zeros(60), np.ones(60), xy
+
+    monkeypatch.setattr(seed, "turn_rate", lambda *args: (0.4, 0.01))  # sharpens none
+    monkeypatch.setattr(seed, "carried", carried)
+    rates, _, _, seen = seed.turning(views, track, MoverConfig(turn_axes=True))
+    assert np.allclose(rates, 1.5, rtol=0.03)
+    assert np.abs(seen - (angles - angles[0])).max() < np.radians(2.0)
+    assert not seed.turning(views, track, MoverConfig(turn_axes=False))[3].any()
 
 
 def test_turn_rates_of_no_turn_pass_as_one_near_the_tests_level_and_a_steady_turn_always():

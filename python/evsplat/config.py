@@ -161,6 +161,7 @@ class MoverConfig:
     turn_min_gain: float = 0.05  # a turn is used where it sharpens the warped events this much
     turn_min_events: int = 50  # ... from at least this many of the object's events
     turn_min_windows: int = 3  # ... in at least this many windows
+    turn_axes: bool = True  # a steady turn from the long axes of an elongated object's regions
     knots: int = 61  # knots of the objects' rigid paths over the sequence
     path_lr: float = 1e-3  # Adam's rate on the paths' translations (world units)
     turn_lr: float = 1e-3  # Adam's rate on the paths' rotation vectors (rad)

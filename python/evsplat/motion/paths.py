@@ -38,8 +38,7 @@ def steadied(
     it turns back into view, was carried up to 38 px off) and no window is missed from the run's
     first to the last of them (unseen, it may have turned: the demo's ball leaving and back)."""
     out = path.astype(np.float64, copy=True)
-    whole = np.median(areas[~cut]) if (~cut).any() else np.inf
-    sliver = cut & (areas < SLIVER * whole)
+    sliver = cut & partial(areas, cut)
     step = np.diff(times_us).min() if len(times_us) > 1 else 0
     for order in (np.arange(len(cut)), np.arange(len(cut))[::-1]):
         run = int(np.argmin(sliver[order])) if not sliver[order].all() else len(cut)
@@ -53,12 +52,24 @@ def steadied(
     return out
 
 
-def despiked(windows: np.ndarray, centres: np.ndarray, longest: int) -> np.ndarray:
+def partial(areas: np.ndarray, cut: np.ndarray) -> np.ndarray:
+    """Bool [F]: the regions of ``areas`` [F] (px) under ``SLIVER`` of the median of those not
+    ``cut`` [F] by the border (none where all are)."""
+    return areas < SLIVER * (np.median(areas[~cut]) if (~cut).any() else np.inf)
+
+
+def despiked(
+    windows: np.ndarray, centres: np.ndarray, longest: int, piece: np.ndarray
+) -> np.ndarray:
     """The ``centres`` [F,2] sighted at ``windows`` [F] with each run of at most ``longest``
     sightings that jumps off and straight back (its steps in and out both over ``JUMP`` x the
     median step, the sightings before and after it within that of each other) on the line
     between those two: a region of a piece of its object, or of another, taken for a window or
-    a few (the clock's bells, 28 px above its centre, drew it doubled)."""
+    a few (the clock's bells, 28 px above its centre, drew it doubled). Also a first or last
+    run of at most ``longest`` that jumps off to regions each a ``piece`` [F] (bool: part of
+    the object, ``partial`` but not cut by the border, whose slivers ``steadied`` reads), held
+    at the nearest other: nothing beyond it comes back (`pair`'s bar's last, 95 px of about
+    400, 14 px off)."""
     step = step_lengths(windows, centres)
     if step.size < 2:
         return centres.astype(np.float64, copy=True)
@@ -77,6 +88,10 @@ def despiked(windows: np.ndarray, centres: np.ndarray, longest: int) -> np.ndarr
             if j is not None:
                 off[i:j], i = True, j
         i += 1
+    for order in (np.arange(len(off)), np.arange(len(off))[::-1]):
+        run = int(np.argmin(piece[order])) if not piece.all() else 0
+        if 0 < run <= longest and step[min(order[run], order[run - 1])] > limit:
+            off[order[:run]] = True
     return filled(windows.astype(np.float64), ~off, centres.astype(np.float64))
 
 

@@ -18,7 +18,15 @@ from evsplat.model.motion import BEHIND, ObjectMotion, knot_times_us
 from evsplat.motion import sphere
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
-from evsplat.motion.paths import despiked, hops, steadied, turn_angles, turns, two_ends
+from evsplat.motion.paths import (
+    despiked,
+    hops,
+    partial,
+    steadied,
+    turn_angles,
+    turns,
+    two_ends,
+)
 from evsplat.motion.segment import (
     Blob,
     apart,
@@ -30,7 +38,7 @@ from evsplat.motion.segment import (
 )
 from evsplat.motion.still import behind_objects, is_still
 from evsplat.motion.tracks import Track, chain, filled, together
-from evsplat.motion.turn import WindowEvents, steady, turn_rate
+from evsplat.motion.turn import WindowEvents, axis_rate, steady, turn_rate
 from evsplat.projection import back_project, project
 from evsplat.render import RenderOut
 from evsplat.train.views import Views
@@ -373,7 +381,9 @@ Turning = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # ``turning``'s
 
 def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
     """(``turn_rates`` [F]; ``paths.two_ends``' centres [F,2], ends [F] and turn angles [F], rad
-    from the first sighting, 0 with no turn shown; with two ends, from a steady turn)."""
+    from the first sighting, 0 with no turn shown; with two ends, from a steady turn; with one,
+    where ``mc.turn_axes`` and its regions' long axes show a steady turn, ``turn.axis_rate``
+    at every sighting)."""
     ks, times = np.array(sorted(track.blobs)), track.times_us
     rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
     used, shown, seen = np.isfinite(rates), turned(rates), np.zeros(len(ks))
@@ -387,7 +397,17 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
         again = two_ends(ks, track.centres, at_median, track.radius, mc.coast)
         found = again if (again[1] < 0).any() else found
     if not (found[1] < 0).any():  # one end: no hop is its motion
-        found = (despiked(ks, found[0], mc.coast), *found[1:])  # as long as it may go unseen
+        areas = np.array([track.blobs[k].area for k in ks])
+        cut = np.array([touches_border(track.blobs[k].mask) for k in ks])
+        piece = partial(areas, cut) & ~cut
+        found = (despiked(ks, found[0], mc.coast, piece), *found[1:])  # as long as it may go unseen
+        if mc.turn and mc.turn_axes:  # an elongated one's regions show its turn by their shape
+            clear = [list(ks).index(k) for k in track.clear]
+            masks = [track.blobs[k].mask for k in track.clear]
+            rate = axis_rate(times[clear], masks, mc.turn_min_windows, turn_window(views, mc)[1])
+            if rate is not None:
+                rates = np.full(len(ks), rate)
+                found = (*found[:2], rate * (times - min(times)) * 1e-6)
     return rates, *found
 
 
