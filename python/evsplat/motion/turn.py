@@ -18,6 +18,10 @@ STEADY_P = 0.05  # the test's level (rates of no turn pass in 4-19% of draws: N,
 # A region's long axis is its orientation where its variance is twice the short one's: `pair`'s
 # bar's regions 3.7-16.5, `watch`'s sphere's 1.1-1.9 but for its edges (docs/motion.md).
 ELONGATED = 2.0
+# Most the axes may scatter (MAD sigma) about a steady turn: `pair`'s bar's 2.2-2.7 degrees, a
+# tumbling card's silhouette's 19 (`drawn-4`), `watch`'s card's 15 as its region grows into the
+# box's (on the seed-0 and -1 warm-ups, 2026-12-04).
+AXIS_SPREAD = np.radians(10.0)
 
 
 @dataclass
@@ -131,10 +135,12 @@ def axis_rate(
     its events in a short window do not (`pair`'s bar, 1.5 rad/s, sharpens 5 windows of 39).
     Used are the regions ``ELONGATED``: most of them, and at least ``least`` in each half of
     their times. The rate in [-top, top] that lines their axes up best (axes are modulo pi,
-    rates tried a degree apart over the track); a turn where the axes' Theil-Sen slope about
-    that line has a (1 - STEADY_P) interval off zero on one side in each half of their times (a
-    turn that starts or stops half-way, e.g. a region growing into another object's, is not a
-    steady one; a round object's moving edge, long across its motion, does not turn)."""
+    rates tried a degree apart over the track); a turn where the axes lie within
+    ``AXIS_SPREAD`` of that line (a tumbling object's silhouette turns its axis every which way)
+    and their Theil-Sen slope about it has a (1 - STEADY_P) interval off zero on one side in
+    each half of their times (a turn that starts or stops half-way, e.g. a region growing into
+    another object's, is not a steady one; a round object's moving edge, long across its
+    motion, does not turn)."""
     axes = np.array([long_axis(m) for m in masks])
     used = axes[:, 1] >= ELONGATED
     if used.sum() < max(2 * least, 4, (len(masks) + 1) // 2):
@@ -146,7 +152,10 @@ def axis_rate(
     rate = float(rates[int(np.argmax(pull))])
     phase = 0.5 * np.angle(np.exp(2j * (angle - rate * t)).mean())
     line = rate * t + phase
-    unwrapped = line + (angle - line + 0.5 * np.pi) % np.pi - 0.5 * np.pi  # about the line
+    off = (angle - line + 0.5 * np.pi) % np.pi - 0.5 * np.pi  # about the line
+    if robust(off)[1] > AXIS_SPREAD:
+        return None
+    unwrapped = line + off
     half = len(t) // 2
     signs = []
     for part in (slice(None, half), slice(half, None)):
