@@ -17,15 +17,7 @@ from evsplat.config import MoverConfig
 from evsplat.model.motion import BEHIND, FREE, ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border, seed
 from evsplat.motion.align import align
-from evsplat.motion.paths import (
-    despiked,
-    hops,
-    partial,
-    steadied,
-    turn_angles,
-    turns,
-    two_ends,
-)
+from evsplat.motion.paths import despiked, hops, partial, steadied, turn_angles, turns, two_ends
 from evsplat.motion.seed import (
     between_placed,
     ends_offset,

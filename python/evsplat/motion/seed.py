@@ -18,15 +18,7 @@ from evsplat.model.motion import BEHIND, ObjectMotion, knot_times_us
 from evsplat.motion import sphere
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
-from evsplat.motion.paths import (
-    despiked,
-    hops,
-    partial,
-    steadied,
-    turn_angles,
-    turns,
-    two_ends,
-)
+from evsplat.motion.paths import despiked, hops, partial, steadied, turn_angles, turns, two_ends
 from evsplat.motion.segment import (
     Blob,
     apart,
