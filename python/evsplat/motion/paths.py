@@ -41,7 +41,7 @@ def steadied(
     sliver = cut & partial(areas, cut)
     step = np.diff(times_us).min() if len(times_us) > 1 else 0
     for order in (np.arange(len(cut)), np.arange(len(cut))[::-1]):
-        run = int(np.argmin(sliver[order])) if not sliver[order].all() else len(cut)
+        run = leading(sliver[order])
         used = order[: run + n]
         gaps = np.abs(np.diff(times_us[used])) > 1.5 * step
         if not 0 < run <= n or len(used) < run + n or sliver[used].sum() > run or gaps.any():
@@ -50,6 +50,11 @@ def steadied(
         fit = np.polyfit(t[used, 0], path[used], 1, w=np.sqrt(areas[used]))  # [2,D]
         out[order[:run]] = np.polyval(fit, t[order[:run]])
     return out
+
+
+def leading(flags: np.ndarray) -> int:
+    """How many of ``flags`` [F] (bool) are set before the first that is not."""
+    return int(np.argmin(flags)) if not flags.all() else len(flags)
 
 
 def partial(areas: np.ndarray, cut: np.ndarray) -> np.ndarray:
@@ -89,8 +94,8 @@ def despiked(
                 off[i:j], i = True, j
         i += 1
     for order in (np.arange(len(off)), np.arange(len(off))[::-1]):
-        run = int(np.argmin(piece[order])) if not piece.all() else 0
-        if 0 < run <= longest and step[min(order[run], order[run - 1])] > limit:
+        run = leading(piece[order])
+        if 0 < run <= longest and run < len(off) and step[min(order[run], order[run - 1])] > limit:
             off[order[:run]] = True
     return filled(windows.astype(np.float64), ~off, centres.astype(np.float64))
 

@@ -389,14 +389,14 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
         again = two_ends(ks, track.centres, at_median, track.radius, mc.coast)
         found = again if (again[1] < 0).any() else found
     if not (found[1] < 0).any():  # one end: no hop is its motion
-        areas = np.array([track.blobs[k].area for k in ks])
-        cut = np.array([touches_border(track.blobs[k].mask) for k in ks])
-        piece = partial(areas, cut) & ~cut
+        cut = track.cut
+        piece = partial(track.areas, cut) & ~cut
         found = (despiked(ks, found[0], mc.coast, piece), *found[1:])  # as long as it may go unseen
         if mc.turn and mc.turn_axes:  # an elongated one's regions show its turn by their shape
-            clear = [list(ks).index(k) for k in track.clear]
-            masks = [track.blobs[k].mask for k in track.clear]
-            rate = axis_rate(times[clear], masks, mc.turn_min_windows, turn_window(views, mc)[1])
+            clear = track.clear
+            masks = [track.blobs[k].mask for k in clear]
+            at = np.searchsorted(ks, clear)
+            rate = axis_rate(times[at], masks, mc.turn_min_windows, turn_window(views, mc)[1])
             if rate is not None:
                 rates = np.full(len(ks), rate)
                 found = (*found[:2], rate * (times - min(times)) * 1e-6)
@@ -599,9 +599,7 @@ def seed_objects(
         # A ball's path is its centre's; any other object's, its front's.
         on, deep = (middle, depth) if ball is None else (ball.centres, depth + radius)
         path = back_project(on, np.full(len(ks), deep), poses, data.K)
-        seen_px = np.array([track.blobs[j].area for j in ks])
-        cut = np.array([touches_border(track.blobs[j].mask) for j in ks])
-        path = steadied(track.times_us, path, seen_px, cut, mc.min_windows)
+        path = steadied(track.times_us, path, track.areas, track.cut, mc.min_windows)
         back = depth + BEHIND * extent  # its front surface at depth, its back behind
         swept = np.flatnonzero(smear(means, track, poses, data.K, back) & free)
         share = max(int(mc.fraction * n * areas[k] / total), mc.min_gaussians)

@@ -77,6 +77,16 @@ class Track:
         return float(np.median([self.blobs[k].radius for k in self.clear]))
 
     @property
+    def areas(self) -> np.ndarray:
+        """[F] its regions' areas (px), in time order."""
+        return np.array([self.blobs[k].area for k in sorted(self.blobs)])
+
+    @property
+    def cut(self) -> np.ndarray:
+        """[F] bool: its regions, in time order, that touch the image border."""
+        return np.array([touches_border(self.blobs[k].mask) for k in sorted(self.blobs)])
+
+    @property
     def area(self) -> float:
         """How much of the events it explains: its regions' summed area (px x windows)."""
         return float(sum(b.area for b in self.blobs.values()))

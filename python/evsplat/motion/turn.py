@@ -155,12 +155,11 @@ def axis_rate(
     off = (angle - line + 0.5 * np.pi) % np.pi - 0.5 * np.pi  # about the line
     if robust(off)[1] > AXIS_SPREAD:
         return None
-    unwrapped = line + off
-    half = len(t) // 2
-    signs = []
-    for part in (slice(None, half), slice(half, None)):
-        _, _, low, high = stats.theilslopes(unwrapped[part], t[part], alpha=1.0 - STEADY_P)
-        signs.append(np.sign(low) if np.sign(low) == np.sign(high) else 0.0)
-    if signs[0] == 0 or signs[0] != signs[1]:
+    unwrapped, half = line + off, len(t) // 2
+    bounds = [  # each half's slope interval (low, high)
+        stats.theilslopes(unwrapped[part], t[part], alpha=1.0 - STEADY_P)[2:]
+        for part in (slice(None, half), slice(half, None))
+    ]
+    if not (all(low > 0 for low, _ in bounds) or all(high < 0 for _, high in bounds)):
         return None
     return float(stats.theilslopes(unwrapped, t)[0])
