@@ -30,7 +30,7 @@ from evsplat.motion.seed import (
     span,
 )
 from evsplat.motion.segment import Blob, apart, floor, made_by_events, pooled, regions
-from evsplat.motion.tracks import Track, chain
+from evsplat.motion.tracks import Track, beside_line, chain
 from evsplat.motion.turn import STEADY_P, WindowEvents, axis_rate, long_axis, steady, turn_rate
 from evsplat.projection import back_project, project, project_points, world_to_camera
 
@@ -683,6 +683,40 @@ def test_a_last_sighting_of_a_piece_that_jumps_off_is_held_at_the_one_before():
     first_small[:2] = 120.0
     out = despiked(windows, first, 3, partial(first_small, np.zeros(20, dtype=bool)))
     assert np.array_equal(out[:2], truth[[2, 2]])
+
+
+def test_first_sightings_beside_the_objects_line_are_told_from_a_region_holding_it():
+    # A disc (radius 6) sliding 2 px per window; its track's first regions lie 20 px off its
+    # line (`approach` seed 2's box: regions beside it, then a jump onto it). A region that holds
+    # the object with another (a large one about both) is its own, as is a run over ``longest``.
+    shape, windows = (64, 96), np.arange(16)
+    truth = np.stack([10.0 + 2.0 * windows, 30.0 + 0.0 * windows], 1)
+
+    def sighted(off, radius=6.0):
+        centres = truth + np.asarray(off)
+        return centres, [_disc(shape, c, radius) for c in centres]
+
+    off = np.zeros((16, 2))
+    off[:2] = [20.0, 0.0]
+    centres, masks = sighted(off)
+    flags = beside_line(windows, centres, masks, 3, 4)
+    assert flags.tolist() == [True, True] + [False] * 14
+    last = off[::-1].copy()
+    assert beside_line(windows, *sighted(last), 3, 4).tolist() == [False] * 14 + [True, True]
+    # Joined with a neighbour: the region's centre is off, the object inside it.
+    off[:2] = [10.0, 0.0]
+    centres, _ = sighted(off)
+    masks = [_disc(shape, c, 16.0) for c in centres]
+    assert not beside_line(windows, centres, masks, 3, 4).any()
+    off[:4] = [20.0, 0.0]  # four off: longer than ``longest``, a motion of its own
+    assert not beside_line(windows, *sighted(off), 3, 4).any()
+    assert not beside_line(windows, *sighted(np.zeros((16, 2))), 3, 4).any()  # on its line
+    # Leaving through the right border, its last region cut to a sliver whose centre is read
+    # off: the line puts it beyond the image, where no region can hold it, so it is not told.
+    leaving = np.stack([60.0 + 2.5 * windows, 30.0 + 0.0 * windows], 1)
+    masks = [_disc(shape, c, 6.0) for c in leaving]
+    leaving[-1] += [12.0, 0.0]
+    assert not beside_line(windows, leaving, masks, 3, 4).any()
 
 
 def _bar(shape, centre, angle, length=30.0, width=6.0):

@@ -29,7 +29,7 @@ from evsplat.motion.segment import (
     regions,
 )
 from evsplat.motion.still import behind_objects, is_still
-from evsplat.motion.tracks import Track, chain, filled, together
+from evsplat.motion.tracks import Track, chain, filled, on_its_line, together
 from evsplat.motion.turn import WindowEvents, axis_rate, steady, turn_rate
 from evsplat.projection import back_project, project
 from evsplat.render import RenderOut
@@ -408,15 +408,20 @@ def ends_turning(views: Views, track: Track, mc: MoverConfig) -> tuple[Track, Tu
     of at most ``mc.coast`` sightings (as long as a track coasts) after its last hop, and its
     turning, if that shows them. A spinning card's arm that stops firing leaves its track
     coasting, to take a region or two of the card's middle (23 px) or of both arms at once: one
-    more "hop" that no two ends explain (``spinner``: two bench warm-ups of six; docs/motion.md)."""
+    more "hop" that no two ends explain (``spinner``: two bench warm-ups of six; docs/motion.md).
+    Else, with one end, the track ``on_its_line`` and its turning."""
     turn = turning(views, track, mc)
+    if (turn[2] < 0).any():
+        return track, turn
     ks = np.array(sorted(track.blobs))
     at = np.flatnonzero(hops(ks, track.centres, track.radius, mc.coast)[0])
-    if (turn[2] < 0).any() or not len(at) or len(ks) - 1 - at[-1] > mc.coast:
-        return track, turn
-    cut = track.part(ks[0], ks[at[-1]])
-    again = turning(views, cut, mc)
-    return (cut, again) if (again[2] < 0).any() else (track, turn)
+    if len(at) and len(ks) - 1 - at[-1] <= mc.coast:
+        cut = track.part(ks[0], ks[at[-1]])
+        again = turning(views, cut, mc)
+        if (again[2] < 0).any():
+            return cut, again
+    kept = on_its_line(track, mc)
+    return (track, turn) if kept is track else (kept, turning(views, kept, mc))
 
 
 def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tuple[Track, Turning]]:

@@ -358,3 +358,42 @@ def _union(a: Blob, b: Blob) -> Blob:
     """One region of two pieces of one object in one window."""
     centre = (a.area * a.centre + b.area * b.centre) / (a.area + b.area)
     return Blob(a.t_us, centre, a.mask | b.mask, a.area + b.area, max(a.contrast, b.contrast))
+
+
+def on_its_line(track: Track, s: MoverConfig) -> Track:
+    """The ``track`` less a first or last run of regions beside its line (``beside_line``):
+    something else's, taken before the object was seen (after it was last seen)."""
+    ks = np.array(sorted(track.blobs))
+    masks = [track.blobs[k].mask for k in ks]
+    beside = beside_line(ks, track.centres, masks, s.coast, s.min_windows)
+    kept = [k for k, off in zip(ks, beside) if not off]
+    return track.part(kept[0], kept[-1]) if beside.any() else track
+
+
+def beside_line(
+    windows: np.ndarray, centres: np.ndarray, masks: list[np.ndarray], longest: int, n: int
+) -> np.ndarray:
+    """Bool [F]: a first (last) run of at most ``longest`` sightings before a jump (a step over
+    ``JUMP`` x the median) whose regions ``masks`` [F] all miss where the line through the ``n``
+    sightings after (before) it, with no jump between them, puts the object: regions beside it,
+    not its own (`approach` seed 2's box's first three, 18-25 px off; docs/motion.md). A region
+    that holds the object joined with another is its own."""
+    step = step_lengths(windows, centres)
+    out = np.zeros(len(centres), dtype=bool)
+    if step.size < 2:
+        return out
+    limit = jump_limit(step)
+    for order in (np.arange(len(centres)), np.arange(len(centres))[::-1]):
+        ahead = range(min(longest, len(order) - 1))
+        over = [i for i in ahead if step[min(order[i], order[i + 1])] > limit]
+        if not over or len(order) < over[0] + 1 + n:
+            continue
+        run, used = order[: over[0] + 1], order[over[0] + 1 : over[0] + 1 + n]
+        if any(step[min(a, b)] > limit for a, b in zip(used, used[1:])):
+            continue
+        fit = np.polyfit(windows[used].astype(np.float64), centres[used], 1)  # [2,2]
+        at = np.floor(fit[0] * windows[run, None] + fit[1]).astype(np.int64)
+        # Beyond the image border no region can hold it: not told there.
+        holds = [not in_image(p, masks[i].shape) or masks[i][p[1], p[0]] for p, i in zip(at, run)]
+        out[run] = not any(holds)
+    return out
