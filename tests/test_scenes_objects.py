@@ -44,7 +44,7 @@ def test_each_object_group_is_one_object_and_ungrouped_movers_are_their_own():
     assert [o.parts for o in grouped.objects] == [(2,), (3,), (4,)]
 
 
-@pytest.mark.parametrize("name", [*NEW, "pair", "paddle", "approach"])
+@pytest.mark.parametrize("name", [*NEW, "pair", "paddle", "approach", "slalom"])
 def test_new_scenes_movers_are_visible_at_tiny_size_and_move(name):
     scene = get_scene(name, tiny=True)
     assert (scene.width, scene.height) == (96, 96) and scene.description

@@ -34,47 +34,35 @@ def paddle() -> dict:
     )
 
 
-def approach() -> dict:
-    """A box that slides, halts and slides on (a mover that stops: its halt fires only the
-    camera's events, as the wall does), and a ball coming toward the camera along its ray, so
-    it grows (4.3 m to 2.7 m over the tiny variant's 0.6 s) while its bearing barely turns: it
-    moves in the picture about as much as the camera's motion moves the wall."""
-
-    def ease(u: float) -> float:
-        u = min(max(u, 0.0), 1.0)
-        return u * u * (3.0 - 2.0 * u)
+def slalom() -> dict:
+    """A checkered box weaving across the view while it turns in the image plane, and a
+    mottled ball crossing the other way above it, farther off, under a hand-held camera."""
 
     def box_pose(t: float) -> np.ndarray:
-        x = (
-            -0.55
-            + 0.45 * ease(t / 0.22)
-            + 0.4 * ease((t - 0.4) / 0.22)
-            - 0.3 * ease((t - 0.75) / 0.2)
-        )
-        return trans(x, 0.25, 3.0) @ rot("y", 0.5 + 1.2 * x) @ rot("x", 0.25)
+        y = 0.12 + 0.12 * np.sin(2 * np.pi * 1.6 * t)
+        return trans(-0.55 + 1.5 * t, y, 3.2) @ rot("z", 1.2 * t) @ rot("x", 0.3)
 
     def ball_pose(t: float) -> np.ndarray:
-        return trans(0.35 - 0.3 * t, -0.3 + 0.25 * t, 4.3 - 2.6 * t) @ rot("y", 4.0 * t)
+        return trans(0.5 - 1.0 * t, -0.4 + 0.3 * t, 3.6) @ rot("x", 5.0 * t)
 
     prims = room(
-        [(0.45, 0.42, 0.3), (0.3, 0.28, 0.2), (0.6, 0.58, 0.45), (0.2, 0.2, 0.15)], seed=19
+        [(0.5, 0.45, 0.55), (0.3, 0.28, 0.35), (0.65, 0.6, 0.7), (0.2, 0.2, 0.25)], seed=29
     )
-    box = checker(4.0, 3.0, (0.1, 0.6, 0.65), (0.5, 0.1, 0.2), scale=(0.4, 0.26))
-    ball = noise(23, 6.0, 2, (0.8, 0.35, 0.3), (0.2, 0.25, 0.2))
+    box = checker(3.0, 3.0, (0.9, 0.8, 0.2), (0.2, 0.3, 0.6), scale=(0.32, 0.24))
+    ball = noise(31, 5.0, 2, (0.35, 0.75, 0.7), (0.25, 0.2, 0.2))
     prims += [
-        Primitive("box", (0.2, 0.13, 0.1), box_pose, box, True, "box"),
-        Primitive("sphere", (0.18,), ball_pose, ball, True, "ball"),
+        Primitive("box", (0.16, 0.12, 0.1), box_pose, box, True, "box"),
+        Primitive("sphere", (0.15,), ball_pose, ball, True, "ball"),
     ]
     return dict(
         description=(
-            "held out: a checkered box that slides, halts for 0.18 s and slides on, and a "
-            "mottled red ball coming toward the camera (4.3 to 2.7 m in 0.6 s) while its bearing "
-            "barely turns, on a tiled olive wall"
+            "held out: a yellow-and-blue checkered box weaving across the view while it turns, "
+            "and a mottled teal ball crossing the other way above it, on a tiled mauve wall"
         ),
         primitives=prims,
-        camera=camera_path(0.15, 0.1, 0.055, 0.04, 1.25),
+        camera=camera_path(0.14, 0.1, 0.05, 0.045, 1.45),
         base_size=(400, 400),
     )
 
 
-SCENES = {"paddle": paddle, "approach": approach}
+SCENES = {"paddle": paddle, "slalom": slalom}
