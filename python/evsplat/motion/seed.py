@@ -566,7 +566,7 @@ def seed_objects(
     first = 0 if known is None else known[0].centres.shape[0]  # the new objects' first id
     free = object_id < 0
     faintest = np.argsort(model.opacities().detach().cpu().numpy(), kind="stable")
-    areas = np.array([np.median([b.area for b in t.blobs.values()]) for t in tracks])
+    areas = np.array([np.median(t.areas) for t in tracks])
     # Shares by area among all objects, the known ones too (seen at the sequence's middle): else
     # one found at the second look takes all of ``mc.fraction`` (a 4 px one 900 of 6000).
     mid_us = (data.t_start_us + data.t_end_us) // 2

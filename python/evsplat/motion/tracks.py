@@ -385,10 +385,10 @@ def beside_line(
     limit = jump_limit(step)
     for order in (np.arange(len(centres)), np.arange(len(centres))[::-1]):
         ahead = range(min(longest, len(order) - 1))
-        over = [i for i in ahead if step[min(order[i], order[i + 1])] > limit]
-        if not over or len(order) < over[0] + 1 + n:
+        jump = next((i for i in ahead if step[min(order[i], order[i + 1])] > limit), None)
+        if jump is None or len(order) < jump + 1 + n:
             continue
-        run, used = order[: over[0] + 1], order[over[0] + 1 : over[0] + 1 + n]
+        run, used = order[: jump + 1], order[jump + 1 : jump + 1 + n]
         if any(step[min(a, b)] > limit for a, b in zip(used, used[1:])):
             continue
         fit = np.polyfit(windows[used].astype(np.float64), centres[used], 1)  # [2,2]
