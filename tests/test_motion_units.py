@@ -1082,13 +1082,13 @@ def test_an_object_that_came_in_and_went_out_is_drawn_sliding_while_partly_in_vi
     path = np.stack([-1.0 + 2.0 * sighted * 1e-6, np.zeros(5), np.full(5, 2.0)], 1)
     knots = np.linspace(0, 1_000_000, 101)
     truth = np.stack([-1.0 + 2.0 * knots * 1e-6, np.zeros(101), np.full(101, 2.0)], 1)
-    inf = float("inf")
-    held = slid(path, sighted, knots, [inf, inf], 4)
+    inf, still = float("inf"), _camera_sliding(0.0)
+    held = slid(path, sighted, knots, [inf, inf], 4, still)
     assert np.allclose(held, truth, atol=1e-9)  # carried on at its velocity both ways
-    stays = slid(path, sighted, knots, [0.0, inf], 4)
+    stays = slid(path, sighted, knots, [0.0, inf], 4, still)
     assert np.allclose(stays[knots < 300_000], path[0]) and np.allclose(stays[-1], truth[-1])
     # Carried on for at most 0.1 s (as long as a track may go unseen), then held.
-    brief = slid(path, sighted, knots, [100_000.0, 100_000.0], 4)
+    brief = slid(path, sighted, knots, [100_000.0, 100_000.0], 4, still)
     early, late = knots <= 200_000, knots >= 800_000
     assert np.allclose(brief[early], truth[knots == 200_000]) and np.allclose(
         brief[late], truth[knots == 800_000]
@@ -1099,6 +1099,42 @@ def test_an_object_that_came_in_and_went_out_is_drawn_sliding_while_partly_in_vi
     assert in_view(held, knots, [-inf, 0.72], 0.1, views) == pytest.approx([-inf, 0.93])
     # Held at its first sighting, in view: unseen there so long, it was not there yet.
     assert in_view(stays, knots, [0.28, 0.72], 0.1, views) == pytest.approx([0.28, 0.93])
+
+
+def _camera_sliding(speed: float):
+    """Camera-to-world poses at µs times: looking down +z, sliding along x at ``speed`` m/s."""
+
+    def pose(t_us):
+        t = np.asarray(t_us, dtype=np.float64)
+        out = np.broadcast_to(np.eye(4), (*t.shape, 4, 4)).copy()
+        out[..., 0, 3] = speed * t * 1e-6
+        return out
+
+    return pose
+
+
+def test_an_object_unseen_inside_the_image_is_held_where_the_camera_saw_it():
+    # Seen 0-0.2 s sliding along x at 0.5 m/s, 2 m away, while the camera slides at 1 m/s;
+    # lost inside the image after. For 0.06 s (as long as a track may go unseen) it is carried
+    # on at its velocity, then it keeps the pixel it had then: unseen, it fired no events, so it
+    # moved little in the image (the camera followed it), though the camera slides on 0.34 m.
+    K = np.array([[100.0, 0, 48], [0, 100.0, 48], [0, 0, 1]])
+    sighted = np.linspace(0, 200_000, 11)
+    path = np.stack([0.5 * sighted * 1e-6, np.zeros(11), np.full(11, 2.0)], 1)
+    knots = np.linspace(0, 600_000, 61)
+    panning = _camera_sliding(1.0)
+    held = slid(path, sighted, knots, [float("inf"), 60_000.0], 4, panning)
+    carried = (knots > 200_000) & (knots <= 260_000)
+    assert np.allclose(held[carried, 0], 0.5 * knots[carried] * 1e-6, atol=1e-9)
+    then = project(np.array([[0.13, 0.0, 2.0]]), panning(260_000.0), K)[0]
+    past = knots > 260_000
+    seen = np.concatenate(
+        [project(p[None], panning(t), K)[0] for p, t in zip(held[past], knots[past])]
+    )
+    assert np.allclose(seen, then, atol=1e-9)
+    # Under a still camera it is held where it was in the world.
+    still = slid(path, sighted, knots, [float("inf"), 60_000.0], 4, _camera_sliding(0.0))
+    assert np.allclose(still[past], [0.13, 0.0, 2.0], atol=1e-9)
 
 
 def test_back_project_inverts_the_projection():

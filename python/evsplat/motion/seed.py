@@ -6,6 +6,7 @@ lift them to ``paths``; here, Gaussians placed on each object's shape and an ``O
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -129,23 +130,38 @@ def span(track: Track, times: np.ndarray, coast: int) -> list[float]:
 
 
 def slid(
-    path: np.ndarray, times_us: np.ndarray, at_us: np.ndarray, reach: list[float], n: int
+    path: np.ndarray,
+    times_us: np.ndarray,
+    at_us: np.ndarray,
+    reach: list[float],
+    n: int,
+    pose: Callable[[np.ndarray], np.ndarray],
 ) -> np.ndarray:
     """The object's ``path`` [F,3] at its sightings' ``times_us`` [F], read at ``at_us`` [G]:
     linear between its sightings; before the first (after the last) carried on for up to
-    ``reach`` µs at the velocity fitted to its first (last) ``n`` sightings, then held. It may
-    have moved unseen: for as long as a track may go unseen inside the image, and, where it
-    came in (went out) through the border, for as long as it was partly in view."""
+    ``reach`` µs at the velocity fitted to its first (last) ``n`` sightings, then held where
+    the camera (``pose``: µs -> [..,4,4] camera-to-world) sees it. It may have moved unseen:
+    for as long as a track may go unseen inside the image, and, where it came in (went out)
+    through the border, for as long as it was partly in view. Held in the camera's frame, not
+    the world's: an object that moves in the image fires events, so one unseen inside it moved
+    little there (the camera followed it; under a still camera the two are one)."""
     out = np.stack([np.interp(at_us, times_us, path[:, j]) for j in range(3)], 1)
     for most, i, used, beyond in (
         (reach[0], 0, slice(None, n), at_us < times_us[0]),
         (reach[1], -1, slice(-n, None), at_us > times_us[-1]),
     ):
         t = times_us[used].astype(np.float64)
+        velocity = np.zeros(3)
         if most > 0 and len(t) >= 2:
             velocity = np.polyfit(t - t.mean(), path[used], 1)[0]  # [3] per µs
-            dt = np.clip(at_us[beyond, None] - times_us[i], -most, most)
-            out[beyond] = path[i] + dt * velocity
+        dt = np.clip(at_us[beyond, None] - times_us[i], -most, most)
+        out[beyond] = path[i] + dt * velocity
+        past = beyond & (np.abs(at_us - times_us[i]) > most)
+        if past.any():  # held where the camera saw it at the carry's end
+            step = most if i else -most
+            held = np.append(path[i] + step * velocity, 1.0)
+            local = np.linalg.inv(pose(float(times_us[i]) + step)) @ held
+            out[past] = (pose(at_us[past].astype(np.float64)) @ local)[:, :3]
     return out
 
 
@@ -630,7 +646,7 @@ def seed_objects(
         radii.append(extent)
         edges = span(track, windows, mc.coast)
         reach = [np.inf if np.isfinite(e) else unseen_us for e in edges]
-        held = slid(path, track.times_us, knots, reach, mc.min_windows)
+        held = slid(path, track.times_us, knots, reach, mc.min_windows, data.trajectory.pose)
         shifts.append(held - path[r])
         spans.append(in_view(held, knots, edges, extent, views))
         in_plane = angles[:, None] * pose_ref[:3, 2][None]  # about the viewing axis
