@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evsplat.bench.seeding import follow_score, nearest, turn_error
+from evsplat.bench.seeding import follow_score, nearest, partly_in_view, turn_error
 from evsplat.cli import main
 
 
@@ -69,6 +69,17 @@ def test_nothing_seeded_or_never_seen_scores_none():
     drawn = np.ones((1, len(truth)), dtype=bool)
     unseen = np.zeros(len(truth), dtype=bool)
     assert follow_score(*nearest(truth[None], drawn, truth), unseen)[:4] == ([], None, None, None)
+
+
+def test_an_object_is_partly_in_view_where_its_centre_is_out_and_its_disc_over_the_image():
+    # A 96 x 64 image; discs of 10 px: inside, 6 px beyond the right border (its left edge in
+    # view), 12 px beyond it (out of view), 5 px beyond a corner on each axis (7.1 px from it: in
+    # view), and 10 px beyond the top with no radius known.
+    centres = np.array([[50.0, 30.0], [102.0, 30.0], [108.0, 30.0], [-5.0, -5.0], [40.0, -10.0]])
+    radii = np.array([10.0, 10.0, 10.0, 10.0, 0.0])
+    inside, partly = partly_in_view(centres, radii, 96, 64)
+    assert inside.tolist() == [True, False, False, False, False]
+    assert partly.tolist() == [False, True, False, True, False]
 
 
 def test_turn_error_is_the_angle_between_the_seeded_and_the_true_turn_from_the_reference():

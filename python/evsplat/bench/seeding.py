@@ -8,8 +8,10 @@ centre is in the image, the seeded object drawn then (inside its span) whose cen
 Gaussians' mean, carried along its rigid path) projects nearest follows it; the table gives the
 objects that follow it, most often first, the distance's median, its median less the median
 offset (a region's centre is where its events were, not the object's centre: the Gaussians take
-a steady offset up), its 90th percentile, and the fraction of the times no seeded object is drawn.
-One seeded object that follows two true objects shows in both rows: two objects drawn as one.
+a steady offset up), its 90th percentile, and the fraction of the times no seeded object is drawn;
+apart, the median where it is coming in or going out: its centre outside the image, its disc
+(``radius`` in track.json) over it, where the events show only a part of it. One seeded object
+that follows two true objects shows in both rows: two objects drawn as one.
 The turn: the angle between the turn the object that follows it most is seeded with and the
 true object's, both from the time the seeded turn is least (its reference), median over the
 times it is seen. No colour, no Gaussians' shape: what training starts the paths from.
@@ -54,6 +56,7 @@ class Score:
     steady: float | None  # median less the median offset
     p90: float | None
     missed: float  # of the times it is in the image, the fraction with no seeded object drawn
+    border: float | None  # median px where it is partly in view, its centre outside
     turn: float | None  # degrees, median (None: none followed it)
     seconds: float
 
@@ -101,6 +104,18 @@ def nearest(found: np.ndarray, drawn: np.ndarray, truth: np.ndarray) -> tuple:
     hit = index >= 0
     offset[hit] = found[index[hit], np.flatnonzero(hit)] - truth[hit]
     return index, offset
+
+
+def partly_in_view(
+    centres: np.ndarray, radii: np.ndarray, width: int, height: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(centre in the image [T] bool, its disc only partly in view [T] bool: the centre outside,
+    the disc over the image) of true centres [T,2] px and disc radii [T] px (0: none known). An
+    object coming in or going out shows only a part there, where its path is least sure."""
+    inside = (centres >= 0).all(1) & (centres[:, 0] < width) & (centres[:, 1] < height)
+    nearest_px = np.clip(centres, 0.0, [width, height])  # the image's point nearest the centre
+    overlaps = np.linalg.norm(centres - nearest_px, axis=1) < radii
+    return inside, ~inside & overlaps
 
 
 def follow_score(index: np.ndarray, offset: np.ndarray, seen: np.ndarray) -> tuple:
@@ -207,13 +222,20 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
             centres = np.stack(
                 [np.interp(times, track.times_us, track.centres[:, j]) for j in range(3)], 1
             )
-            truth = np.stack([project(c[None], p, data.K)[0][0] for c, p in zip(centres, poses)])
-            seen = (truth >= 0).all(1) & (truth[:, 0] < data.width) & (truth[:, 1] < data.height)
-            score = follow_score(*nearest(found, drawn, truth), seen)
+            seen_at = [project(c[None], p, data.K) for c, p in zip(centres, poses)]
+            truth = np.stack([uv[0] for uv, _ in seen_at])
+            depth = np.array([float(z[0]) for _, z in seen_at])
+            ahead = depth > 0  # behind the camera it is not in view at all
+            radii = np.where(ahead, (track.radius or 0.0) * float(data.K[0, 0]), 0.0)
+            radii /= np.where(ahead, depth, 1.0)
+            seen, partly = partly_in_view(truth, radii, data.width, data.height)
+            followed = nearest(found, drawn, truth)
+            score = follow_score(*followed, seen)
             rot = np.stack([simulated.object_pose(t, index[track.name])[:3, :3] for t in times])
             k = score[0][0] if score[0] else None
             turn = turn_error(turned[k], rot, seen, shifts[k]) if k is not None else None
-            out.append(Score(scene, setting, len(found), track.name, *score, turn, seconds))
+            border = follow_score(*followed, partly)[1]
+            out.append(Score(scene, setting, len(found), track.name, *score, border, turn, seconds))
     return out
 
 
@@ -221,12 +243,13 @@ def table(scores: list[Score]) -> list[str]:
     """The markdown table of ``scores``."""
     lines = [
         "| scene | setting | objects | true object | followed by | median px | less offset "
-        "| 90% px | missed | turn ° | seeding s |",
-        "|---|---|---:|---|---|---:|---:|---:|---:|---:|---:|",
+        "| 90% px | missed | border px | turn ° | seeding s |",
+        "|---|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for s in scores:
         cells = [s.scene, s.setting, str(s.objects), s.name, ", ".join(map(str, s.followed_by))]
         cells += [fmt(s.median, 1), fmt(s.steady, 1), fmt(s.p90, 1), f"{s.missed:.0%}"]
+        cells.append(fmt(s.border, 1))
         cells.append(fmt(s.turn, 0))
         cells.append(fmt(s.seconds, 1))
         lines.append("| " + " | ".join(cells) + " |")
