@@ -105,11 +105,23 @@ def _ring_residual(shape, discs, seed=0):
     return r
 
 
+def _camera_sliding(speed: float):
+    """Camera-to-world poses at µs times: looking down +z, sliding along x at ``speed`` m/s."""
+
+    def pose(t_us):
+        t = np.asarray(t_us, dtype=np.float64)
+        out = np.broadcast_to(np.eye(4), (*t.shape, 4, 4)).copy()
+        out[..., 0, 3] = speed * t * 1e-6
+        return out
+
+    return pose
+
+
 def _still_camera(f: float) -> SimpleNamespace:
     """The ``Views`` that ``seed.projected`` and ``seed.in_view`` read: a camera at the origin
     for good (focal ``f`` px, 96 x 96 px, principal point 48, 48), times in seconds."""
     K = np.array([[f, 0.0, 48.0], [0.0, f, 48.0], [0.0, 0.0, 1.0]])
-    still = SimpleNamespace(pose=lambda t_us: np.eye(4))
+    still = SimpleNamespace(pose=_camera_sliding(0.0))
     return SimpleNamespace(
         data=SimpleNamespace(trajectory=still, K=K, width=96, height=96),
         renderer=SimpleNamespace(time=lambda t_us: t_us / 1e6),
@@ -1099,18 +1111,6 @@ def test_an_object_that_came_in_and_went_out_is_drawn_sliding_while_partly_in_vi
     assert in_view(held, knots, [-inf, 0.72], 0.1, views) == pytest.approx([-inf, 0.93])
     # Held at its first sighting, in view: unseen there so long, it was not there yet.
     assert in_view(stays, knots, [0.28, 0.72], 0.1, views) == pytest.approx([0.28, 0.93])
-
-
-def _camera_sliding(speed: float):
-    """Camera-to-world poses at µs times: looking down +z, sliding along x at ``speed`` m/s."""
-
-    def pose(t_us):
-        t = np.asarray(t_us, dtype=np.float64)
-        out = np.broadcast_to(np.eye(4), (*t.shape, 4, 4)).copy()
-        out[..., 0, 3] = speed * t * 1e-6
-        return out
-
-    return pose
 
 
 def test_an_object_unseen_inside_the_image_is_held_where_the_camera_saw_it():

@@ -163,6 +163,7 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
     from evsplat.data.dataset import load_dataset
     from evsplat.errors import EvsplatError
     from evsplat.model.gaussians import PARAM_NAMES, GaussianModel
+    from evsplat.motion.seed import disc
     from evsplat.projection import project
     from evsplat.scenes import get_scene
     from evsplat.train.loop import Trainer
@@ -222,12 +223,10 @@ def _scores(scene: str, data_dir: Path, args: argparse.Namespace) -> list[Score]
             centres = np.stack(
                 [np.interp(times, track.times_us, track.centres[:, j]) for j in range(3)], 1
             )
-            seen_at = [project(c[None], p, data.K) for c, p in zip(centres, poses)]
-            truth = np.stack([uv[0] for uv, _ in seen_at])
-            depth = np.array([float(z[0]) for _, z in seen_at])
-            ahead = depth > 0  # behind the camera it is not in view at all
-            radii = np.where(ahead, (track.radius or 0.0) * float(data.K[0, 0]), 0.0)
-            radii /= np.where(ahead, depth, 1.0)
+            size = np.array([track.radius or 0.0])  # m; none known: no disc
+            seen_at = [disc(c[None], size, p, data.K) for c, p in zip(centres, poses)]
+            truth = np.concatenate([uv for uv, _ in seen_at])  # NaN behind the camera
+            radii = np.concatenate([r for _, r in seen_at])
             seen, partly = partly_in_view(truth, radii, data.width, data.height)
             followed = nearest(found, drawn, truth)
             score = follow_score(*followed, seen)
