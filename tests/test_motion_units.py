@@ -23,6 +23,7 @@ from evsplat.motion.seed import (
     ends_offset,
     in_view,
     joined_ends,
+    off_their_line,
     projected,
     reference,
     slid,
@@ -559,18 +560,44 @@ def test_a_balls_centres_not_placed_by_its_outline_lie_between_those_that_are():
     # window), sighted in windows 0-24 but 9, 10 and 18; its outline places it in some of them
     # (the truth, within a tenth of a pixel), its region's usual offset in the others (8 px
     # low, as where the border leaves a sliver). An unplaced one with placed ones at most 4
-    # windows apart on both sides is put on the line between them; the others keep theirs.
+    # windows apart on both sides is put on the line between them; the others keep theirs
+    # unless the border cuts them.
     windows = np.array([k for k in range(25) if k not in (9, 10, 18)])
     times = 12_500 * windows + 6_000
     truth = np.stack([20.0 + 4.0 * windows, 70.0 - 6.0 * windows + 0.15 * windows**2], 1)
     rng = np.random.default_rng(0)
     placed = ~np.isin(windows, [3, 4, 5, 6, 12, 16, 17, 22, 24])
     centres = truth + np.where(placed[:, None], rng.uniform(-0.1, 0.1, truth.shape), [0.0, 8.0])
-    out = between_placed(centres, placed, times, windows, gap=4)
+    out = between_placed(centres, placed, times, windows, 4, np.zeros(len(windows), dtype=bool))
     between = np.isin(windows, [12, 16, 17, 22])  # placed neighbours 2-4 windows apart
     assert np.all(np.linalg.norm(out[between] - truth[between], axis=1) < 1.0)
     kept = ~between  # placed; or unplaced with placed neighbours 5 apart (3-6) or none after (24)
     assert np.array_equal(out[kept], centres[kept])
+    # Cut by the border there (going out, coming in), those are read from the line through the
+    # two placed ones on the nearer side: at most two windows out, under a pixel of the curve.
+    cut = np.isin(windows, [3, 4, 5, 6, 24])
+    out = between_placed(centres, placed, times, windows, 4, cut)
+    assert np.all(np.linalg.norm(out[cut] - truth[cut], axis=1) < 1.5)
+    assert np.array_equal(out[placed], centres[placed])
+
+
+def test_an_outline_off_the_line_of_the_placed_ones_beside_it_is_dropped():
+    # The thrown ball again, every sighting placed, those in windows 8-9 and 17-19 by a cut
+    # outline's arc: those arcs within a tenth of a pixel of the truth but window 9's, 15 px
+    # off along the border, and the last (19), 28 px off where nothing comes after it. The
+    # two are dropped; 18, read from 17 and the bad 19 at first (14 px off), is kept.
+    windows = np.arange(20)
+    times = 12_500 * windows + 6_000
+    truth = np.stack([20.0 + 4.0 * windows, 70.0 - 6.0 * windows + 0.15 * windows**2], 1)
+    centres = truth + np.random.default_rng(1).uniform(-0.1, 0.1, truth.shape)
+    centres[9] += [0.0, 15.0]
+    centres[19] += [-20.0, 20.0]
+    placed = np.ones(len(windows), dtype=bool)
+    outlined = np.isin(windows, [8, 9, 17, 18, 19])
+    off = off_their_line(centres, placed, outlined, times, windows, gap=4)
+    assert np.flatnonzero(off).tolist() == [9, 19]
+    # With no arc off, none is dropped.
+    assert not off_their_line(truth, placed, outlined, times, windows, gap=4).any()
 
 
 def test_align_gives_a_one_sided_objects_true_displacements():
