@@ -30,14 +30,7 @@ from evsplat.motion.segment import (
     regions,
 )
 from evsplat.motion.still import behind_objects, is_still
-from evsplat.motion.tracks import (
-    Track,
-    chain,
-    jump_limit,
-    on_its_line,
-    step_lengths,
-    together,
-)
+from evsplat.motion.tracks import Track, chain, jump_limit, on_its_line, step_lengths, together
 from evsplat.motion.turn import WindowEvents, axis_rate, steady, turn_rate
 from evsplat.projection import back_project, project
 from evsplat.render import RenderOut
@@ -405,13 +398,9 @@ def predicted(
 
 
 def off_their_line(
-    centres: np.ndarray,
-    placed: np.ndarray,
-    outlined: np.ndarray,
-    times: np.ndarray,
-    windows: np.ndarray,
-    gap: int,
-) -> np.ndarray:
+    centres: np.ndarray, placed: np.ndarray, outlined: np.ndarray, times: np.ndarray,
+    windows: np.ndarray, gap: int,
+) -> np.ndarray:  # fmt: skip
     """[F] bool: of the ``centres`` [F,2] at ``times`` [F] (µs) and ``windows`` [F], those
     ``outlined`` [F] (placed by a cut outline's arc) further off where the other ``placed``
     [F] ones put them (``predicted``) than the object's steps between placed ones go in a
@@ -438,13 +427,9 @@ def off_their_line(
 
 
 def between_placed(
-    centres: np.ndarray,
-    placed: np.ndarray,
-    times: np.ndarray,
-    windows: np.ndarray,
-    gap: int,
+    centres: np.ndarray, placed: np.ndarray, times: np.ndarray, windows: np.ndarray, gap: int,
     cut: np.ndarray,
-) -> np.ndarray:
+) -> np.ndarray:  # fmt: skip
     """The ``centres`` [F,2] at ``times`` [F] (µs) and ``windows`` [F], each not ``placed`` [F]
     by an outline where the placed ones put it (``predicted``): between two (an unplaced one's
     offset is 5-11 px off where the border leaves a sliver, an outline's 1-2: docs/motion.md),
