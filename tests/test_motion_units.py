@@ -1040,8 +1040,9 @@ def test_the_space_an_object_passes_through_or_hides_holds_only_the_scenes_gauss
     # One object of radius 0.3 centred at the origin, sliding along x by 2 m over knots at
     # t = 0, 0.25, ..., 1 and in view over [0.25, 0.75] only: its path in view runs from
     # x = 0.5 to x = 1.5, seen from a camera 4 m in front of it (z = -4), so the space it
-    # hides runs BEHIND radii (0.6 m) behind it, to z = 0.6. A second object, always in
-    # view, stays at (0, 5, 0).
+    # hides runs BEHIND radii (0.6 m) behind it, to z = 0.6, and the space that would hide it
+    # is the cone from the camera to its disc. A second object, always in view, stays at
+    # (0, 5, 0).
     slide = torch.zeros(2, 5, 3)
     slide[0, :, 0] = torch.linspace(0.0, 2.0, 5)
     motion = ObjectMotion(
@@ -1057,7 +1058,9 @@ def test_the_space_an_object_passes_through_or_hides_holds_only_the_scenes_gauss
         [
             [1.0, 0.29, 0.0],  # beside the middle of the path, inside its radius
             [1.0, 0.31, 0.0],  # just beyond it
-            [1.0, 0.0, -0.31],  # in front of it, just beyond its radius
+            [1.0, 0.0, -0.31],  # in front of it, where it would hide it
+            [1.0, 0.25, -2.0],  # halfway to the camera: within its radius, beyond its cone's
+            [1.0, 0.05, -3.0],  # a quarter of the way from the camera, within its cone's
             [1.0, 0.2, reach + 0.05],  # behind it, within a radius of the end of its ray
             [1.0, 0.0, reach + 0.31],  # beyond the end of its ray
             [0.3, 0.0, 0.0],  # 0.2 before where it comes into view: inside the radius
@@ -1067,9 +1070,10 @@ def test_the_space_an_object_passes_through_or_hides_holds_only_the_scenes_gauss
             [1.0, 0.0, 0.0],  # on the path, but one of the object's own Gaussians
         ]
     )
-    object_id = torch.tensor([-1, -1, -1, -1, -1, -1, -1, -1, -1, 0])
+    object_id = torch.tensor([-1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, 0])
     swept = motion.swept(means, object_id, eyes)
-    assert swept.tolist() == [True, False, False, True, False, True, False, False, True, False]
+    want = [True, False, True, False, True, True, False, True, False, False, True, False]
+    assert swept.tolist() == want
 
 
 def test_an_object_is_visible_only_inside_its_span():
