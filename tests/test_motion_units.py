@@ -583,19 +583,19 @@ def test_a_balls_centres_not_placed_by_its_outline_lie_between_those_that_are():
 
 def test_an_outline_off_the_line_of_the_placed_ones_beside_it_is_dropped():
     # The thrown ball again, every sighting placed, those in windows 8-9 and 17-19 by a cut
-    # outline's arc: those arcs within a tenth of a pixel of the truth but window 9's, 15 px
-    # off along the border, and the last (19), 28 px off where nothing comes after it. The
-    # two are dropped; 18, read from 17 and the bad 19 at first (14 px off), is kept.
+    # outline's arc: those arcs within a tenth of a pixel of the truth but windows 8 and 9's,
+    # side by side 15 px off along the border, and the last (19), 28 px off where nothing
+    # comes after it. The three are dropped; 18, beside the bad 19, is kept.
     windows = np.arange(20)
     times = 12_500 * windows + 6_000
     truth = np.stack([20.0 + 4.0 * windows, 70.0 - 6.0 * windows + 0.15 * windows**2], 1)
     centres = truth + np.random.default_rng(1).uniform(-0.1, 0.1, truth.shape)
-    centres[9] += [0.0, 15.0]
+    centres[8:10] += [0.0, 15.0]
     centres[19] += [-20.0, 20.0]
     placed = np.ones(len(windows), dtype=bool)
     outlined = np.isin(windows, [8, 9, 17, 18, 19])
     off = off_their_line(centres, placed, outlined, times, windows, gap=4)
-    assert np.flatnonzero(off).tolist() == [9, 19]
+    assert np.flatnonzero(off).tolist() == [8, 9, 19]
     # With no arc off, none is dropped.
     assert not off_their_line(truth, placed, outlined, times, windows, gap=4).any()
 

@@ -402,11 +402,11 @@ def off_their_line(
     windows: np.ndarray, gap: int,
 ) -> np.ndarray:  # fmt: skip
     """[F] bool: of the ``centres`` [F,2] at ``times`` [F] (µs) and ``windows`` [F], those
-    ``outlined`` [F] (placed by a cut outline's arc) further off where the other ``placed``
-    [F] ones put them (``predicted``) than the object's steps between placed ones go in a
-    window (``jump_limit``), the furthest first, each dropped before the next is read: there
-    the background's events outweighed a sliver's arc (the demo's ball going out, 10-20 px off
-    in 4 of 20 warm-ups; docs/motion.md)."""
+    ``outlined`` [F] (placed by a cut outline's arc) further off the robust (Theil-Sen) line
+    through the other ``placed`` [F] ones within ``gap`` windows (three or more) than the
+    object's steps between placed ones go in a window (``jump_limit``), the furthest first,
+    each dropped before the next is read: there the background's events outweighed a sliver's
+    arc (the demo's ball going out, 10-20 px off in 4 of 20 warm-ups; docs/motion.md)."""
     placed, out = placed.copy(), np.zeros(len(centres), dtype=bool)
     at = np.flatnonzero(placed)
     if len(at) < 3:
@@ -415,10 +415,13 @@ def off_their_line(
     while True:
         off = {}
         for i in np.flatnonzero(outlined & placed):
-            others = placed.copy()
-            others[i] = False
-            line = predicted(centres, others, t, windows, i, gap, True)
-            if line is not None:
+            near = np.flatnonzero(placed & (np.abs(windows - windows[i]) <= gap))
+            near = near[near != i]
+            if len(near) >= 3:  # Theil-Sen: two arcs off side by side do not hold each other up
+                a, b = np.triu_indices(len(near), 1)
+                rate = (centres[near[b]] - centres[near[a]]) / (t[near[b]] - t[near[a]])[:, None]
+                slope = np.median(rate, axis=0)
+                line = np.median(centres[near] - slope * t[near, None], axis=0) + slope * t[i]
                 off[i] = float(np.linalg.norm(centres[i] - line))
         worst = max(off, key=off.__getitem__, default=None)
         if worst is None or off[worst] <= limit:
