@@ -2,8 +2,9 @@
 same device-dependent paths on the CPU in tests/test_device.py and tests/test_device_events.py).
 
 Tolerances: losses agree to 1e-4 relative (float32 reductions in another order; the renders
-are the same core's on the same host inputs); gradients to 1e-3 of their norm for the Gaussians
-and 2e-2 for the MLP, whose matmuls run in TF32 on CUDA (10-bit mantissa, ~5e-4 per product).
+are the same core's on the same host inputs); gradients to 1e-3 of their norm. The step is
+compared with the MLP's matmuls in full float32, which training on CUDA runs in TF32; the
+MLP's gradients, and each loss's gradient norm on it, to 2e-2 and 1e-2 (L_ef's part, below).
 """
 
 from __future__ import annotations
@@ -44,7 +45,9 @@ def _grads_of_one_step(trainer: Trainer, iteration: int) -> tuple[dict, dict[str
 
 def test_one_full_training_step_on_cuda_matches_the_cpu(tiny_scene, tmp_path):
     """A refinement step with the MLP on and every loss (L_e, L_ef, L_m, L_ne, L_sp; L_d on
-    the oracle depth prior where the render is opaque enough)."""
+    the oracle depth prior where the render is opaque enough), the MLP's matmuls in full
+    float32: TF32 alone moved L_ef by 9e-4 of itself on an H200 (2026-12-04), as the Gaussian
+    flow is the difference of two nearby MLP outputs."""
     cfg = preset("tiny")
     cfg.schedule.iterations = 10
     cfg.schedule.warmup_fraction = 0.0
@@ -58,14 +61,22 @@ def test_one_full_training_step_on_cuda_matches_the_cpu(tiny_scene, tmp_path):
         trainer = Trainer(data, cfg, tmp_path / device, make_depth_prior("oracle", data))
         assert trainer.model.means.device.type == device
         assert (trainer.views.device_events is not None) == (device == "cuda")
-        runs[device] = _grads_of_one_step(trainer, 0)
+        tf32 = torch.backends.cuda.matmul.allow_tf32
+        torch.backends.cuda.matmul.allow_tf32 = False  # the trainer turned it on for CUDA
+        try:
+            runs[device] = _grads_of_one_step(trainer, 0)
+        finally:
+            torch.backends.cuda.matmul.allow_tf32 = tf32
     (cpu_losses, cpu_grads), (cuda_losses, cuda_grads) = runs["cpu"], runs["cuda"]
     assert {"e", "ef", "m", "ne", "sp"} <= set(cpu_losses)
     for k, v in cpu_losses.items():
-        assert cuda_losses[k] == pytest.approx(v, rel=1e-4, abs=1e-7), k
+        # g_<loss>: one loss's gradient norm on the MLP, a gradient (g_ef 3.0e-3 apart on an
+        # H200, 2026-12-04: the flow's backward sums through the adapter's atomics).
+        rel = 1e-2 if k.startswith("g_") else 1e-4
+        assert cuda_losses[k] == pytest.approx(v, rel=rel, abs=1e-7), k
     assert set(cuda_grads) == set(cpu_grads)
     for name, g in cpu_grads.items():
-        tol = 2e-2 if name.startswith("mlp.") else 1e-3
+        tol = 2e-2 if name.startswith("mlp.") else 1e-3  # the MLP's include L_ef's, as above
         err = float((cuda_grads[name] - g).norm())
         # The floor: gradients that are rounding noise (an isotropic Gaussian's rotation's
         # are ~1e-10 between two CPU runs).
@@ -101,7 +112,7 @@ def test_the_rasterizer_exchange_from_cuda_tensors_equals_the_host_path_bit_for_
     """The same host inputs reach the core from CUDA tensors as from CPU ones, and its outputs
     come back unchanged: the forward bit for bit, and the gradients bit for bit wherever the
     adapter's backward repeats itself bit for bit (float atomics may add in any order; then
-    the CUDA path must stay within the host path's own run-to-run spread)."""
+    the CUDA path must stay within the host path's own run-to-run spread, or a few ulps)."""
     host_out, host_grads = _render("cpu")
     again_out, again_grads = _render("cpu")
     cuda_out, cuda_grads = _render("cuda")
@@ -112,7 +123,11 @@ def test_the_rasterizer_exchange_from_cuda_tensors_equals_the_host_path_bit_for_
         if spread == 0.0:
             assert torch.equal(a, c)
         else:
-            assert float((a - c).abs().max()) <= 2 * spread
+            # Two host runs sample the atomics' order-dependent rounding only once (on an H200
+            # they differed by 4.8e-7 where the CUDA path's differed by 1.9e-6, 2026-12-04):
+            # the bound is a few float32 ulps of the largest gradient, over the sum's order.
+            ulps = 8 * torch.finfo(torch.float32).eps * float(a.abs().max())
+            assert float((a - c).abs().max()) <= max(2 * spread, ulps)
 
 
 def test_a_cuda_run_saves_cpu_tensors_and_resumes_on_the_cpu(tiny_scene, tmp_path):

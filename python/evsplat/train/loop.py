@@ -154,7 +154,9 @@ class Trainer:
             # computed without a graph when the flow may not move them (the MLP runs once more).
             with torch.set_grad_enabled(lc.flow_moves_gaussians):
                 means_later = view.gaussians_at(t1 + dtau)[0]
-                extra = gaussian_flow_features(g1[0], means_later, viewmat(pose1), view.K)
+                extra = gaussian_flow_features(
+                    g1[0], means_later, viewmat(pose1, view.K.device), view.K
+                )
         pending1 = view.render_async(t1, pose1, extra=extra, gaussians=g1)
         earlier = [view.render_async(t, self.views.pose(t)) for t in times[:-1]]
         windows = [self.views.esi(times[i], times[j], coarse) for i, j in pairs]
