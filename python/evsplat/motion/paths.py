@@ -107,20 +107,28 @@ def turns(angles: np.ndarray | float) -> np.ndarray:
 
 
 def hops(
-    windows: np.ndarray, centres: np.ndarray, radius: float, coast: int
+    windows: np.ndarray, centres: np.ndarray, radius: float, coast: int, cut: np.ndarray
 ) -> tuple[np.ndarray, float]:
     """(bool [F-1]: the steps between the ``centres`` [F,2] sighted at ``windows`` [F] that hop
     between two ends, over ``JUMP`` x the median step, at most ``coast`` + 1 windows apart and
     at least ``radius`` long (ends at ±d with |d| >= radius lie 2|d| apart: a spinning card's
-    arm's fastest steps, 6.4 px against a limit of 6.2, are not hops; docs/motion.md); that
+    arm's fastest steps, 6.4 px against a limit of 6.2, are not hops; docs/motion.md), neither
+    sighting ``cut`` [F] by the image border (its centre is the least sure: the demo's ball,
+    gone out on the right, took the border's noise there for three hops, docs/motion.md); that
     limit, px per window)."""
     step, gap = step_lengths(windows, centres), np.diff(windows)
     limit = jump_limit(step)
-    return (step > limit) & (gap <= coast + 1) & (step * gap >= radius), limit
+    whole = ~cut[:-1] & ~cut[1:]
+    return (step > limit) & (gap <= coast + 1) & (step * gap >= radius) & whole, limit
 
 
 def two_ends(
-    windows: np.ndarray, centres: np.ndarray, angles: np.ndarray, radius: float, coast: int
+    windows: np.ndarray,
+    centres: np.ndarray,
+    angles: np.ndarray,
+    radius: float,
+    coast: int,
+    cut: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(centres [F,2]; ends [F], +1 where the track started, -1 at the other; turn angles [F],
     rad). An object turning in place fires at whichever end the camera's motion adds to, and its
@@ -130,7 +138,7 @@ def two_ends(
     |d| >= ``radius``, no hop left in the centres); else the track's own centres and
     ``angles``."""
     none = (centres, np.ones(len(centres)), angles)
-    hop = hops(windows, centres, radius, coast)[0]
+    hop = hops(windows, centres, radius, coast, cut)[0]
     if hop.sum() < 2:
         return none
     end = np.concatenate([[1.0], (-1.0) ** np.cumsum(hop)])

@@ -459,12 +459,12 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
     used, shown, seen = np.isfinite(rates), turned(rates), np.zeros(len(ks))
     if shown.any():  # ``turn_rates`` shows only a steady turn, in enough windows
         seen = turn_angles(times[used], rates[used], times, min(times))
-    found = two_ends(ks, track.centres, seen, track.radius, mc.coast)
+    found = two_ends(ks, track.centres, seen, track.radius, mc.coast, track.cut)
     if (found[1] < 0).any() and shown.any():
         # Its regions are its ends, whose rates stray (-17 to +30 rad/s late in the spinner's
         # 8, docs/motion.md): a steady turn at their median instead, read again at the hops.
         at_median = np.median(rates[shown]) * (times - times[0]) * 1e-6
-        again = two_ends(ks, track.centres, at_median, track.radius, mc.coast)
+        again = two_ends(ks, track.centres, at_median, track.radius, mc.coast, track.cut)
         found = again if (again[1] < 0).any() else found
     if not (found[1] < 0).any():  # one end: no hop is its motion
         cut = track.cut
@@ -492,7 +492,7 @@ def ends_turning(views: Views, track: Track, mc: MoverConfig) -> tuple[Track, Tu
     if (turn[2] < 0).any():
         return track, turn
     ks = np.array(sorted(track.blobs))
-    at = np.flatnonzero(hops(ks, track.centres, track.radius, mc.coast)[0])
+    at = np.flatnonzero(hops(ks, track.centres, track.radius, mc.coast, track.cut)[0])
     if len(at) and len(ks) - 1 - at[-1] <= mc.coast:
         cut = track.part(ks[0], ks[at[-1]])
         again = turning(views, cut, mc)
