@@ -459,15 +459,15 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
     used, shown, seen = np.isfinite(rates), turned(rates), np.zeros(len(ks))
     if shown.any():  # ``turn_rates`` shows only a steady turn, in enough windows
         seen = turn_angles(times[used], rates[used], times, min(times))
-    found = two_ends(ks, track.centres, seen, track.radius, mc.coast, track.cut)
+    centres, radius, cut = track.centres, track.radius, track.cut  # each derived: read once
+    found = two_ends(ks, centres, seen, radius, mc.coast, cut)
     if (found[1] < 0).any() and shown.any():
         # Its regions are its ends, whose rates stray (-17 to +30 rad/s late in the spinner's
         # 8, docs/motion.md): a steady turn at their median instead, read again at the hops.
         at_median = np.median(rates[shown]) * (times - times[0]) * 1e-6
-        again = two_ends(ks, track.centres, at_median, track.radius, mc.coast, track.cut)
+        again = two_ends(ks, centres, at_median, radius, mc.coast, cut)
         found = again if (again[1] < 0).any() else found
     if not (found[1] < 0).any():  # one end: no hop is its motion
-        cut = track.cut
         piece = partial(track.areas, cut) & ~cut
         found = (despiked(ks, found[0], mc.coast, piece), *found[1:])  # as long as it may go unseen
         if mc.turn and mc.turn_axes:  # an elongated one's regions show its turn by their shape
