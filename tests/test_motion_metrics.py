@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from evsplat.motion_metrics import OPACITY_MIN, TrackView, mean_pose, track_object
+from evsplat.motion_metrics import OPACITY_MIN, TrackView, mean_pose, object_set, track_object
 
 W = H = 96
 F = 100.0
@@ -62,6 +62,14 @@ def wall_points() -> np.ndarray:
     """Static background Gaussians on the wall, many of them seen through the object's mask."""
     xs, ys = np.meshgrid(np.linspace(-2, 2, 40), np.linspace(-2, 2, 40))
     return np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, WALL_Z)], axis=1)
+
+
+def deeper(surface: np.ndarray, t: int) -> np.ndarray:
+    """The object's ``surface`` offsets at time ``t``, pushed along their rays to 4.2 m deep."""
+    eye = camera(t)[:3, 3]
+    points = centre(t) + surface
+    z = points[:, 2] - eye[2]  # the camera looks along +z, unrotated
+    return eye + (points - eye) * (4.2 / z)[:, None]
 
 
 class StubModel:
@@ -186,14 +194,7 @@ def test_a_set_the_model_draws_from_the_wrong_depth_is_the_objects():
     path is 1.4 times the object's, and the following metrics, which carry their 3-D offset from
     the object over, say so (path ratio 1.4)."""
     surface, wall = front_cap(100, seed=4), wall_points()
-
-    def deeper(t: int) -> np.ndarray:
-        eye = camera(t)[:3, 3]
-        points = centre(t) + surface
-        z = points[:, 2] - eye[2]  # the camera looks along +z, unrotated
-        return eye + (points - eye) * (4.2 / z)[:, None]
-
-    means = {t: np.concatenate([deeper(t), wall]) for t in TIMES}
+    means = {t: np.concatenate([deeper(surface, t), wall]) for t in TIMES}
     peak = np.full(len(surface) + len(wall), 0.8)
     renderer = StubRenderer(StubModel(peak, {t / 400_000: peak for t in TIMES}), means)
     views = [view(t) for t in TIMES]
@@ -205,6 +206,29 @@ def test_a_set_the_model_draws_from_the_wrong_depth_is_the_objects():
     assert [p["n"] for p in drawn["paths"]] == [len(surface)] * len(TIMES)
     assert 1.3 < drawn["path_ratio"] < 1.5
     assert drawn["dx_px"]["other"]["n"] == len(wall)
+
+
+def test_the_wall_seen_where_the_object_is_not_drawn_is_not_the_objects():
+    """The object drawn 4.2 m deep as above, but not at the first test time: there the model's
+    drawn depth is the wall's, and the wall's Gaussians seen through the mask pass its test.
+    They hold still and are drawn off the object at the other times: the background it passed,
+    in no set (before, the region's union took them as the object at every time). Gaussians
+    left at the object's own depth still count (the tests above and tests/test_eval.py)."""
+    surface, wall = front_cap(100, seed=4), wall_points()
+    means = {t: np.concatenate([deeper(surface, t), wall]) for t in TIMES}
+    peak = np.full(len(surface) + len(wall), 0.8)
+    hidden = np.where(np.arange(len(peak)) < len(surface), 0.5 * OPACITY_MIN, 0.8)
+    at_time = {t / 400_000: peak if t != TIMES[0] else hidden for t in TIMES}
+    views = [view(t) for t in TIMES]
+    for v in views:
+        v.drawn_depth = np.where(v.mask, 4.2, WALL_Z).astype(np.float32)
+    views[0].drawn_depth = np.full_like(views[0].drawn_depth, WALL_Z)
+    seen = object_set(means[TIMES[0]], hidden, views[0], np.asarray(StubRenderer.K), RADIUS)[0]
+    assert seen.sum() > 30  # the wall through the mask, which the first test admits
+    result = track_object(StubRenderer(StubModel(peak, at_time), means), views, RADIUS)
+    assert [p["n"] for p in result["paths"]] == [0] + [len(surface)] * (len(TIMES) - 1)
+    assert result["dx_px"]["object"]["n"] == len(surface)
+    assert result["dx_px"]["other"]["n"] == len(wall)
 
 
 def test_a_reference_without_the_object_in_view_takes_no_part():

@@ -19,6 +19,15 @@ the Gaussians whose deformed centre at t_k
   with its depth, and the region error measures where it is drawn),
 - and has opacity >= ``OPACITY_MIN`` at t_k (time-local factor included: drawn at t_k).
 
+Where the model does not draw the object at t_k, its drawn depth there is the background's, and
+the background's Gaussians seen through the mask would pass the second test. So a Gaussian that
+only the drawn depth admits (behind the true object + radius), in the set of one test time
+alone, that holds still (its centre moves under ``STILL_PX`` over the test times, seen from the
+mean camera) and is drawn at another test time off the object, is the background the object
+passed in front of, not the object: it is left out of every set. Unions of the sets (the region
+below) took it as the object at every time (`pair`'s bar, not drawn at 0.005 s: 48 of the
+wall's Gaussians, which put its region 4-14 px off at the five times it is drawn in place).
+
 **Error.** That same set is followed over every test time t_j. Its centre c(t_j) is the
 per-coordinate median of its deformed 3-D centres weighted by peak opacity (not the time-local
 one, so a set whose members fade in and out does not jump). The median, not the mean: it says
@@ -85,6 +94,7 @@ DEPTH_TOLERANCE = 0.1  # behind-the-surface tolerance as a fraction of depth, ra
 MIN_DEPTH = 1e-6  # camera z floor, so points behind a camera project finitely
 PERCENTILES = (50, 90, 99)
 REGION_MIN_COVER = 0.25  # the object set must cover this share of the mask's area to be drawn
+STILL_PX = 1.0  # a Gaussian whose centre moves less than a pixel over the test times holds still
 
 
 @dataclass
@@ -139,8 +149,9 @@ def deformed_centres(
 
 def object_set(
     means: np.ndarray, opacity: np.ndarray, view: TrackView, K: np.ndarray, radius: float | None
-) -> np.ndarray:
-    """Bool [N]: the Gaussians that draw the object in ``view`` (module docstring)."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """(Bool [N]: the Gaussians that draw the object in ``view`` (module docstring); bool [N]:
+    those of them behind the true object, which only the model's drawn depth admits)."""
     cam = to_camera(means, view.c2w)
     px = np.floor(to_pixels(cam, K)).astype(np.int64)
     h, w = view.mask.shape
@@ -149,26 +160,31 @@ def object_set(
     rows, cols = np.where(inside, px[:, 1], 0), np.where(inside, px[:, 0], 0)
     gt_depth = view.depth[rows, cols]
     tolerance = radius if radius is not None else DEPTH_TOLERANCE * gt_depth
+    near = cam[:, 2] <= gt_depth + tolerance
     deepest = gt_depth + tolerance
     if view.drawn_depth is not None:
         deepest = np.maximum(deepest, (1 + DEPTH_TOLERANCE) * view.drawn_depth[rows, cols])
     on_object = view.mask[rows, cols] & (gt_depth > 0) & (cam[:, 2] <= deepest)
-    return inside & on_object & (opacity >= OPACITY_MIN)
+    chosen = inside & on_object & (opacity >= OPACITY_MIN)
+    return chosen, chosen & ~near
 
 
-def object_members(
+def object_sets(
     means: np.ndarray,
     opac: np.ndarray,
     views: Sequence[TrackView],
     K: np.ndarray,
     radius: float | None,
 ) -> np.ndarray:
-    """Bool [N]: the Gaussians that draw the object at one test time at least (union of the
-    reference sets)."""
-    members = np.zeros(means.shape[1], bool)
-    for k, view in enumerate(views):
-        members |= object_set(means[k], opac[k], view, K, radius)
-    return members
+    """Bool [J,N]: each test time's object set (``object_set``), less the background that the
+    object passed in front of (module docstring, "The object's Gaussians")."""
+    found = [object_set(means[k], opac[k], view, K, radius) for k, view in enumerate(views)]
+    sets, behind = (np.stack(f) for f in zip(*found))
+    seen = np.array([bool(v.mask.any()) for v in views])
+    still = max_displacement_px(means, mean_pose([v.c2w for v in views]), K) < STILL_PX
+    drawn_off = ((opac >= OPACITY_MIN) & seen[:, None] & ~sets).any(axis=0)
+    passed = behind.any(axis=0) & (sets.sum(axis=0) == 1) & still & drawn_off
+    return sets & ~passed
 
 
 def centroid(mask: np.ndarray) -> np.ndarray:
@@ -184,7 +200,7 @@ def track_region(renderer: Renderer, views: Sequence[TrackView], radius: float |
     view; inf: not drawn), and the median over the times with the object in view."""
     K = renderer.K.double().numpy()
     means, opac, _ = deformed_centres(renderer, [v.time_us for v in views])
-    members = object_members(means, opac, views, K, radius)
+    members = object_sets(means, opac, views, K, radius).any(axis=0)
     feature = torch.from_numpy(members.astype(np.float32))[:, None]
     per_time = []
     for view in views:
@@ -233,17 +249,10 @@ def max_displacement_px(means: np.ndarray, camera: np.ndarray, K: np.ndarray) ->
 
 
 def follow(
-    k: int,
-    means: np.ndarray,
-    opac: np.ndarray,
-    peak: np.ndarray,
-    views: Sequence[TrackView],
-    K: np.ndarray,
-    radius: float | None,
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """(object set of reference ``k`` [N] bool, its predicted object path p_k [J,3], the
-    path by the set's rigid motion [J,3]), or None when the set is empty or weightless."""
-    chosen = object_set(means[k], opac[k], views[k], K, radius)
+    k: int, chosen: np.ndarray, means: np.ndarray, peak: np.ndarray, views: Sequence[TrackView]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(the object set of reference ``k``, ``chosen`` [N] bool; its predicted object path p_k
+    [J,3]; the path by the set's rigid motion [J,3]), or None when the set is weightless."""
     weights = peak[chosen]
     if float(weights.sum()) <= 0.0:
         return None
@@ -298,8 +307,9 @@ def track_object(renderer: Renderer, views: Sequence[TrackView], radius: float |
     errors = np.full((len(views), len(views)), np.nan)  # [reference k, time j]
     rigid_errors = errors.copy()
     paths, pred_paths = [], []
+    sets = object_sets(means, opac, views, K, radius)
     for k, view in enumerate(views):
-        found = follow(k, means, opac, peak, views, K, radius)
+        found = follow(k, sets[k], means, peak, views)
         if found is None:
             paths.append({"reference_us": view.time_us, "n": 0, "centres": None})
             continue
@@ -313,7 +323,7 @@ def track_object(renderer: Renderer, views: Sequence[TrackView], radius: float |
         paths.append(
             {"reference_us": view.time_us, "n": int(chosen.sum()), "centres": pred.tolist()}
         )
-    in_object = object_members(means, opac, views, K, radius)
+    in_object = sets.any(axis=0)
     moves = max_displacement_px(means, camera, K)
     visible = (to_camera(means.mean(axis=0), camera)[:, 2] > MIN_DEPTH) & (peak >= OPACITY_MIN)
     pairs = errors[np.isfinite(errors)]
