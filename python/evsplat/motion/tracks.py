@@ -301,7 +301,7 @@ def _rejoined(tracks: list[Track], faint: list[Track], s: MoverConfig) -> list[T
             continue
         home, a = max(exits, key=lambda e: max(e[0].blobs))
         home.blobs = {k: b for k, b in home.blobs.items() if k <= a}
-        _absorb(home, track)
+        _absorb(home, track.part(a + 1, max(track.blobs)))
         if id(track) not in weak:
             weak.discard(id(home))  # joined to an object: part of it
     return [t for t in out if id(t) not in weak or evidence(t, s) >= s.min_evidence]
@@ -313,10 +313,13 @@ def _returns(gone: Track, back: Track, s: MoverConfig, through_border: bool = Tr
     within ``s.gate`` of the reach of its fastest speed plus the regions' radii (as a track's
     next region), sizes ``s.gate`` apart at most (a cut region looks smaller). Its exit is one
     of its last ``s.coast`` + 1 sightings: those after it are noise it took while unseen (the
-    demo's ball, docs/motion.md), and ``back`` goes on past them. Or it was lost inside the
+    demo's ball, docs/motion.md), and ``back`` goes on past them; ``back`` comes in at its first
+    sighting after the exit where those before it all touch the border and those after it are
+    an object by themselves (``s.min_windows``, ``s.min_evidence``): the border's noise it took
+    while the object was still in view (the demo's ball, one warm-up of eight), dropped when
+    the two are joined (``_rejoined``). Or it was lost inside the
     image for longer than a track coasts and ``back`` is found inside it within ``gone``'s gate
     (``_resumes``; the only way with ``through_border`` false)."""
-    b = min(back.blobs)
     if max(back.blobs) <= max(gone.blobs):
         return None
     clear = [not all(touches_border(r.mask) for r in t.blobs.values()) for t in (gone, back)]
@@ -327,12 +330,17 @@ def _returns(gone: Track, back: Track, s: MoverConfig, through_border: bool = Tr
         return max(gone.blobs)
     if not through_border:
         return None
-    entry = back.blobs[b]
-    speed = max(gone.steps + back.steps, default=0.0)
     for a in sorted(gone.blobs)[-(s.coast + 1) :][::-1]:
-        exit_ = gone.blobs[a]
-        if a >= b or not borders(exit_.mask) & borders(entry.mask):
+        exit_, later = gone.blobs[a], back.part(a + 1, max(back.blobs))
+        b = min(later.blobs)
+        entry, noise = later.blobs[b], [r for k, r in back.blobs.items() if k <= a]
+        # Before the exit, only the border's noise; after it, an object by its own sightings.
+        sure = len(later.blobs) >= s.min_windows and evidence(later, s) >= s.min_evidence
+        if noise and not (sure and all(touches_border(r.mask) for r in noise)):
             continue
+        if not borders(exit_.mask) & borders(entry.mask):
+            continue
+        speed = max(gone.steps + later.steps, default=0.0)
         reach = s.gate * (speed * (b - a) + exit_.radius + entry.radius)
         if np.linalg.norm(entry.centre - exit_.centre) <= reach:
             return a
