@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from evsplat.config import MoverConfig
 from evsplat.model.motion import BEHIND, FREE, ObjectMotion, quat_multiply, rotvec_to_quat
-from evsplat.motion import border, seed, tracks
+from evsplat.motion import border, seed
 from evsplat.motion.align import align
 from evsplat.motion.paths import despiked, hops, partial, steadied, turn_angles, turns, two_ends
 from evsplat.motion.seed import (
@@ -31,7 +31,7 @@ from evsplat.motion.seed import (
     span,
 )
 from evsplat.motion.segment import Blob, apart, floor, made_by_events, pooled, regions
-from evsplat.motion.tracks import Track, beside_line, chain
+from evsplat.motion.tracks import Track, _rejoined, beside_line, chain
 from evsplat.motion.turn import STEADY_P, WindowEvents, axis_rate, long_axis, steady, turn_rate
 from evsplat.projection import back_project, project, project_points, world_to_camera
 
@@ -535,13 +535,13 @@ def test_an_object_back_through_a_track_that_took_the_borders_noise_before_it_le
     gone = Track({k: _disc_blob(shape, k, (76.0 + 4 * k, 40.0), 10.0) for k in range(14)})
     noise = {k: _disc_blob(shape, k, (126.0, 70.0 + k), 4.0, contrast=12.0) for k in range(10, 14)}
     back = {k: _disc_blob(shape, k, (132.0 - 4 * (k - 20), 80.0), 10.0) for k in range(20, 30)}
-    joined = tracks._rejoined([gone, Track(noise | back)], [], TRACKS)
+    joined = _rejoined([gone, Track(noise | back)], [], TRACKS)
     assert len(joined) == 1
     assert sorted(joined[0].blobs) == [*range(14), *range(20, 30)]
     assert all(joined[0].blobs[k].area == gone.blobs[k].area for k in range(10, 14))
     # A track seen clear of the border before the disc left is another object in view then.
     inside = {k: _disc_blob(shape, k, (100.0, 60.0 + 2 * k), 6.0) for k in range(10, 14)}
-    assert len(tracks._rejoined([gone, Track(inside | back)], [], TRACKS)) == 2
+    assert len(_rejoined([gone, Track(inside | back)], [], TRACKS)) == 2
 
 
 def test_an_object_lost_inside_the_image_longer_than_a_track_coasts_is_one_track():

@@ -172,16 +172,18 @@ def object_set(
 def object_sets(
     means: np.ndarray,
     opac: np.ndarray,
+    moves: np.ndarray,
     views: Sequence[TrackView],
     K: np.ndarray,
     radius: float | None,
 ) -> np.ndarray:
     """Bool [J,N]: each test time's object set (``object_set``), less the background that the
-    object passed in front of (module docstring, "The object's Gaussians")."""
+    object passed in front of (module docstring, "The object's Gaussians"); ``moves`` [N] is
+    ``max_displacement_px`` from the mean test camera."""
     found = [object_set(means[k], opac[k], view, K, radius) for k, view in enumerate(views)]
     sets, behind = (np.stack(f) for f in zip(*found))
     seen = np.array([bool(v.mask.any()) for v in views])
-    still = max_displacement_px(means, mean_pose([v.c2w for v in views]), K) < STILL_PX
+    still = moves < STILL_PX
     drawn_off = ((opac >= OPACITY_MIN) & seen[:, None] & ~sets).any(axis=0)
     passed = behind.any(axis=0) & (sets.sum(axis=0) == 1) & still & drawn_off
     return sets & ~passed
@@ -200,7 +202,8 @@ def track_region(renderer: Renderer, views: Sequence[TrackView], radius: float |
     view; inf: not drawn), and the median over the times with the object in view."""
     K = renderer.K.double().numpy()
     means, opac, _ = deformed_centres(renderer, [v.time_us for v in views])
-    members = object_sets(means, opac, views, K, radius).any(axis=0)
+    moves = max_displacement_px(means, mean_pose([v.c2w for v in views]), K)
+    members = object_sets(means, opac, moves, views, K, radius).any(axis=0)
     feature = torch.from_numpy(members.astype(np.float32))[:, None]
     per_time = []
     for view in views:
@@ -250,15 +253,15 @@ def max_displacement_px(means: np.ndarray, camera: np.ndarray, K: np.ndarray) ->
 
 def follow(
     k: int, chosen: np.ndarray, means: np.ndarray, peak: np.ndarray, views: Sequence[TrackView]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """(the object set of reference ``k``, ``chosen`` [N] bool; its predicted object path p_k
-    [J,3]; the path by the set's rigid motion [J,3]), or None when the set is weightless."""
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """(the predicted object path p_k [J,3] of reference ``k``'s object set ``chosen`` [N]
+    bool; the path by the set's rigid motion [J,3]), or None when the set is weightless."""
     weights = peak[chosen]
     if float(weights.sum()) <= 0.0:
         return None
     centres = weighted_median(means[:, chosen], weights)
     rigid = rigid_transport(means[:, chosen], weights, k, views[k].centre)
-    return chosen, centres - (centres[k] - views[k].centre), rigid
+    return centres - (centres[k] - views[k].centre), rigid
 
 
 def rigid_transport(
@@ -303,17 +306,18 @@ def track_object(renderer: Renderer, views: Sequence[TrackView], radius: float |
     gt = np.stack([v.centre for v in views])
     means, opac, peak = deformed_centres(renderer, times)
     camera = mean_pose([v.c2w for v in views])
+    moves = max_displacement_px(means, camera, K)
     gt_path = path_length(project(gt, camera, K))
     errors = np.full((len(views), len(views)), np.nan)  # [reference k, time j]
     rigid_errors = errors.copy()
     paths, pred_paths = [], []
-    sets = object_sets(means, opac, views, K, radius)
+    sets = object_sets(means, opac, moves, views, K, radius)
     for k, view in enumerate(views):
         found = follow(k, sets[k], means, peak, views)
         if found is None:
             paths.append({"reference_us": view.time_us, "n": 0, "centres": None})
             continue
-        chosen, pred, rigid = found
+        pred, rigid = found
         for j, other in enumerate(views):
             if j != k:
                 truth = project(gt[j], other.c2w, K)
@@ -321,10 +325,9 @@ def track_object(renderer: Renderer, views: Sequence[TrackView], radius: float |
                 rigid_errors[k, j] = float(np.linalg.norm(project(rigid[j], other.c2w, K) - truth))
         pred_paths.append(path_length(project(pred, camera, K)))
         paths.append(
-            {"reference_us": view.time_us, "n": int(chosen.sum()), "centres": pred.tolist()}
+            {"reference_us": view.time_us, "n": int(sets[k].sum()), "centres": pred.tolist()}
         )
     in_object = sets.any(axis=0)
-    moves = max_displacement_px(means, camera, K)
     visible = (to_camera(means.mean(axis=0), camera)[:, 2] > MIN_DEPTH) & (peak >= OPACITY_MIN)
     pairs = errors[np.isfinite(errors)]
     rigid_pairs = rigid_errors[np.isfinite(rigid_errors)]

@@ -164,6 +164,12 @@ def evidence(track: Track, s: MoverConfig) -> float:
     return sum(max(b.contrast - s.high, 0.0) for b in track.blobs.values())
 
 
+def _sure(track: Track, s: MoverConfig) -> bool:
+    """Whether ``track`` is an object by itself: ``s.min_windows`` sightings and
+    ``s.min_evidence``."""
+    return len(track.blobs) >= s.min_windows and evidence(track, s) >= s.min_evidence
+
+
 def _split(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> list[Blob]:
     """Window ``k``'s ``blobs``, each joined from pieces that two or more confirmed ``live``
     tracks reach (each the piece nearest its predicted centre, within its gate) split into one
@@ -304,7 +310,7 @@ def _rejoined(tracks: list[Track], faint: list[Track], s: MoverConfig) -> list[T
         _absorb(home, track.part(a + 1, max(track.blobs)))
         if id(track) not in weak:
             weak.discard(id(home))  # joined to an object: part of it
-    return [t for t in out if id(t) not in weak or evidence(t, s) >= s.min_evidence]
+    return [t for t in out if id(t) not in weak or _sure(t, s)]  # each has min_windows
 
 
 def _returns(gone: Track, back: Track, s: MoverConfig, through_border: bool = True) -> int | None:
@@ -334,11 +340,10 @@ def _returns(gone: Track, back: Track, s: MoverConfig, through_border: bool = Tr
         exit_, later = gone.blobs[a], back.part(a + 1, max(back.blobs))
         b = min(later.blobs)
         entry, noise = later.blobs[b], [r for k, r in back.blobs.items() if k <= a]
-        # Before the exit, only the border's noise; after it, an object by its own sightings.
-        sure = len(later.blobs) >= s.min_windows and evidence(later, s) >= s.min_evidence
-        if noise and not (sure and all(touches_border(r.mask) for r in noise)):
-            continue
         if not borders(exit_.mask) & borders(entry.mask):
+            continue
+        # Before the exit, only the border's noise; after it, an object by its own sightings.
+        if noise and not (all(touches_border(r.mask) for r in noise) and _sure(later, s)):
             continue
         speed = max(gone.steps + later.steps, default=0.0)
         reach = s.gate * (speed * (b - a) + exit_.radius + entry.radius)
