@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 import torch
 
-from evsplat.motion_metrics import OPACITY_MIN, TrackView, mean_pose, object_set, track_object
+from evsplat.motion_metrics import (
+    OPACITY_MIN,
+    TrackView,
+    mean_pose,
+    object_gaussians,
+    object_set,
+    track_object,
+)
 
 W = H = 96
 F = 100.0
@@ -101,6 +108,11 @@ class StubRenderer:
         return self.model.opacities(self.time(t_us))
 
 
+def tracked(renderer: StubRenderer, views: list[TrackView]) -> dict:
+    """``track_object`` of the sets the eval chooses with the object's true radius."""
+    return track_object(renderer, views, object_gaussians(renderer, views, RADIUS))
+
+
 def test_gaussians_moving_with_the_object_track_it_exactly():
     surface = front_cap(200, seed=0)
     wall = wall_points()
@@ -111,9 +123,7 @@ def test_gaussians_moving_with_the_object_track_it_exactly():
     # instead of the peak would move the set's centroid and show as an error.
     at_time = {t / 400_000: peak * rng.uniform(0.2, 1.0, peak.size) for t in TIMES}
     means = {t: np.concatenate([centre(t) + surface, wall]) for t in TIMES}
-    result = track_object(
-        StubRenderer(StubModel(peak, at_time), means), [view(t) for t in TIMES], RADIUS
-    )
+    result = tracked(StubRenderer(StubModel(peak, at_time), means), [view(t) for t in TIMES])
 
     assert [p["n"] for p in result["paths"]] == [n_obj] * len(TIMES)
     assert result["error_px_median"] < 1e-6 and result["error_px_mean"] < 1e-6
@@ -138,7 +148,7 @@ def test_a_time_local_smear_of_static_gaussians_scores_the_objects_own_displacem
     }
     means = {t: points for t in TIMES}
     views = [view(t) for t in TIMES]
-    result = track_object(StubRenderer(StubModel(peak, at_time), means), views, RADIUS)
+    result = tracked(StubRenderer(StubModel(peak, at_time), means), views)
 
     # Reference k follows cluster k, which stays at g(t_k): the error at t_j is how far the
     # object moved, in frame j's pixels.
@@ -172,9 +182,7 @@ def test_a_minority_of_static_gaussians_left_on_the_object_does_not_drag_its_cen
     means = {t: np.concatenate([np.tile(centre(t) + spot, (40, 1)), strays]) for t in TIMES}
     peak = np.full(70, 0.6)
     at_time = {t / 400_000: peak for t in TIMES}
-    result = track_object(
-        StubRenderer(StubModel(peak, at_time), means), [view(t) for t in TIMES], RADIUS
-    )
+    result = tracked(StubRenderer(StubModel(peak, at_time), means), [view(t) for t in TIMES])
     # The weighted median of each coordinate is the spot's as long as it holds over half the
     # weight, so the error is 0 exactly; the mean would sit 3/7 of the way back to the start.
     assert result["paths"][0]["n"] == 70
@@ -198,11 +206,11 @@ def test_a_set_the_model_draws_from_the_wrong_depth_is_the_objects():
     peak = np.full(len(surface) + len(wall), 0.8)
     renderer = StubRenderer(StubModel(peak, {t / 400_000: peak for t in TIMES}), means)
     views = [view(t) for t in TIMES]
-    alone = track_object(renderer, views, RADIUS)
+    alone = tracked(renderer, views)
     assert [p["n"] for p in alone["paths"]] == [0] * len(TIMES)
     for v in views:
         v.drawn_depth = np.where(v.mask, 4.2, WALL_Z).astype(np.float32)
-    drawn = track_object(renderer, views, RADIUS)
+    drawn = tracked(renderer, views)
     assert [p["n"] for p in drawn["paths"]] == [len(surface)] * len(TIMES)
     assert 1.3 < drawn["path_ratio"] < 1.5
     assert drawn["dx_px"]["other"]["n"] == len(wall)
@@ -225,7 +233,7 @@ def test_the_wall_seen_where_the_object_is_not_drawn_is_not_the_objects():
     views[0].drawn_depth = np.full_like(views[0].drawn_depth, WALL_Z)
     seen = object_set(means[TIMES[0]], hidden, views[0], np.asarray(StubRenderer.K), RADIUS)[0]
     assert seen.sum() > 30  # the wall through the mask, which the first test admits
-    result = track_object(StubRenderer(StubModel(peak, at_time), means), views, RADIUS)
+    result = tracked(StubRenderer(StubModel(peak, at_time), means), views)
     assert [p["n"] for p in result["paths"]] == [0] + [len(surface)] * (len(TIMES) - 1)
     assert result["dx_px"]["object"]["n"] == len(surface)
     assert result["dx_px"]["other"]["n"] == len(wall)
@@ -238,7 +246,7 @@ def test_a_reference_without_the_object_in_view_takes_no_part():
     at_time = {t / 400_000: peak for t in TIMES}
     views = [view(t) for t in TIMES]
     views[0].mask[:] = False  # the object is out of the picture at the first test time
-    result = track_object(StubRenderer(StubModel(peak, at_time), means), views, RADIUS)
+    result = tracked(StubRenderer(StubModel(peak, at_time), means), views)
     assert result["paths"][0] == {"reference_us": 0, "n": 0, "centres": None}
     assert result["error_px_median"] < 1e-6 and result["per_time"][0]["error_px"] < 1e-6
 
@@ -272,7 +280,7 @@ def test_a_spinning_object_is_tracked_by_its_rigid_motion():
     means = {t: centre(t) + turned(t) for t in TIMES}
     at_time = {t / 400_000: peak for t in TIMES}
     views = [view(t) for t in TIMES]
-    result = track_object(StubRenderer(StubModel(peak, at_time), means), views, RADIUS)
+    result = tracked(StubRenderer(StubModel(peak, at_time), means), views)
     assert result["paths"][0]["n"] > 100  # the reference at t = 0 sees the cap
     assert result["rigid_error_px_median"] < 1e-6
     assert result["error_px_median"] > 3.0

@@ -14,7 +14,7 @@ import numpy as np
 
 from evsplat.data.images import read_exr, read_png
 from evsplat.metrics import psnr
-from evsplat.motion_metrics import TrackView, track_object, track_region
+from evsplat.motion_metrics import TrackView, object_gaussians, track_object, track_region
 
 if TYPE_CHECKING:
     from evsplat.data.dataset import Dataset
@@ -92,7 +92,8 @@ def evaluate_objects(
         mean, mean_flat = (float(np.mean(v)) if v else None for v in (ours, theirs))
         pooled = pooled_margin(fitted, flat, gts, [v.mask for v in views])
         radius = radii.get(name)
-        tracking = track_object(renderer, views, radius)
+        found = object_gaussians(renderer, views, radius)
+        tracking = track_object(renderer, views, found)
         out.append(
             {
                 "name": name,
@@ -101,7 +102,7 @@ def evaluate_objects(
                 "psnr_moving_flat": mean_flat,
                 "psnr_moving_margin": None if mean is None else mean - mean_flat,
                 "psnr_moving_margin_pooled": pooled,
-                "tracking": tracking | {"region": track_region(renderer, views, radius)},
+                "tracking": tracking | {"region": track_region(renderer, views, found)},
             }
         )
     return out, None

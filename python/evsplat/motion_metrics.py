@@ -137,14 +137,31 @@ def mean_pose(c2ws: Sequence[np.ndarray]) -> np.ndarray:
     return out
 
 
+@dataclass
+class ObjectGaussians:
+    """The Gaussians at the test times and which of them draw one object (``object_gaussians``)."""
+
+    means: np.ndarray  # [J,N,3] deformed centres at each test time
+    opacity: np.ndarray  # [J,N] opacities at each test time (time-local factor included)
+    peak: np.ndarray  # [N] peak opacities
+    moves: np.ndarray  # [N] ``max_displacement_px`` from the mean test camera
+    sets: np.ndarray  # [J,N] bool: each test time's object set (``object_sets``)
+    radius: float | None  # the true object's (m) the sets were chosen with
+
+
 @torch.no_grad()
-def deformed_centres(
-    renderer: Renderer, times_us: Sequence[int]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(means [J,N,3], opacities at each time [J,N], peak opacities [N]) at ``times_us``."""
-    means = np.stack([renderer.gaussians_at(t)[0].double().numpy() for t in times_us])
-    opac = np.stack([renderer.opacities(t).detach().double().numpy() for t in times_us])
-    return means, opac, renderer.model.opacities().double().numpy()
+def object_gaussians(
+    renderer: Renderer, views: Sequence[TrackView], radius: float | None
+) -> ObjectGaussians:
+    """The Gaussians at ``views``' times and each time's object set, computed once for both the
+    following errors (``track_object``) and the region error (``track_region``)."""
+    K = renderer.K.double().numpy()
+    means = np.stack([renderer.gaussians_at(v.time_us)[0].double().numpy() for v in views])
+    opac = np.stack([renderer.opacities(v.time_us).detach().double().numpy() for v in views])
+    moves = max_displacement_px(means, mean_pose([v.c2w for v in views]), K)
+    sets = object_sets(means, opac, moves, views, K, radius)
+    peak = renderer.model.opacities().double().numpy()
+    return ObjectGaussians(means, opac, peak, moves, sets, radius)
 
 
 def object_set(
@@ -196,14 +213,12 @@ def centroid(mask: np.ndarray) -> np.ndarray:
 
 
 @torch.no_grad()
-def track_region(renderer: Renderer, views: Sequence[TrackView], radius: float | None) -> dict:
+def track_region(renderer: Renderer, views: Sequence[TrackView], found: ObjectGaussians) -> dict:
     """The region error (module docstring): per test time, the pixel distance between the
-    centroid of what the object Gaussians draw and the GT mask's centroid (None: object out of
-    view; inf: not drawn), and the median over the times with the object in view."""
-    K = renderer.K.double().numpy()
-    means, opac, _ = deformed_centres(renderer, [v.time_us for v in views])
-    moves = max_displacement_px(means, mean_pose([v.c2w for v in views]), K)
-    members = object_sets(means, opac, moves, views, K, radius).any(axis=0)
+    centroid of what the object Gaussians (``found``'s sets' union) draw and the GT mask's
+    centroid (None: object out of view; inf: not drawn), and the median over the times with the
+    object in view."""
+    members = found.sets.any(axis=0)
     feature = torch.from_numpy(members.astype(np.float32))[:, None]
     per_time = []
     for view in views:
@@ -294,8 +309,9 @@ def weighted_median(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return np.take_along_axis(np.take_along_axis(points, order, axis=1), first, axis=1)[:, 0]
 
 
-def track_object(renderer: Renderer, views: Sequence[TrackView], radius: float | None) -> dict:
-    """Tracking error, path ratio and |Δx| distribution (module docstring) as a JSON-able dict.
+def track_object(renderer: Renderer, views: Sequence[TrackView], found: ObjectGaussians) -> dict:
+    """Tracking error, path ratio and |Δx| distribution (module docstring) as a JSON-able dict,
+    of the object sets ``found``.
 
     ``paths`` holds each reference's predicted object path p_k(t_j) (world, metres) for plots;
     a reference whose object set is empty (object out of view, nothing drawn there) has n = 0
@@ -304,20 +320,18 @@ def track_object(renderer: Renderer, views: Sequence[TrackView], radius: float |
     K = renderer.K.double().numpy()
     times = [v.time_us for v in views]
     gt = np.stack([v.centre for v in views])
-    means, opac, peak = deformed_centres(renderer, times)
+    means, peak, moves, sets = found.means, found.peak, found.moves, found.sets
     camera = mean_pose([v.c2w for v in views])
-    moves = max_displacement_px(means, camera, K)
     gt_path = path_length(project(gt, camera, K))
     errors = np.full((len(views), len(views)), np.nan)  # [reference k, time j]
     rigid_errors = errors.copy()
     paths, pred_paths = [], []
-    sets = object_sets(means, opac, moves, views, K, radius)
     for k, view in enumerate(views):
-        found = follow(k, sets[k], means, peak, views)
-        if found is None:
+        followed = follow(k, sets[k], means, peak, views)
+        if followed is None:
             paths.append({"reference_us": view.time_us, "n": 0, "centres": None})
             continue
-        pred, rigid = found
+        pred, rigid = followed
         for j, other in enumerate(views):
             if j != k:
                 truth = project(gt[j], other.c2w, K)
@@ -347,7 +361,7 @@ def track_object(renderer: Renderer, views: Sequence[TrackView], radius: float |
             "object": percentiles(moves[in_object]),
             "other": percentiles(moves[visible & ~in_object]),
         },
-        "radius": radius,
+        "radius": found.radius,
         "paths": paths,
     }
 
