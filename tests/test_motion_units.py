@@ -544,6 +544,28 @@ def test_an_object_back_through_a_track_that_took_the_borders_noise_before_it_le
     assert len(_rejoined([gone, Track(inside | back)], [], TRACKS)) == 2
 
 
+def test_an_object_back_after_its_track_took_faint_noise_to_the_end_is_one_track():
+    # A disc leaves through the right border at window 13; its track takes five faint regions
+    # after that, on the border and then across the image, to the last window, where the disc's
+    # return ends too (the demo's ball, one warm-up of eight; docs/motion.md). Its exit is the
+    # last sighting after which what it took is no object by itself: joined there, noise out.
+    shape = (96, 128)
+    seen = {k: _disc_blob(shape, k, (76.0 + 4 * k, 40.0), 10.0) for k in range(14)}
+    faint = [(17, (126.0, 20.0)), (18, (125.0, 22.0)), (19, (100.0, 50.0)), (23, (50.0, 60.0))]
+    noise = {k: _disc_blob(shape, k, c, 4.0, contrast=11.0) for k, c in faint}
+    noise[29] = _disc_blob(shape, 29, (40.0, 62.0), 4.0, contrast=11.0)
+    back = {k: _disc_blob(shape, k, (132.0 - 4 * (k - 20), 80.0), 10.0) for k in range(20, 30)}
+    joined = _rejoined([Track(seen | noise), Track(back)], [], TRACKS)
+    assert len(joined) == 1
+    assert sorted(joined[0].blobs) == [*range(14), *range(20, 30)]
+    assert all(joined[0].blobs[k].area == back[k].area for k in range(20, 30))
+    # What it took after leaving is an object by itself (a second disc, strong): two objects.
+    other = {
+        k: _disc_blob(shape, k, (40.0 + 2 * k, 20.0), 8.0, contrast=30.0) for k in range(17, 30)
+    }
+    assert len(_rejoined([Track(seen | other), Track(back)], [], TRACKS)) == 2
+
+
 def test_an_object_lost_inside_the_image_longer_than_a_track_coasts_is_one_track():
     # A disc goes unseen for 8 windows (twice `coast` + 1) in the middle of the image, as an
     # object that fires too little beside a brighter one does, and is found again on its

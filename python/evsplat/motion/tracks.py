@@ -317,16 +317,17 @@ def _returns(gone: Track, back: Track, s: MoverConfig, through_border: bool = Tr
     """The window ``gone`` left the image at, if ``back`` is it coming back, else None: it left
     through the border that ``back`` came in through (the path between stays out of view),
     within ``s.gate`` of the reach of its fastest speed plus the regions' radii (as a track's
-    next region), sizes ``s.gate`` apart at most (a cut region looks smaller). Its exit is one
-    of its last ``s.coast`` + 1 sightings: those after it are noise it took while unseen (the
-    demo's ball, docs/motion.md), and ``back`` goes on past them; ``back`` comes in at its first
+    next region), sizes ``s.gate`` apart at most (a cut region looks smaller). Its exit is a
+    sighting after which what it took is no object by itself (``_sure``): noise it took while
+    unseen, up to the end on one demo warm-up of eight (docs/motion.md), which ``back``'s
+    sightings replace; ``back`` comes in at its first
     sighting after the exit where those before it all touch the border and those after it are
     an object by themselves (``s.min_windows``, ``s.min_evidence``): the border's noise it took
     while the object was still in view (the demo's ball, one warm-up of eight), dropped when
     the two are joined (``_rejoined``). Or it was lost inside the
     image for longer than a track coasts and ``back`` is found inside it within ``gone``'s gate
     (``_resumes``; the only way with ``through_border`` false)."""
-    if max(back.blobs) <= max(gone.blobs):
+    if max(back.blobs) <= min(gone.blobs):
         return None
     clear = [not all(touches_border(r.mask) for r in t.blobs.values()) for t in (gone, back)]
     whole = [t.radius for t, c in zip((gone, back), clear) if c]  # a cut one's looks smaller
@@ -336,8 +337,12 @@ def _returns(gone: Track, back: Track, s: MoverConfig, through_border: bool = Tr
         return max(gone.blobs)
     if not through_border:
         return None
-    for a in sorted(gone.blobs)[-(s.coast + 1) :][::-1]:
+    for a in sorted(gone.blobs)[::-1]:
+        if _sure(gone.part(a + 1, max(gone.blobs)), s):
+            break  # it went on as an object: no exit at or before this sighting
         exit_, later = gone.blobs[a], back.part(a + 1, max(back.blobs))
+        if not later.blobs:
+            continue
         b = min(later.blobs)
         entry, noise = later.blobs[b], [r for k, r in back.blobs.items() if k <= a]
         if not borders(exit_.mask) & borders(entry.mask):
@@ -345,7 +350,7 @@ def _returns(gone: Track, back: Track, s: MoverConfig, through_border: bool = Tr
         # Before the exit, only the border's noise; after it, an object by its own sightings.
         if noise and not (all(touches_border(r.mask) for r in noise) and _sure(later, s)):
             continue
-        speed = max(gone.steps + later.steps, default=0.0)
+        speed = max(gone.part(min(gone.blobs), a).steps + later.steps, default=0.0)
         reach = s.gate * (speed * (b - a) + exit_.radius + entry.radius)
         if np.linalg.norm(entry.centre - exit_.centre) <= reach:
             return a
