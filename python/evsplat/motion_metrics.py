@@ -142,9 +142,9 @@ class ObjectGaussians:
     """The Gaussians at the test times and which of them draw one object (``object_gaussians``)."""
 
     means: np.ndarray  # [J,N,3] deformed centres at each test time
-    opacity: np.ndarray  # [J,N] opacities at each test time (time-local factor included)
     peak: np.ndarray  # [N] peak opacities
-    moves: np.ndarray  # [N] ``max_displacement_px`` from the mean test camera
+    camera: np.ndarray  # [4,4] the mean test camera (``mean_pose``)
+    moves: np.ndarray  # [N] ``max_displacement_px`` from ``camera``
     sets: np.ndarray  # [J,N] bool: each test time's object set (``object_sets``)
     radius: float | None  # the true object's (m) the sets were chosen with
 
@@ -158,10 +158,11 @@ def object_gaussians(
     K = renderer.K.double().numpy()
     means = np.stack([renderer.gaussians_at(v.time_us)[0].double().numpy() for v in views])
     opac = np.stack([renderer.opacities(v.time_us).detach().double().numpy() for v in views])
-    moves = max_displacement_px(means, mean_pose([v.c2w for v in views]), K)
+    camera = mean_pose([v.c2w for v in views])
+    moves = max_displacement_px(means, camera, K)
     sets = object_sets(means, opac, moves, views, K, radius)
     peak = renderer.model.opacities().double().numpy()
-    return ObjectGaussians(means, opac, peak, moves, sets, radius)
+    return ObjectGaussians(means, peak, camera, moves, sets, radius)
 
 
 def object_set(
@@ -320,8 +321,8 @@ def track_object(renderer: Renderer, views: Sequence[TrackView], found: ObjectGa
     K = renderer.K.double().numpy()
     times = [v.time_us for v in views]
     gt = np.stack([v.centre for v in views])
-    means, peak, moves, sets = found.means, found.peak, found.moves, found.sets
-    camera = mean_pose([v.c2w for v in views])
+    means, peak, camera, moves = found.means, found.peak, found.camera, found.moves
+    sets = found.sets
     gt_path = path_length(project(gt, camera, K))
     errors = np.full((len(views), len(views)), np.nan)  # [reference k, time j]
     rigid_errors = errors.copy()

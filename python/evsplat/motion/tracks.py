@@ -320,15 +320,12 @@ def _returns(gone: Track, back: Track, s: MoverConfig, through_border: bool = Tr
     next region), sizes ``s.gate`` apart at most (a cut region looks smaller). Its exit is a
     sighting after which what it took is no object by itself (``_sure``): noise it took while
     unseen, up to the end on one demo warm-up of eight (docs/motion.md), which ``back``'s
-    sightings replace; ``back`` comes in at its first
-    sighting after the exit where those before it all touch the border and those after it are
-    an object by themselves (``s.min_windows``, ``s.min_evidence``): the border's noise it took
-    while the object was still in view (the demo's ball, one warm-up of eight), dropped when
-    the two are joined (``_rejoined``). Or it was lost inside the
-    image for longer than a track coasts and ``back`` is found inside it within ``gone``'s gate
-    (``_resumes``; the only way with ``through_border`` false)."""
-    if max(back.blobs) <= min(gone.blobs):
-        return None
+    sightings replace. ``back`` comes in at its first sighting after the exit where those
+    before it all touch the border and those after it are an object by themselves (``_sure``):
+    the border's noise it took while the object was still in view (the demo's ball, one
+    warm-up of eight), dropped when the two are joined (``_rejoined``). Or it was lost inside
+    the image for longer than a track coasts and ``back`` is found inside it within ``gone``'s
+    gate (``_resumes``; the only way with ``through_border`` false)."""
     clear = [not all(touches_border(r.mask) for r in t.blobs.values()) for t in (gone, back)]
     whole = [t.radius for t, c in zip((gone, back), clear) if c]  # a cut one's looks smaller
     if whole and max(gone.radius, back.radius) > s.gate * min(whole):
