@@ -5,12 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evsplat.motion.tracks import filled, jump_limit, step_lengths
-
-#: A region cut by the border to under half its object's area is a sliver, its centre the least
-#: sure: `enter_leave`'s sphere's first three (44-166 px of about 380) 4.3-9.5 px off, the demo's
-#: ball's cut regions of half its area or more 0.4-1.3 px (docs/motion.md, "Slivers").
-SLIVER = 0.5
+from evsplat.motion.tracks import filled, jump_limit, partial, step_lengths
 
 
 def turn_angles(
@@ -30,7 +25,7 @@ def steadied(
     times_us: np.ndarray, path: np.ndarray, areas: np.ndarray, cut: np.ndarray, n: int
 ) -> np.ndarray:
     """The ``path`` [F,D] sighted at ``times_us`` [F] with its first and its last run of
-    slivers (sightings ``cut`` [F] by the image border to under ``SLIVER`` of the median area
+    slivers (sightings ``cut`` [F] by the image border to under ``tracks.SLIVER`` of the median area
     of those not cut; ``areas`` [F] px) read from the line fitted through that run and the ``n``
     sightings after it (before it), each weighed by its area: a sliver's centre is the least
     sure of all. Only where those ``n`` are whole, the run no longer than they (the line is read
@@ -55,12 +50,6 @@ def steadied(
 def leading(flags: np.ndarray) -> int:
     """How many of ``flags`` [F] (bool) are set before the first that is not."""
     return int(np.argmin(flags)) if not flags.all() else len(flags)
-
-
-def partial(areas: np.ndarray, cut: np.ndarray) -> np.ndarray:
-    """Bool [F]: the regions of ``areas`` [F] (px) under ``SLIVER`` of the median of those not
-    ``cut`` [F] by the border (none where all are)."""
-    return areas < SLIVER * (np.median(areas[~cut]) if (~cut).any() else np.inf)
 
 
 def despiked(

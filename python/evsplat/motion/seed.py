@@ -19,7 +19,7 @@ from evsplat.model.motion import BEHIND, ObjectMotion, knot_times_us
 from evsplat.motion import sphere
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
-from evsplat.motion.paths import despiked, hops, partial, steadied, turn_angles, turns, two_ends
+from evsplat.motion.paths import despiked, hops, steadied, turn_angles, turns, two_ends
 from evsplat.motion.segment import (
     Blob,
     apart,
@@ -30,7 +30,15 @@ from evsplat.motion.segment import (
     regions,
 )
 from evsplat.motion.still import behind_objects, is_still
-from evsplat.motion.tracks import Track, chain, jump_limit, on_its_line, step_lengths, together
+from evsplat.motion.tracks import (
+    Track,
+    chain,
+    jump_limit,
+    on_its_line,
+    partial,
+    step_lengths,
+    together,
+)
 from evsplat.motion.turn import WindowEvents, axis_rate, steady, turn_rate
 from evsplat.projection import back_project, project
 from evsplat.render import RenderOut

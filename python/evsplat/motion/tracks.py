@@ -17,6 +17,10 @@ from evsplat.motion.segment import Blob
 UNASSIGNED = 1e9  # cost of a pair outside the gate
 JUMP = 2.0  # a step over twice the track's median is not its own motion (docs/motion.md)
 RIGID = 0.5  # pieces whose offset holds within half their size move as one (ditto)
+#: A region cut by the border to under half its object's area is a sliver, its centre the least
+#: sure: `enter_leave`'s sphere's first three (44-166 px of about 380) 4.3-9.5 px off, the demo's
+#: ball's cut regions of half its area or more 0.4-1.3 px (docs/motion.md, "Slivers").
+SLIVER = 0.5
 
 
 def filled(at: np.ndarray, known: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -26,6 +30,12 @@ def filled(at: np.ndarray, known: np.ndarray, values: np.ndarray) -> np.ndarray:
     cols = [np.interp(at[~known], at[known], values[known, j]) for j in range(values.shape[1])]
     out[~known] = np.stack(cols, 1)
     return out
+
+
+def partial(areas: np.ndarray, cut: np.ndarray) -> np.ndarray:
+    """Bool [F]: the regions of ``areas`` [F] (px) under ``SLIVER`` of the median of those not
+    ``cut`` [F] by the border (none where all are)."""
+    return areas < SLIVER * (np.median(areas[~cut]) if (~cut).any() else np.inf)
 
 
 def step_lengths(windows: np.ndarray, centres: np.ndarray) -> np.ndarray:
@@ -144,7 +154,8 @@ def chain(per_window: list[list[Blob]], s: MoverConfig, still: bool = False) -> 
         done += [t for t in live if t.missed > s.coast]
         live = [t for t in live if t.missed <= s.coast]
         live += [Track({k: b}) for j, b in enumerate(blobs) if j not in taken]
-    pieces = _merged(done + live, lambda t: -len(t.blobs), lambda o, t: together(o, t, s))
+    parts = [piece for t in done + live for piece in _left(t)]
+    pieces = _merged(parts, lambda t: -len(t.blobs), lambda o, t: together(o, t, s))
     least = 0.0 if still else s.min_evidence
     long = [(t, evidence(t, s) >= least) for t in pieces if len(t.blobs) >= s.min_windows]
     kept = _rejoined([t for t, sure in long if sure], [t for t, sure in long if not sure], s)
@@ -157,6 +168,30 @@ def chain(per_window: list[list[Blob]], s: MoverConfig, still: bool = False) -> 
     for track in kept:  # only the objects kept (the shape fit is the costly part)
         track.blobs = uncut(track.blobs, set(track.blobs) - track.shared)
     return sorted(kept, key=lambda t: -len(t.blobs))
+
+
+def _left(track: Track) -> list[Track]:
+    """``track`` cut after each sighting that the image border cuts to a sliver
+    (``partial``) and after which it is neither seen nor hidden in another's region
+    (``Track.hidden``) for two windows or more: it left the image, and what it took next is a
+    track of its own, which ``_returns`` joins to it or drops (the border's noise that the
+    demo's ball's track took inside the image after it left; docs/motion.md)."""
+    ks = sorted(track.blobs)
+    sliver = dict(zip(ks, partial(track.areas, track.cut) & track.cut))
+    cuts = [
+        a
+        for a, b in zip(ks, ks[1:])
+        if sliver[a] and sum(k not in track.hidden for k in range(a + 1, b)) >= 2
+    ]
+    if not cuts:
+        return [track]
+    out = []
+    for lo, hi in zip([ks[0] - 1, *cuts], [*cuts, ks[-1]]):
+        piece = track.part(lo + 1, hi)
+        last = hi == ks[-1]  # the last piece keeps the hidden windows after it too
+        piece.hidden = {k: b for k, b in track.hidden.items() if lo < k and (k <= hi or last)}
+        out.append(piece)
+    return out
 
 
 def evidence(track: Track, s: MoverConfig) -> float:
