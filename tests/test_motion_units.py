@@ -30,7 +30,7 @@ from evsplat.motion.seed import (
     smear,
     span,
 )
-from evsplat.motion.segment import Blob, apart, floor, made_by_events, pooled, regions
+from evsplat.motion.segment import Blob, _blob, apart, floor, made_by_events, pooled, regions
 from evsplat.motion.tracks import Track, _rejoined, beside_line, chain, partial
 from evsplat.motion.turn import STEADY_P, WindowEvents, axis_rate, long_axis, steady, turn_rate
 from evsplat.projection import back_project, project, project_points, world_to_camera
@@ -573,11 +573,9 @@ def test_an_object_back_after_its_track_took_noise_at_the_border_it_left_by_is_o
     # docs/motion.md). The track is cut where it left: the noise is dropped, the return joined.
     shape = (96, 128)
 
-    def seen(k, centre, radius, contrast=20.0):  # the part of the disc in the image
+    def seen(k, centre, radius, contrast=20.0):  # the part of the disc in the image, centred
         mask = _disc(shape, centre, radius)
-        ys, xs = np.nonzero(mask)
-        at = np.array([xs.mean() + 0.5, ys.mean() + 0.5])
-        return Blob(k, at, mask, float(mask.sum()), contrast)
+        return _blob(mask, mask.astype(np.float64), k, contrast)
 
     per_window = [[] for _ in range(30)]
     for k in range(15):

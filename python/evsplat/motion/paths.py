@@ -24,14 +24,14 @@ def turn_angles(
 def steadied(
     times_us: np.ndarray, path: np.ndarray, areas: np.ndarray, cut: np.ndarray, n: int
 ) -> np.ndarray:
-    """The ``path`` [F,D] sighted at ``times_us`` [F] with its first and its last run of
-    slivers (sightings ``cut`` [F] by the image border to under ``tracks.SLIVER`` of the median area
-    of those not cut; ``areas`` [F] px) read from the line fitted through that run and the ``n``
-    sightings after it (before it), each weighed by its area: a sliver's centre is the least
-    sure of all. Only where those ``n`` are whole, the run no longer than they (the line is read
-    no farther out than the whole ones it is fitted to span: `crossing`'s sphere, ten slivers as
-    it turns back into view, was carried up to 38 px off) and no window is missed from the run's
-    first to the last of them (unseen, it may have turned: the demo's ball leaving and back)."""
+    """The ``path`` [F,D] sighted at ``times_us`` [F] with its first and its last run of slivers
+    (sightings ``cut`` [F] by the image border to under ``tracks.SLIVER`` of the median area of
+    those not cut; ``areas`` [F] px) read from the line fitted through that run and the ``n``
+    sightings after it (before it), each weighed by its area: a sliver's centre is the least sure of
+    all. Only where those ``n`` are whole, the run no longer than they (the line is read no farther
+    out than the whole ones it is fitted to span: `crossing`'s sphere, ten slivers as it turns back
+    into view, was carried up to 38 px off) and no window is missed from the run's first to the last
+    of them (unseen, it may have turned: the demo's ball leaving and back)."""
     out = path.astype(np.float64, copy=True)
     sliver = cut & partial(areas, cut)
     step = np.diff(times_us).min() if len(times_us) > 1 else 0

@@ -186,10 +186,10 @@ def _left(track: Track) -> list[Track]:
     if not cuts:
         return [track]
     out = []
-    for lo, hi in zip([ks[0] - 1, *cuts], [*cuts, ks[-1]]):
+    end = max([ks[-1], *track.hidden])  # the last piece keeps the hidden windows after it too
+    for lo, hi in zip([ks[0] - 1, *cuts], [*cuts, end]):
         piece = track.part(lo + 1, hi)
-        last = hi == ks[-1]  # the last piece keeps the hidden windows after it too
-        piece.hidden = {k: b for k, b in track.hidden.items() if lo < k and (k <= hi or last)}
+        piece.hidden = {k: b for k, b in track.hidden.items() if lo < k <= hi}
         out.append(piece)
     return out
 
