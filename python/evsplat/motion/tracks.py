@@ -151,11 +151,11 @@ def chain(per_window: list[list[Blob]], s: MoverConfig, still: bool = False) -> 
             for other in live:
                 if other.blobs.get(k) is host:
                     other.shared.add(k)
-        done += [t for t in live if t.missed > s.coast]
-        live = [t for t in live if t.missed <= s.coast]
+        ended = [_gone(t, s) for t in live]
+        done += [t for t, e in zip(live, ended) if e]
+        live = [t for t, e in zip(live, ended) if not e]
         live += [Track({k: b}) for j, b in enumerate(blobs) if j not in taken]
-    parts = [piece for t in done + live for piece in _left(t)]
-    pieces = _merged(parts, lambda t: -len(t.blobs), lambda o, t: together(o, t, s))
+    pieces = _merged(done + live, lambda t: -len(t.blobs), lambda o, t: together(o, t, s))
     least = 0.0 if still else s.min_evidence
     long = [(t, evidence(t, s) >= least) for t in pieces if len(t.blobs) >= s.min_windows]
     kept = _rejoined([t for t, sure in long if sure], [t for t, sure in long if not sure], s)
@@ -170,28 +170,16 @@ def chain(per_window: list[list[Blob]], s: MoverConfig, still: bool = False) -> 
     return sorted(kept, key=lambda t: -len(t.blobs))
 
 
-def _left(track: Track) -> list[Track]:
-    """``track`` cut after each sighting that the image border cuts to a sliver
-    (``partial``) and after which it is neither seen nor hidden in another's region
-    (``Track.hidden``) for two windows or more: it left the image, and what it took next is a
-    track of its own, which ``_returns`` joins to it or drops (the border's noise that the
-    demo's ball's track took inside the image after it left; docs/motion.md)."""
-    ks = sorted(track.blobs)
-    sliver = dict(zip(ks, partial(track.areas, track.cut) & track.cut))
-    cuts = [
-        a
-        for a, b in zip(ks, ks[1:])
-        if sliver[a] and sum(k not in track.hidden for k in range(a + 1, b)) >= 2
-    ]
-    if not cuts:
-        return [track]
-    out = []
-    end = max([ks[-1], *track.hidden])  # the last piece keeps the hidden windows after it too
-    for lo, hi in zip([ks[0] - 1, *cuts], [*cuts, end]):
-        piece = track.part(lo + 1, hi)
-        piece.hidden = {k: b for k, b in track.hidden.items() if lo < k <= hi}
-        out.append(piece)
-    return out
+def _gone(track: Track, s: MoverConfig) -> bool:
+    """Whether ``track`` ends: unseen (nor hidden in another's region) for over ``s.coast``
+    windows, or for two after a sighting that the image border cuts to a sliver (``partial``):
+    it left the image, and what comes next is a track of its own, which ``_returns`` joins to it
+    or drops (the border's noise that the demo's ball's track took inside the image after it
+    left; docs/motion.md)."""
+    if track.missed > s.coast:
+        return True
+    last = partial(track.areas, track.cut)[-1] and track.cut[-1]
+    return bool(last) and track.missed >= 2
 
 
 def evidence(track: Track, s: MoverConfig) -> float:
