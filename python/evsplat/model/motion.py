@@ -1,10 +1,8 @@
 """Per-object rigid motion: a Gaussian of object k (``object_id`` k >= 0) at canonical x sits at
-``R_k(t) (x - c_k) + c_k + T_k(t)`` at normalised time t, turned by R_k(t) too; ``c_k`` is the
-object's centre at its reference time (R = I, T = 0). R_k (rotation vectors) and T_k are linear
-between knots shared by all objects, parameters of the paper's losses started from the seeding
-(``evsplat.motion``; they move up to ``FREE`` radii from it, docs/motion.md "Limits"); the MLP
-adds what is not rigid (Shape of Motion's motion bases, one per object, plus a residual). The
-scene's Gaussians (id -1) are not moved here."""
+``R_k(t) (x - c_k) + c_k + T_k(t)`` at normalised time t, turned by R_k(t) too, ``c_k`` being its
+centre at its reference time (R = I, T = 0). R_k (rotation vectors) and T_k are linear between
+shared knots, started from the seeding; the MLP adds what is not rigid. The scene's Gaussians
+(id -1) are not moved here."""
 
 from __future__ import annotations
 
@@ -15,9 +13,8 @@ from torch import Tensor, nn
 from evsplat.model.gaussians import quat_to_rotmat
 
 ANGLE_EPS = 1e-6  # below this angle (rad) the half-angle terms take their Taylor forms
-#: Object radii a knot's translation may move from its seeded place at no cost: the seeded paths
-#: are a few pixels off (0.1-0.35 radii), a pull the prior must stop is near a radius (the demo's
-#: ball bent 15-20 px, about one radius, where it leaves the image; docs/motion.md).
+#: Object radii a knot's translation may move from its seeded place at no cost: about the
+#: seeding's error, well short of a pull the prior must stop (docs/motion.md, "Tuning numbers").
 FREE = 0.25
 DIST_EPS = 1e-12  # keeps the distance's gradient finite where a knot is at its seeded place
 #: How far behind an object (radii) the warm-up's smear of it reaches along the rays: where the
@@ -123,10 +120,8 @@ class ObjectMotion(nn.Module):
         the space an object passes through while in view (within its radius of its path) or
         hides from the camera (within its radius of the ray from the camera's centre at each
         knot, ``eyes`` [G,3], through its centre, from there to ``BEHIND`` radii behind it) or
-        would hide it (the cone from the camera's centre there to its disc). The warm-up
-        spreads an object's events there as static Gaussians, and densification grows more to
-        explain them; left, they draw a trail along its path (in front of it: floaters up to
-        0.9 m nearer than the demo's ball, at up to 0.96 opacity, where it starts)."""
+        would hide it (the cone from the camera's centre there to its disc): the warm-up spreads
+        an object's events there as static Gaussians, which, left, draw a trail along its path."""
         knots = torch.linspace(0.0, 1.0, self.translations.shape[1], device=means.device)
         out = torch.zeros(means.shape[0], dtype=torch.bool, device=means.device)
         for centre, radius, trans, (start, end) in zip(
@@ -155,12 +150,10 @@ class ObjectMotion(nn.Module):
         return out
 
     def prior_loss(self) -> Tensor:
-        """Squared distance of the paths from their starting values: translations in object
-        radii beyond ``FREE`` of them summed over the knots, each held on its own (a mean over
-        them let one knot go 15-20 px off where the demo's ball leaves the image; held within
-        the seeding's error too, the clock was 1 dB lower), rotations in radians averaged over
-        them (held per knot, the clock's turn was refined less: 2 dB lower; docs/motion.md);
-        both averaged over the objects."""
+        """Squared distance of the paths from their starting values, averaged over the objects:
+        translations in object radii beyond ``FREE`` of them summed over the knots (a mean lets
+        one knot stray), rotations in radians averaged over the knots (held per knot, a turn is
+        refined less); docs/motion.md, "The track prior per knot"."""
         scale = self.radii.clamp_min(1e-6)[:, None, None]
         off = (self.translations - self.prior_translations) / scale
         beyond = (torch.sqrt((off**2).sum(-1) + DIST_EPS) - FREE).clamp_min(0.0)

@@ -45,7 +45,7 @@ def in_image(pixels: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
 
 def _coarse(shape: Blob, cut: Blob, reach: int) -> np.ndarray:
     """``_best`` over the whole-pixel shifts up to ``reach`` from ``cut``'s centre, as
-    correlations of the masks by FFT (pixel by pixel, the DAVIS346 sample's took 24 GB)."""
+    correlations of the masks by FFT (pixel by pixel for every shift takes too much memory)."""
     h, w = cut.mask.shape
     image = np.stack([cut.mask, np.ones((h, w), dtype=bool)]).astype(np.float64)
     counts = signal.correlate(image, shape.mask[None].astype(np.float64), "full", "fft")

@@ -24,14 +24,12 @@ def turn_angles(
 def steadied(
     times_us: np.ndarray, path: np.ndarray, areas: np.ndarray, cut: np.ndarray, n: int
 ) -> np.ndarray:
-    """The ``path`` [F,D] sighted at ``times_us`` [F] with its first and its last run of slivers
-    (sightings ``cut`` [F] by the image border to under ``tracks.SLIVER`` of the median area of
-    those not cut; ``areas`` [F] px) read from the line fitted through that run and the ``n``
-    sightings after it (before it), each weighed by its area: a sliver's centre is the least sure of
-    all. Only where those ``n`` are whole, the run no longer than they (the line is read no farther
-    out than the whole ones it is fitted to span: `crossing`'s sphere, ten slivers as it turns back
-    into view, was carried up to 38 px off) and no window is missed from the run's first to the last
-    of them (unseen, it may have turned: the demo's ball leaving and back)."""
+    """The ``path`` [F,D] sighted at ``times_us`` [F] with its first and last run of slivers
+    (``cut`` [F] by the border to under ``tracks.SLIVER`` of the median uncut area, ``areas`` [F]
+    px) read from the line fitted, weighed by area, through the run and the ``n`` sightings after
+    (before) it: a sliver's centre is the least sure. Only where those ``n`` are whole, the run is
+    no longer than they (a line is not read farther out than it spans) and no window is missed
+    (unseen, the object may have turned)."""
     out = path.astype(np.float64, copy=True)
     sliver = cut & partial(areas, cut)
     step = np.diff(times_us).min() if len(times_us) > 1 else 0
@@ -55,15 +53,12 @@ def leading(flags: np.ndarray) -> int:
 def despiked(
     windows: np.ndarray, centres: np.ndarray, longest: int, piece: np.ndarray
 ) -> np.ndarray:
-    """The ``centres`` [F,2] sighted at ``windows`` [F] with each run of at most ``longest``
-    sightings that jumps off and straight back (its steps in and out both over ``JUMP`` x the
-    median step, the sightings before and after it within that of each other) on the line
-    between those two: a region of a piece of its object, or of another, taken for a window or
-    a few (the clock's bells, 28 px above its centre, drew it doubled). Also a first or last
-    run of at most ``longest`` that jumps off to regions each a ``piece`` [F] (bool: part of
-    the object, ``partial`` but not cut by the border, whose slivers ``steadied`` reads), held
-    at the nearest other: nothing beyond it comes back (`pair`'s bar's last, 95 px of about
-    400, 14 px off)."""
+    """The ``centres`` [F,2] sighted at ``windows`` [F], each run of at most ``longest`` that jumps
+    off and straight back (steps in and out over ``JUMP`` x the median, its neighbours within that
+    of each other) put on the line between its neighbours: a stray region (a piece of the object,
+    or another's) taken for a few windows. A first or last run of at most ``longest`` past a jump,
+    each a ``piece`` [F] (bool: ``partial``, not cut by the border), is held at the nearest other:
+    nothing beyond it comes back (docs/motion.md, "A sighting that jumps off and straight back")."""
     step = step_lengths(windows, centres)
     if step.size < 2:
         return centres.astype(np.float64, copy=True)
@@ -98,13 +93,11 @@ def turns(angles: np.ndarray | float) -> np.ndarray:
 def hops(
     windows: np.ndarray, centres: np.ndarray, radius: float, coast: int, cut: np.ndarray
 ) -> tuple[np.ndarray, float]:
-    """(bool [F-1]: the steps between the ``centres`` [F,2] sighted at ``windows`` [F] that hop
-    between two ends, over ``JUMP`` x the median step, at most ``coast`` + 1 windows apart and
-    at least ``radius`` long (ends at ±d with |d| >= radius lie 2|d| apart: a spinning card's
-    arm's fastest steps, 6.4 px against a limit of 6.2, are not hops; docs/motion.md), neither
-    sighting ``cut`` [F] by the image border (its centre is the least sure: the demo's ball,
-    gone out on the right, took the border's noise there for three hops, docs/motion.md); that
-    limit, px per window)."""
+    """(bool [F-1]: which steps between the ``centres`` [F,2] sighted at ``windows`` [F] hop
+    between two ends; the jump limit, px per window). A hop is over ``JUMP`` x the median step,
+    at most ``coast`` + 1 windows and at least ``radius`` px long (ends at ±d with |d| >= radius
+    lie 2|d| apart: a fast step is no hop), neither sighting ``cut`` [F] by the border (a cut
+    region's centre is the least sure; docs/motion.md, "Hops at the border are no ends")."""
     step, gap = step_lengths(windows, centres), np.diff(windows)
     limit = jump_limit(step)
     whole = ~cut[:-1] & ~cut[1:]
@@ -120,12 +113,11 @@ def two_ends(
     cut: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(centres [F,2]; ends [F], +1 where the track started, -1 at the other; turn angles [F],
-    rad). An object turning in place fires at whichever end the camera's motion adds to, and its
-    track hops between them (``hops``). The ends sit at ±d about the centre, turned with it, d
-    fitted to the hops; each hop (-2 x the offset, turned) reads the turn, taking the
-    ``angles``' drift out (docs/motion.md). Only where that explains them (two hops or more,
-    |d| >= ``radius``, no hop left in the centres); else the track's own centres and
-    ``angles``."""
+    rad) of an object turning in place, whose track hops (``hops``) to whichever end the camera's
+    motion lights. The ends sit at ±d about the centre, turned with it, d fitted to the hops; each
+    hop (-2 x the offset, turned) reads the turn, taking the ``angles``' drift out. Only where two
+    hops or more, |d| >= ``radius`` and no hop left in the centres; else the track's own centres,
+    ends all +1 and ``angles``."""
     none = (centres, np.ones(len(centres)), angles)
     hop = hops(windows, centres, radius, coast, cut)[0]
     if hop.sum() < 2:

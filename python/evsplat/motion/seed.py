@@ -1,7 +1,6 @@
-"""After the warm-up, find every moving object in the events and start its motion (not in the
-paper, which starts from a point cloud). The steps (docs/motion.md): ``segment`` the windows'
-unexplained events, chain them into ``tracks``, ``align`` them, measure each object's ``turn``,
-lift them to ``paths``; here, Gaussians placed on each object's shape and an ``ObjectMotion``."""
+"""Find every moving object after the warm-up and start its motion: ``segment``, ``tracks``,
+``align``, ``turn`` and ``paths`` (docs/motion.md, "The steps"); here, Gaussians placed on each
+object's shape and an ``ObjectMotion``."""
 
 from __future__ import annotations
 
@@ -147,12 +146,9 @@ def slid(
 ) -> np.ndarray:
     """The object's ``path`` [F,3] at its sightings' ``times_us`` [F], read at ``at_us`` [G]:
     linear between its sightings; before the first (after the last) carried on for up to
-    ``reach`` µs at the velocity fitted to its first (last) ``n`` sightings, then held where
-    the camera (``pose``: µs -> [..,4,4] camera-to-world) sees it. It may have moved unseen:
-    for as long as a track may go unseen inside the image, and, where it came in (went out)
-    through the border, for as long as it was partly in view. Held in the camera's frame, not
-    the world's: an object that moves in the image fires events, so one unseen inside it moved
-    little there (the camera followed it; under a still camera the two are one)."""
+    ``reach`` [2] µs at the velocity fitted to its first (last) ``n`` sightings, then held where
+    the camera (``pose``: µs -> [..,4,4] camera-to-world) sees it, in the camera's frame: an
+    object unseen inside the image moved little in it."""
     out = np.stack([np.interp(at_us, times_us, path[:, j]) for j in range(3)], 1)
     for most, i, used, beyond in (
         (reach[0], 0, slice(None, n), at_us < times_us[0]),
@@ -190,10 +186,9 @@ def in_view(
 ) -> list[float]:
     """The span ``ends`` (normalised times, ``span``'s) widened to where the object's disc of
     ``radius`` on its path ``held`` [G,3] at ``knots`` [G] (µs) overlaps the image: to the
-    nearest knot it is out of view at, so that at the next, in view, it has faded in (0.96 of
-    its opacity with the default 61 knots and a fade of 1/48). Not where its path keeps it in
-    view all along: unseen so long, it was not there (`blobs`' wall sliding in along the border
-    was drawn there from the start, and its Gaussians crossed the ball's; docs/motion.md)."""
+    nearest knot it is out of view at, so that it has faded in by the next. Not where its path
+    keeps it in view all along: an object in view that long would have fired events
+    (docs/motion.md, "An object partly in view before its first sighting")."""
     data = views.data
     size, seen = np.array([data.width, data.height]), []
     for point, t_us in zip(held, knots.tolist()):
@@ -264,10 +259,9 @@ def carried(
 def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
     """The object's turn rate (rad/s) at each sighting: ``turn.turn_rate`` on the events of a
     ``mc.turn_window`` window that its region holds, carried back by its image velocity; 0
-    where the turn sharpens them by less than ``mc.turn_min_gain`` (no turn seen: a rate held
-    across such windows from a few others turned `pair`'s bar three times too fast), NaN where
-    fewer than ``mc.turn_min_events`` are in it; 0 in every window where the turns shown are not
-    ``turn.steady``."""
+    where the turn sharpens them by less than ``mc.turn_min_gain`` (a turn not seen is no turn,
+    not an unknown one), NaN where fewer than ``mc.turn_min_events`` are in it; 0 in every
+    window where the turns shown are not ``turn.steady``."""
     half_us, top = turn_window(views, mc)
     times, centres = track.times_us, track.centres
     velocity = np.gradient(centres, times * 1e-6, axis=0) if len(times) > 1 else 0.0 * centres
@@ -410,11 +404,10 @@ def off_their_line(
     windows: np.ndarray, gap: int,
 ) -> np.ndarray:  # fmt: skip
     """[F] bool: of the ``centres`` [F,2] at ``times`` [F] (µs) and ``windows`` [F], those
-    ``outlined`` [F] (placed by a cut outline's arc) further off the robust (Theil-Sen) line
-    through the other ``placed`` [F] ones within ``gap`` windows (three or more) than the
-    object's steps between placed ones go in a window (``jump_limit``), the furthest first,
-    each dropped before the next is read: there the background's events outweighed a sliver's
-    arc (the demo's ball going out, 10-20 px off in 4 of 20 warm-ups; docs/motion.md)."""
+    ``outlined`` [F] (placed by a cut outline's arc) further off the Theil-Sen line through the
+    other ``placed`` [F] ones within ``gap`` windows (three or more) than the object steps in a
+    window (``jump_limit``), the furthest dropped first: there the background's events outweighed
+    a sliver's arc (docs/motion.md, "A ball's slivers read from its placed sightings")."""
     placed, out = placed.copy(), np.zeros(len(centres), dtype=bool)
     at = np.flatnonzero(placed)
     if len(at) < 3:
@@ -442,10 +435,9 @@ def between_placed(
     cut: np.ndarray,
 ) -> np.ndarray:  # fmt: skip
     """The ``centres`` [F,2] at ``times`` [F] (µs) and ``windows`` [F], each not ``placed`` [F]
-    by an outline where the placed ones put it (``predicted``): between two (an unplaced one's
-    offset is 5-11 px off where the border leaves a sliver, an outline's 1-2: docs/motion.md),
-    or, ``cut`` [F] by the border (going out or coming in), past two (the demo's ball's last
-    sighting, a sliver in the corner, was 10-14 px off in 10 of 20 warm-ups)."""
+    by an outline where the placed ones put it (``predicted``): between two, or, ``cut`` [F] by
+    the border (going out or coming in), past two: a sliver's region is the least sure centre
+    (docs/motion.md, "A ball's slivers read from its placed sightings")."""
     out, t = centres.copy(), times.astype(np.float64)
     for i in np.flatnonzero(~placed):
         line = predicted(centres, placed, t, windows, i, gap, bool(cut[i]))
@@ -470,8 +462,7 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
     centres, radius, cut = track.centres, track.radius, track.cut  # each derived: read once
     found = two_ends(ks, centres, seen, radius, mc.coast, cut)
     if (found[1] < 0).any() and shown.any():
-        # Its regions are its ends, whose rates stray (-17 to +30 rad/s late in the spinner's
-        # 8, docs/motion.md): a steady turn at their median instead, read again at the hops.
+        # Its ends' rates stray: a steady turn at their median instead, read again at the hops.
         at_median = np.median(rates[shown]) * (times - times[0]) * 1e-6
         again = two_ends(ks, centres, at_median, radius, mc.coast, cut)
         found = again if (again[1] < 0).any() else found
@@ -491,11 +482,10 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
 
 def ends_turning(views: Views, track: Track, mc: MoverConfig) -> tuple[Track, Turning]:
     """The ``track`` and its ``turning``; where that shows no two ends, the track less its tail
-    of at most ``mc.coast`` sightings (as long as a track coasts) after its last hop, and its
-    turning, if that shows them. A spinning card's arm that stops firing leaves its track
-    coasting, to take a region or two of the card's middle (23 px) or of both arms at once: one
-    more "hop" that no two ends explain (``spinner``: two bench warm-ups of six; docs/motion.md).
-    Else, with one end, the track ``on_its_line`` and its turning."""
+    of at most ``mc.coast`` sightings after its last hop, and its turning, if that shows them:
+    an end that stops firing leaves its track coasting onto one more "hop" that no two ends
+    explain (docs/motion.md, "A spinning card's two arms joined again"). Else, with one end,
+    the track ``on_its_line`` and its turning."""
     turn = turning(views, track, mc)
     if (turn[2] < 0).any():
         return track, turn
@@ -512,21 +502,18 @@ def ends_turning(views: Views, track: Track, mc: MoverConfig) -> tuple[Track, Tu
 
 def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tuple[Track, Turning]]:
     """The objects and their ``turning``, where the chaining broke one at a hop between its ends
-    made one: a track that starts at most ``mc.coast`` + 1 windows past another's end and ends
-    after it joins it where the two hop between two ends (``two_ends``); the other's end is the
-    last sighting before a gap longer than a track coasts, if any, after which its sightings
-    are a track of their own (it was resumed on the other end firing at once). A track together
-    with a two-ended object's centre (``tracks.together``) is its other end firing at once,
-    unless it explains more of the events (``Track.area``): then the "ends" were pieces of its
-    edge."""
+    made one: a track starting at most ``mc.coast`` + 1 windows past another's end (its last
+    sighting before a gap longer than a track coasts; the rest a track of its own) and ending
+    after it joins it where the two show two ends (``two_ends``). A track ``tracks.together``
+    with a two-ended object's centre is its other end firing at once, unless it explains more of
+    the events (``Track.area``): then the "ends" were pieces of its edge."""
     gone: set[int] = set()  # ids of the tracks that are part of another
     turns: dict[int, Turning] = {}  # a joined track's, from its join's test
     for track in sorted(tracks, key=lambda t: min(t.blobs)):
         first, last = min(track.blobs), max(track.blobs)
         for home in tracks:
             ks = sorted(home.blobs)
-            # Up to a gap after ``first`` longer than a track coasts: resumed there
-            # (``tracks._resumes``), it may have taken the other end firing at once.
+            # Up to a long gap: resumed past it (``tracks._resumes``), it may hold the other end.
             gaps = [a for a, b in zip(ks, ks[1:]) if b > first and b - a > mc.coast + 1]
             start, end = ks[0], gaps[0] if gaps else ks[-1]
             if id(home) in gone or not (start < first <= end + mc.coast + 1 and end < last):
@@ -556,7 +543,7 @@ def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tupl
             centred = Track({k: replace(home.blobs[k], centre=c) for k, c in zip(ks, middle)})
             near = [t for t in tracks if t is not home and together(centred, t, mc)]
             if any(t.area > home.area for t in near):
-                gone.add(id(home))  # the ball's rim, read as two ends about its centre
+                gone.add(id(home))  # a round object's rim, read as two ends about its centre
             else:
                 gone |= {id(t) for t in near}
     return [(t, turn) for t, turn in found if id(t) not in gone]
@@ -564,8 +551,8 @@ def joined_ends(tracks: list[Track], views: Views, mc: MoverConfig) -> list[tupl
 
 def ends_offset(track: Track, middle: np.ndarray) -> float:
     """How far (px, median) the track's regions lie from its object's centres ``middle`` [F,2]:
-    0 for one end, the ends' offset for two (``paths.two_ends``): a spinning card's arms make
-    regions 10 px in radius 15 px from its centre, its tips 23 px from it (docs/motion.md)."""
+    0 for one end, the ends' offset for two (``paths.two_ends``), whose object reaches past its
+    ends' regions."""
     return float(np.median(np.linalg.norm(track.centres - middle, axis=1)))
 
 
@@ -653,8 +640,7 @@ def seed_objects(
     free = object_id < 0
     faintest = np.argsort(model.opacities().detach().cpu().numpy(), kind="stable")
     areas = np.array([np.median(t.areas) for t in tracks])
-    # Shares by area among all objects, the known ones too (seen at the sequence's middle): else
-    # one found at the second look takes all of ``mc.fraction`` (a 4 px one 900 of 6000).
+    # Shares by area among all objects, known ones too: else a new one takes all ``mc.fraction``.
     mid_us = (data.t_start_us + data.t_end_us) // 2
     known_areas = np.pi * projected(known[0], views, mid_us)[1] ** 2 if known else np.zeros(0)
     total = areas.sum() + known_areas.sum()

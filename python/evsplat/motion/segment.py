@@ -15,10 +15,9 @@ from evsplat.config import MoverConfig
 
 EPS = 1e-12  # guards divisions by energies and spreads
 MAD_TO_SIGMA = 1.4826  # a normal distribution's sigma per median absolute deviation
-# A longer window's region this many times its and a short region's radii off that region's
-# centre is another object; nearer, the same object's other edge (`enter_leave` seed 3's slowly
-# starting box: one object at 1.3 px with it, two at 8.4 px without; `evsplat bench seeding`,
-# 2026-12-03, docs/motion.md).
+# A longer window's region this x its and a short region's radii off that one's centre is
+# another object, nearer its other edge: `enter_leave` seed 3's slow box is one object at 1.3 px
+# with it, two at 8.4 px without (`evsplat bench seeding`, 2026-12-03).
 SEPARATE = 2.0
 
 
@@ -51,9 +50,8 @@ def made_by_events(
     blobs: list[Blob], esi: Tensor, predicted: Tensor, pool: int, share: float
 ) -> list[Blob]:
     """The ``blobs`` over which the ``esi``'s magnitude (``pooled``) sums to at least ``share`` of
-    the ``predicted`` log change's. Where the render changes and the events do not, it draws
-    something where nothing is (the warm-up's smear of a mover, an object's Gaussians strayed
-    off it): the model's own error, which training mends, not a mover."""
+    the ``predicted`` log change's: a change the render draws where no event fired is the model's
+    own error, which training mends, not a mover."""
     if not blobs:
         return blobs
     events, drawn = pooled(esi, pool), pooled(predicted, pool)
@@ -61,12 +59,10 @@ def made_by_events(
 
 
 def apart(more: list[Blob], found: list[Blob]) -> list[Blob]:
-    """The regions ``more`` (a longer window's) that are no part of an object in ``found`` (the
-    short window's about the same middle, before ``made_by_events``): what only the longer
-    window shows. Over the longer window an object smears along its path and a slow one fires at
-    both of its edges where the short window sees one, so a region counts as another object
-    only where it overlaps none of ``found`` and its centre lies over ``SEPARATE`` x the two
-    radii from each one's."""
+    """The regions ``more`` (a longer window's) that overlap none of ``found`` (the short
+    window's about the same middle, before ``made_by_events``) and lie over ``SEPARATE`` x the two
+    radii from each one's centre: what only the longer window shows, as over it an object smears
+    and a slow one fires at both edges where the short window sees one."""
     if not found:
         return more
     taken = np.any([b.mask for b in found], axis=0)

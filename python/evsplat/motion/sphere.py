@@ -15,19 +15,16 @@ from evsplat.motion.turn import warped_variance
 BIN_PX = 0.5  # the ring fit's radius step
 RING_PX = 1.0  # an event within this of the ring is on it; the next 2 px each side are its sides
 RADII = (0.8, 1.8)  # the ring's radius, in the region's radii: the region is the ball's lit part
-#: A round object's ring holds still on its regions and stands out from its sides (median over
-#: its sightings): the demo's ball 0 px and 3.1 times; `watch`'s and `enter_leave`'s spheres
-#: 1.0 and 0 px, 4.3 and 3.8; their card and box 0 px but 2.4, `tumble`'s box 4.3 px and 1.3
-#: (docs/motion.md, section "The three-axis turn on main").
+#: An object is round where its ring (its outline) moves at most this many px between sightings
+#: and stands out this many times from its sides (medians; docs/motion.md, "Tuning numbers").
 STEADY_PX = 1.5
 CONTRAST = 2.5
 EPS = 1e-12  # guards the contrast's ratio
 REACH = RADII[1] + 0.5  # events within this many region radii can be on the ring
-SEEN = 0.25  # of a cut outline in the image, at least, to place it by (a quarter: an arc)
-#: A cut outline's circle is taken where its events stand out from its sides this much: on the
-#: demo's ball, circles placed 4-21 px off the truth stood out 1.2-1.9 times, those within
-#: 1.6 px 1.75-3.6 (one warm-up; docs/motion.md, "A ball placed on its sphere and centred
-#: by its outline").
+#: A cut outline's circle places the object only where this much of it is in view (an arc) and
+#: it stands out this many times from its sides: one off the object stands out less
+#: (docs/motion.md, "Tuning numbers").
+SEEN = 0.25
 CUT_CONTRAST = 2.0
 FRONT = 0.9  # of the ring's radius: events nearer its outline have no one depth on the sphere
 MAX_EVENTS = 1500  # the turn's contrast and a cut outline read at most this many events

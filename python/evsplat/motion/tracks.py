@@ -1,5 +1,5 @@
-"""Moving regions chained across windows into one track per object, K found and not given
-(docs/motion.md, step 2): Hungarian assignment, hidden tracks, pieces and returns joined."""
+"""Moving regions chained across windows into one track per object, their number found, not
+given (docs/motion.md, step 2): Hungarian assignment, hidden tracks, pieces and returns joined."""
 
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ from evsplat.motion.border import borders, in_image, touches_border, uncut
 from evsplat.motion.segment import Blob
 
 UNASSIGNED = 1e9  # cost of a pair outside the gate
-JUMP = 2.0  # a step over twice the track's median is not its own motion (docs/motion.md)
-RIGID = 0.5  # pieces whose offset holds within half their size move as one (ditto)
-#: A region cut by the border to under half its object's area is a sliver, its centre the least
-#: sure: `enter_leave`'s sphere's first three (44-166 px of about 380) 4.3-9.5 px off, the demo's
-#: ball's cut regions of half its area or more 0.4-1.3 px (docs/motion.md, "Slivers").
+#: A step over twice the track's median is not its own motion (docs/motion.md, "Tuning numbers").
+JUMP = 2.0
+#: Pieces whose offset holds within half their size move as one (docs/motion.md, "Tuning numbers").
+RIGID = 0.5
+#: A region cut under half its area is a sliver, centre unsure (docs/motion.md, "Tuning numbers").
 SLIVER = 0.5
 
 
@@ -130,9 +130,8 @@ class Track:
 def chain(per_window: list[list[Blob]], s: MoverConfig, still: bool = False) -> list[Track]:
     """Tracks through the windows' regions (``per_window[k]``: window k's), noise dropped and
     fragments joined; the longest first. Under a ``still`` camera the static model draws no
-    change, so every region is the events' own (``segment.made_by_events``), none the warm-up's
-    error that ``s.min_evidence`` drops: a tumbling card's first 14 windows summed 14.4
-    (drawn-4, docs/motion.md "Drawn scenes")."""
+    change, so every region is the events' own (``segment.made_by_events``) and none is dropped
+    as the warm-up's error by ``s.min_evidence`` (docs/motion.md, "Tuning numbers")."""
     live: list[Track] = []
     done: list[Track] = []
     for k, blobs in enumerate(per_window):
@@ -159,8 +158,7 @@ def chain(per_window: list[list[Blob]], s: MoverConfig, still: bool = False) -> 
     least = 0.0 if still else s.min_evidence
     long = [(t, evidence(t, s) >= least) for t in pieces if len(t.blobs) >= s.min_windows]
     kept = _rejoined([t for t, sure in long if sure], [t for t, sure in long if not sure], s)
-    # Never seen clear of the border: the scene's edge coming into view (the demo's and blobs'
-    # corners, docs/motion.md "Tracks at the border"), or an object never seen whole to size.
+    # Never clear of the border: the scene's edge coming into view, or an object never seen whole.
     kept = [t for t in kept if not all(touches_border(b.mask) for b in t.blobs.values())]
     for track in kept:  # shared with another object (not noise, nor a piece of its own)
         others = [o.hidden for o in kept if o is not track]
@@ -172,10 +170,10 @@ def chain(per_window: list[list[Blob]], s: MoverConfig, still: bool = False) -> 
 
 def _gone(track: Track, s: MoverConfig) -> bool:
     """Whether ``track`` ends: unseen (nor hidden in another's region) for over ``s.coast``
-    windows, or for two after a sighting that the image border cuts to a sliver (``partial``):
-    it left the image, and what comes next is a track of its own, which ``_returns`` joins to it
-    or drops (the border's noise that the demo's ball's track took inside the image after it
-    left; docs/motion.md)."""
+    windows, or for two after a sighting the image border cuts to a sliver (``partial``). Then
+    it left the image, and what comes next, the border's noise or its return, is a track of its
+    own, which ``_returns`` joins to it or drops (docs/motion.md, "A track that left ends in the
+    chaining")."""
     if track.missed > s.coast:
         return True
     last = partial(track.areas, track.cut)[-1] and track.cut[-1]
@@ -243,7 +241,7 @@ def _host(guess: np.ndarray, blobs: list[Blob]) -> Blob | None:
 def _assign(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> set[int]:
     """Give window ``k``'s ``blobs`` to the ``live`` tracks (Hungarian on the distance from each
     track's prediction, within its gate); the indices taken. Confirmed tracks choose first
-    (SORT's cascade): a new track must not take an object's next region (the ball's bounce)."""
+    (SORT's cascade): a new track must not take an object's next region."""
     confirmed = [len(t.blobs) >= s.min_windows for t in live]
     sides = [borders(b.mask) for b in blobs]
     taken: set[int] = set()
@@ -278,7 +276,7 @@ def together(a: Track, b: Track, s: MoverConfig) -> bool:
     if not shared:
         return False
     offset = np.stack([a.blobs[k].centre - b.blobs[k].centre for k in shared])
-    radii = (a.radius, b.radius)  # each a median over the track's regions
+    radii = (a.radius, b.radius)
     near = np.linalg.norm(offset, axis=1) <= s.together * sum(radii)
     drift = np.quantile(np.linalg.norm(offset - np.median(offset, 0), axis=1), 0.8)
     travel = np.linalg.norm(a.blobs[shared[-1]].centre - a.blobs[shared[0]].centre)
@@ -310,13 +308,12 @@ def _absorb(home: Track, track: Track) -> None:
 
 
 def _rejoined(tracks: list[Track], faint: list[Track], s: MoverConfig) -> list[Track]:
-    """``tracks``, each that is an object coming back into the image joined to the
-    latest-ending earlier track it ``_returns`` to, which keeps its sightings up to its exit.
-    A ``faint`` track, too faint to be an object by itself, joins only a track that it
-    ``_resumes`` or that resumes it (the spell before or after an object went unseen inside
-    the image: ``pair``'s ball, docs/motion.md), not one through the border (the static model's
-    errors lie along the border on ``still``); faint tracks joined only to each other are kept
-    where their ``evidence`` together passes ``s.min_evidence``, the rest dropped."""
+    """``tracks``, each that is an object coming back into the image joined to the latest-ending
+    earlier track it ``_returns`` to, which keeps its sightings up to its exit. A ``faint`` track
+    (no object by itself) joins only one it ``_resumes`` or that resumes it inside the image (an
+    object's spell unseen there), not through the border, where the static model's errors lie;
+    faint tracks joined only to each other are kept where their ``evidence`` together passes
+    ``s.min_evidence``, the rest dropped."""
     out: list[Track] = []
     weak = {id(t) for t in faint}
 
@@ -337,18 +334,12 @@ def _rejoined(tracks: list[Track], faint: list[Track], s: MoverConfig) -> list[T
 
 
 def _returns(gone: Track, back: Track, s: MoverConfig, through_border: bool = True) -> int | None:
-    """The window ``gone`` left the image at, if ``back`` is it coming back, else None: it left
-    through the border that ``back`` came in through (the path between stays out of view),
-    within ``s.gate`` of the reach of its fastest speed plus the regions' radii (as a track's
-    next region), sizes ``s.gate`` apart at most (a cut region looks smaller). Its exit is a
-    sighting after which what it took is no object by itself (``_sure``): noise it took while
-    unseen, up to the end on one demo warm-up of eight (docs/motion.md), which ``back``'s
-    sightings replace. ``back`` comes in at its first sighting after the exit where those
-    before it all touch the border and those after it are an object by themselves (``_sure``):
-    the border's noise it took while the object was still in view (the demo's ball, one
-    warm-up of eight), dropped when the two are joined (``_rejoined``). Or it was lost inside
-    the image for longer than a track coasts and ``back`` is found inside it within ``gone``'s
-    gate (``_resumes``; the only way with ``through_border`` false)."""
+    """The window ``gone`` left the image at if ``back`` is it coming back, else None: after the
+    exit (a sighting after which ``gone`` took no object by itself, ``_sure``) ``back`` enters by
+    the border ``gone`` left through, within ``s.gate`` of the fastest speed's reach plus both
+    radii, sizes ``s.gate`` apart at most, its sightings before all at the border and those
+    after an object (the noise either took is dropped on joining). Or ``back`` ``_resumes``
+    ``gone`` inside the image, the only way without ``through_border``."""
     clear = [not all(touches_border(r.mask) for r in t.blobs.values()) for t in (gone, back)]
     whole = [t.radius for t, c in zip((gone, back), clear) if c]  # a cut one's looks smaller
     if whole and max(gone.radius, back.radius) > s.gate * min(whole):
@@ -379,11 +370,10 @@ def _returns(gone: Track, back: Track, s: MoverConfig, through_border: bool = Tr
 
 def _resumes(gone: Track, back: Track, s: MoverConfig) -> bool:
     """Whether ``back`` starts where ``gone``, a kept track lost inside the image more than
-    ``s.coast`` + 1 windows before, would be found: both clear of the border there and
-    ``back``'s first region within ``gone``'s gate over the windows between, as if it had
-    coasted on. An object that fires too little to make a region of its own while it passes one
-    that fires more goes unseen that long (drawn-16's box, 12 windows; docs/motion.md); within
-    ``coast`` the chaining has decided already (a hop between a turning card's ends)."""
+    ``s.coast`` + 1 windows before, would be found had it coasted on: both clear of the border
+    there, ``back``'s first region within ``gone``'s gate over the windows between. An object
+    passing one that fires more can go unseen that long; within ``coast`` the chaining has
+    decided already (docs/motion.md, "An object lost inside the image")."""
     a, b = max(gone.blobs), min(back.blobs)
     exit_, entry = gone.blobs[a], back.blobs[b]
     if b - a <= s.coast + 1 or touches_border(exit_.mask) or touches_border(entry.mask):
@@ -411,11 +401,11 @@ def on_its_line(track: Track, s: MoverConfig) -> Track:
 def beside_line(
     windows: np.ndarray, centres: np.ndarray, masks: list[np.ndarray], longest: int, n: int
 ) -> np.ndarray:
-    """Bool [F]: a first (last) run of at most ``longest`` sightings before a jump (a step over
-    ``JUMP`` x the median) whose regions ``masks`` [F] all miss where the line through the ``n``
-    sightings after (before) it, with no jump between them, puts the object: regions beside it,
-    not its own (`approach` seed 2's box's first three, 18-25 px off; docs/motion.md). A region
-    that holds the object joined with another is its own."""
+    """Bool [F] over the sightings at ``windows`` [F], ``centres`` [F,2] px: a first (last) run of
+    at most ``longest`` before a jump (a step over ``JUMP`` x the median) whose regions ``masks``
+    [F] all miss where the line through the ``n`` sightings after (before) it, with no jump
+    between them, puts the object: something else's regions, taken before it was seen (after it
+    was last seen). A region that holds the object joined with another is its own."""
     step = step_lengths(windows, centres)
     out = np.zeros(len(centres), dtype=bool)
     if step.size < 2:

@@ -15,12 +15,11 @@ EPS = 1e-12  # guards the variance ratio
 GRID = 41  # turn rates tried between -max and +max; refined by a parabola
 MEDIAN_SE = 1.2533  # a normal sample median's standard error per sigma / sqrt(n)
 STEADY_P = 0.05  # the test's level (rates of no turn pass in 4-19% of draws: N, their tails)
-# A region's long axis is its orientation where its variance is twice the short one's: `pair`'s
-# bar's regions 3.7-16.5, `watch`'s sphere's 1.1-1.9 but for its edges (docs/motion.md).
+# A region's long axis is its orientation where its variance is this x the short one's
+# (docs/motion.md, "Tuning numbers").
 ELONGATED = 2.0
-# Most the axes may scatter (MAD sigma) about a steady turn: `pair`'s bar's 2.2-2.7 degrees, a
-# tumbling card's silhouette's 19 (`drawn-4`), `watch`'s card's 15 as its region grows into the
-# box's (on the seed-0 and -1 warm-ups, 2026-12-04).
+# Most the axes may scatter (MAD sigma) about a steady turn; a tumbling silhouette's scatter far
+# more (docs/motion.md, "Tuning numbers").
 AXIS_SPREAD = np.radians(10.0)
 
 
@@ -104,10 +103,10 @@ def turn_rate(
 def steady(rates: np.ndarray, least: int) -> bool:
     """Whether the turn ``rates`` [N] (rad/s) of the windows that show one are one turn: at least
     ``least`` of them, their median over Student's t at ``STEADY_P`` (N - 1 degrees) standard
-    errors off zero, the spread from their median absolute deviation (a few windows' rates
-    stray wildly: `enter_leave`'s box, 3 rad/s, median 3.6, mean 2.1, sd 7.1 over 18). A box
-    turning out of the image plane or growing as it comes nearer sharpens some windows by a
-    spurious in-plane turn of either sign (`approach` seed 1's: +24, -11, +5, -6, -7, -12)."""
+    errors off zero, the spread from their median absolute deviation (a few rates stray wildly).
+    An object turning out of the image plane or growing nearer sharpens some windows by a
+    spurious in-plane turn of either sign (docs/motion.md, "The longer window's other edge, and a
+    turn whose windows disagree")."""
     if len(rates) < max(least, 2):
         return False
     median, spread = robust(rates)
@@ -130,17 +129,12 @@ def long_axis(mask: np.ndarray) -> tuple[float, float]:
 def axis_rate(
     times_us: np.ndarray, masks: list[np.ndarray], least: int, top: float
 ) -> float | None:
-    """A steady in-plane turn (rad/s) from the long axes of an object's regions ``masks`` at
-    ``times_us`` [F] (its clear ones), or None: an elongated object's shape shows a turn that
-    its events in a short window do not (`pair`'s bar, 1.5 rad/s, sharpens 5 windows of 39).
-    Used are the regions ``ELONGATED``: most of them, and at least ``least`` in each half of
-    their times. The rate in [-top, top] that lines their axes up best (axes are modulo pi,
-    rates tried a degree apart over the track); a turn where the axes lie within
-    ``AXIS_SPREAD`` of that line (a tumbling object's silhouette turns its axis every which way)
-    and their Theil-Sen slope about it has a (1 - STEADY_P) interval off zero on one side in
-    each half of their times (a turn that starts or stops half-way, e.g. a region growing into
-    another object's, is not a steady one; a round object's moving edge, long across its
-    motion, does not turn)."""
+    """A steady in-plane turn (rad/s) from the long axes of an object's clear regions ``masks``
+    at ``times_us`` [F], or None: a long shape shows a turn its events in a short window may not.
+    Of the regions ``ELONGATED`` (most of them, at least ``least`` per half of their times), the
+    axes (modulo pi) about the rate in [-top, top] that lines them up best (a degree over the
+    track apart): their Theil-Sen slope, where they lie within ``AXIS_SPREAD`` of that line and
+    each half's slope has a (1 - STEADY_P) interval off zero on the same side (a steady turn)."""
     axes = np.array([long_axis(m) for m in masks])
     used = axes[:, 1] >= ELONGATED
     if used.sum() < max(2 * least, 4, (len(masks) + 1) // 2):
