@@ -588,6 +588,26 @@ def test_an_object_back_after_its_track_took_noise_at_the_border_it_left_by_is_o
     assert sorted(mover.blobs) == [*range(15), *range(21, 30)]
 
 
+def test_an_object_whole_at_the_border_unseen_for_two_windows_is_still_its_track():
+    # A disc reaches the right border with most of it in view, fires in no region for two
+    # windows, then goes back to the left looking smaller (turned): it did not leave, so its
+    # track coasts on and takes its next regions. Only a sliver's track is ended after two
+    # unseen windows, and a return that much smaller would not be joined to it again.
+    shape = (96, 128)
+
+    def seen(k, centre, radius):  # the part of the disc in the image, centred on it
+        mask = _disc(shape, centre, radius)
+        return _blob(mask, mask.astype(np.float64), k, 20.0)
+
+    per_window = [[] for _ in range(24)]
+    for k in range(10):
+        per_window[k].append(seen(k, (80.0 + 4 * k, 50.0), 12.0))  # at the border at window 9
+    for k in range(12, 24):
+        per_window[k].append(seen(k, (122.0 - 4 * (k - 12), 54.0), 7.0))
+    (mover,) = chain(per_window, TRACKS)
+    assert sorted(mover.blobs) == [*range(10), *range(12, 24)]
+
+
 def test_an_object_lost_inside_the_image_longer_than_a_track_coasts_is_one_track():
     # A disc goes unseen for 8 windows (twice `coast` + 1) in the middle of the image, as an
     # object that fires too little beside a brighter one does, and is found again on its
