@@ -96,6 +96,13 @@ def _disc_blob(shape, t_us, centre, radius, contrast=20.0):
     return Blob(t_us, np.asarray(centre, dtype=np.float64), mask, float(mask.sum()), contrast)
 
 
+def _seen_blob(shape, t_us, centre, radius, contrast=20.0):
+    """A region that is the part of the disc of ``radius`` at ``centre`` inside the image,
+    centred on that part (as the segmentation centres a disc the border cuts)."""
+    mask = _disc(shape, centre, radius)
+    return _blob(mask, mask.astype(np.float64), t_us, contrast)
+
+
 def _ring_residual(shape, discs, seed=0):
     """A residual map: noise everywhere, and the outlines of ``discs`` (centre, radius)
     firing as a moving object's edges do."""
@@ -572,18 +579,13 @@ def test_an_object_back_after_its_track_took_noise_at_the_border_it_left_by_is_o
     # coming back lower down from window 21 (the demo's ball, one warm-up of eight;
     # docs/motion.md). The track is cut where it left: the noise is dropped, the return joined.
     shape = (96, 128)
-
-    def seen(k, centre, radius, contrast=20.0):  # the part of the disc in the image, centred
-        mask = _disc(shape, centre, radius)
-        return _blob(mask, mask.astype(np.float64), k, contrast)
-
     per_window = [[] for _ in range(30)]
     for k in range(15):
-        per_window[k].append(seen(k, (76.0 + 4 * k, 40.0), 10.0))
+        per_window[k].append(_seen_blob(shape, k, (76.0 + 4 * k, 40.0), 10.0))
     for k in (17, 18):
-        per_window[k].append(seen(k, (125.0, 48.0 + 2 * (k - 17)), 4.0, contrast=11.0))
+        per_window[k].append(_seen_blob(shape, k, (125.0, 48.0 + 2 * (k - 17)), 4.0, 11.0))
     for k in range(21, 30):
-        per_window[k].append(seen(k, (134.0 - 4 * (k - 21), 75.0), 10.0))
+        per_window[k].append(_seen_blob(shape, k, (134.0 - 4 * (k - 21), 75.0), 10.0))
     (mover,) = chain(per_window, TRACKS)
     assert sorted(mover.blobs) == [*range(15), *range(21, 30)]
 
@@ -594,16 +596,11 @@ def test_an_object_whole_at_the_border_unseen_for_two_windows_is_still_its_track
     # track coasts on and takes its next regions. Only a sliver's track is ended after two
     # unseen windows, and a return that much smaller would not be joined to it again.
     shape = (96, 128)
-
-    def seen(k, centre, radius):  # the part of the disc in the image, centred on it
-        mask = _disc(shape, centre, radius)
-        return _blob(mask, mask.astype(np.float64), k, 20.0)
-
     per_window = [[] for _ in range(24)]
-    for k in range(10):
-        per_window[k].append(seen(k, (80.0 + 4 * k, 50.0), 12.0))  # at the border at window 9
+    for k in range(10):  # at the border at window 9
+        per_window[k].append(_seen_blob(shape, k, (80.0 + 4 * k, 50.0), 12.0))
     for k in range(12, 24):
-        per_window[k].append(seen(k, (122.0 - 4 * (k - 12), 54.0), 7.0))
+        per_window[k].append(_seen_blob(shape, k, (122.0 - 4 * (k - 12), 54.0), 7.0))
     (mover,) = chain(per_window, TRACKS)
     assert sorted(mover.blobs) == [*range(10), *range(12, 24)]
 
