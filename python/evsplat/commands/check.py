@@ -51,6 +51,18 @@ def describe(store: EventStore) -> list[str]:
     return lines
 
 
+def hot_pixel_line(store: EventStore, listed: int = 8) -> str:
+    """One line on the event file's hot pixels (``data.hot_pixels``): how many, and where."""
+    from evsplat.data.hot_pixels import hot_pixel_map
+
+    ys, xs = hot_pixel_map(store, [(store.t_first_us, store.t_last_us + 1)]).nonzero()
+    if not len(xs):
+        return "  hot pixels: none"
+    at = ", ".join(f"({x}, {y})" for x, y in zip(xs[:listed].tolist(), ys[:listed].tolist()))
+    more = f" and {len(xs) - listed} more" if len(xs) > listed else ""
+    return f"  hot pixels: {len(xs)} at (x, y) {at}{more}; training leaves their events out"
+
+
 def run(args: argparse.Namespace) -> int:
     from evsplat.data.dataset import verify_dataset
     from evsplat.data.event_store import verify_store
@@ -65,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
         store = data.events if data else None
     if store is not None:
         print("\n".join(describe(store)))
+        if not problems and store.count:
+            print(hot_pixel_line(store))
     if data is not None and is_static_camera(data.meta):
         print(
             f"  static camera: identity pose over [{data.t_start_us}, {data.t_end_us}] µs "

@@ -147,4 +147,6 @@ def run(args: argparse.Namespace) -> int:
         f"skipped: {stats.skipped_empty} empty windows, {stats.skipped_nonfinite} non-finite "
         f"steps; run folder {args.out}"
     )
+    if stats.hot_pixels:
+        print(f"left out the events of {stats.hot_pixels} hot pixels (`evsplat check` lists them)")
     return 0

@@ -215,6 +215,14 @@ class EventStore:
             count += len(ev)
         return esi, mask, count
 
+    def event_count(self, i0: int, i1: int) -> np.ndarray:
+        """Events per pixel of events [i0, i1), uint32[H,W], read in slices as ``accumulate``."""
+        counts = np.zeros((self.height, self.width), np.uint32)
+        for s in range(i0, i1, READ_CHUNK):
+            ev = self._stream(s, min(s + READ_CHUNK, i1))
+            counts += ev.event_count(0, len(ev))
+        return counts
+
     def _bucket(self, t_us: int) -> tuple[int, int, list[tuple[int, int]]]:
         """[a, b]: where the first event at or after ``t_us`` lies, and the (ms, entry) pairs
         of the index that say so (checked against the timestamps by the caller)."""

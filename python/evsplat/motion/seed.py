@@ -244,16 +244,17 @@ def carried(
     views: Views, t_us: int, half_us: int, velocity: np.ndarray
 ) -> tuple[np.ndarray, ...] | None:
     """(pixel centres [E,2], seconds from ``t_us`` [E], polarity [E], the centres carried back
-    to ``t_us`` by the image ``velocity`` [2] px/s) of the events within ``half_us`` of it;
-    None beyond the data or where held out."""
+    to ``t_us`` by the image ``velocity`` [2] px/s) of the events within ``half_us`` of it,
+    the hot pixels' left out; None beyond the data or where held out."""
     data = views.data
     t0, t1 = max(t_us - half_us, data.t_start_us), min(t_us + half_us, data.t_end_us)
     if t1 <= t0 or not views.allowed(t0, t1):
         return None
     ev = data.events.read(t0, t1, TURN_WINDOW_EVENTS)
-    dt = (ev.t - t_us) * 1e-6
-    xy = np.stack([ev.x, ev.y], 1).astype(np.float64) + 0.5
-    return xy, dt, ev.p, xy - velocity[None] * dt[:, None]
+    keep = slice(None) if views.hot is None else ~views.hot.cpu().numpy()[ev.y, ev.x]
+    dt = (ev.t[keep] - t_us) * 1e-6
+    xy = np.stack([ev.x[keep], ev.y[keep]], 1).astype(np.float64) + 0.5
+    return xy, dt, ev.p[keep], xy - velocity[None] * dt[:, None]
 
 
 def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:

@@ -30,6 +30,7 @@ class TrainStats:
     seconds: float = 0.0
     history: list[dict] = field(default_factory=list)
     stopped_early_at: int | None = None  # completed iterations when the held-out loss plateaued
+    hot_pixels: int = 0  # the sensor's hot pixels, whose events training left out
 
 
 class Progress:
@@ -37,7 +38,7 @@ class Progress:
 
     def __init__(self, cfg: TrainConfig, views: Views):
         self.cfg = cfg
-        self.stats = TrainStats()
+        self.stats = TrainStats(hot_pixels=0 if views.hot is None else int(views.hot.sum()))
         self.plateau = Plateau()
         self.bad_in_a_row = 0
         # A fixed, noise-free yardstick for early stopping; these windows still train too.

@@ -11,6 +11,7 @@ import torch
 from evsplat.config import LossConfig
 from evsplat.data.dataset import Dataset
 from evsplat.data.events import bayer_channel_map
+from evsplat.data.hot_pixels import hot_pixel_map
 from evsplat.losses.event import bayer_select, log_render
 from evsplat.losses.flow import linearized_brightness_change
 from evsplat.render import Renderer, RenderOut
@@ -34,12 +35,16 @@ class Views:
     # The events accumulated on the device (``train.device_events``); None: by the Rust core.
     device_events: DeviceEvents | None = None
     heldout: list[Interval] = field(default_factory=list)  # never read (``train.heldout``)
+    # [h,w] bool on the device: the sensor's hot pixels (``data.hot_pixels``), whose events no
+    # window holds; None where there are none.
+    hot: torch.Tensor | None = None
 
     @classmethod
     def of(cls, data: Dataset, renderer: Renderer, heldout: list[Interval] | None = None) -> Views:
         """The views of ``data``'s sensor: one channel, or each pixel's Bayer channel; the
-        ``heldout`` intervals are kept out of every window training reads. Off the CPU the
-        event windows are accumulated on the device (rectified recordings excepted)."""
+        ``heldout`` intervals are kept out of every window training reads, and so are the hot
+        pixels' events. Off the CPU the event windows are accumulated on the device (rectified
+        recordings excepted)."""
         device = renderer.K.device
         channel_map = None
         if data.bayer != "mono":
@@ -48,7 +53,11 @@ class Views:
         events = None
         if device.type != "cpu" and not data.events.transforms:
             events = DeviceEvents(data.events, data.c_pos, data.c_neg, device)
-        return cls(data, renderer, channel_map, events, list(heldout or []))
+        heldout = list(heldout or [])
+        spans = free_spans(heldout, data.t_start_us, data.t_end_us)
+        hot = hot_pixel_map(data.events, spans)
+        held = torch.from_numpy(hot).to(device) if hot.any() else None
+        return cls(data, renderer, channel_map, events, heldout, held)
 
     def allowed(self, t0: int, t1: int) -> bool:
         """Whether training may read the events of [t0, t1): it overlaps no held-out interval."""
@@ -143,13 +152,19 @@ class Views:
         return bayer_select(change.permute(1, 2, 0), self.channel_map)
 
     def accumulate(self, i0: int, i1: int) -> tuple[torch.Tensor, torch.Tensor, int]:
-        """(ESI, event mask, event count) of the events [i0, i1) by index: on the device, or
-        streamed through the Rust core (L_e's windows span up to 30% of the recording)."""
+        """(ESI, event mask, event count) of the events [i0, i1) by index, the hot pixels'
+        left out of the ESI and the mask: on the device, or streamed through the Rust core
+        (L_e's windows span up to 30% of the recording)."""
         if self.device_events is not None:
-            return self.device_events.accumulate(i0, i1)
-        data = self.data
-        esi, mask, count = data.events.accumulate(i0, i1, data.c_pos, data.c_neg)
-        return torch.from_numpy(esi), torch.from_numpy(mask), count
+            esi, mask, count = self.device_events.accumulate(i0, i1)
+        else:
+            data = self.data
+            got = data.events.accumulate(i0, i1, data.c_pos, data.c_neg)
+            esi, mask, count = torch.from_numpy(got[0]), torch.from_numpy(got[1]), got[2]
+        if self.hot is not None:
+            hot = self.hot.to(esi.device)
+            esi, mask = esi.masked_fill(hot, 0.0), mask & ~hot
+        return esi, mask, count
 
     def esi(self, t0: int, t1: int, coarse: bool = False) -> tuple[torch.Tensor, torch.Tensor, int]:
         """(ESI, event mask, event count) of [t0, t1), 2x2-binned for a coarse render."""
