@@ -9,7 +9,7 @@ in evsplat; a consumer subtracts a local origin before going to floating point.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -207,8 +207,7 @@ class EventStore:
         esi = np.zeros((self.height, self.width), np.float32)
         mask = np.zeros((self.height, self.width), bool)
         count = 0
-        for s in range(i0, i1, READ_CHUNK):
-            ev = self._stream(s, min(s + READ_CHUNK, i1))
+        for ev in self._slices(i0, i1):
             part, hit = ev.esi_and_mask(0, len(ev), c_pos, c_neg)
             esi += part
             mask |= hit
@@ -218,10 +217,14 @@ class EventStore:
     def event_count(self, i0: int, i1: int) -> np.ndarray:
         """Events per pixel of events [i0, i1), uint32[H,W], read in slices as ``accumulate``."""
         counts = np.zeros((self.height, self.width), np.uint32)
-        for s in range(i0, i1, READ_CHUNK):
-            ev = self._stream(s, min(s + READ_CHUNK, i1))
+        for ev in self._slices(i0, i1):
             counts += ev.event_count(0, len(ev))
         return counts
+
+    def _slices(self, i0: int, i1: int) -> Iterator[EventStream]:
+        """Events [i0, i1) as streams of at most ``READ_CHUNK`` events each."""
+        for s in range(i0, i1, READ_CHUNK):
+            yield self._stream(s, min(s + READ_CHUNK, i1))
 
     def _bucket(self, t_us: int) -> tuple[int, int, list[tuple[int, int]]]:
         """[a, b]: where the first event at or after ``t_us`` lies, and the (ms, entry) pairs

@@ -35,8 +35,8 @@ class Views:
     # The events accumulated on the device (``train.device_events``); None: by the Rust core.
     device_events: DeviceEvents | None = None
     heldout: list[Interval] = field(default_factory=list)  # never read (``train.heldout``)
-    # [h,w] bool on the device: the sensor's hot pixels (``data.hot_pixels``), whose events no
-    # window holds; None where there are none.
+    # [h,w] bool where the windows are accumulated: the sensor's hot pixels
+    # (``data.hot_pixels``), whose events no window holds; None where there are none.
     hot: torch.Tensor | None = None
 
     @classmethod
@@ -56,7 +56,8 @@ class Views:
         heldout = list(heldout or [])
         spans = free_spans(heldout, data.t_start_us, data.t_end_us)
         hot = hot_pixel_map(data.events, spans)
-        held = torch.from_numpy(hot).to(device) if hot.any() else None
+        at = events.device if events is not None else torch.device("cpu")
+        held = torch.from_numpy(hot).to(at) if hot.any() else None
         return cls(data, renderer, channel_map, events, heldout, held)
 
     def allowed(self, t0: int, t1: int) -> bool:
@@ -162,8 +163,7 @@ class Views:
             got = data.events.accumulate(i0, i1, data.c_pos, data.c_neg)
             esi, mask, count = torch.from_numpy(got[0]), torch.from_numpy(got[1]), got[2]
         if self.hot is not None:
-            hot = self.hot.to(esi.device)
-            esi, mask = esi.masked_fill(hot, 0.0), mask & ~hot
+            esi, mask = esi.masked_fill(self.hot, 0.0), mask & ~self.hot
         return esi, mask, count
 
     def esi(self, t0: int, t1: int, coarse: bool = False) -> tuple[torch.Tensor, torch.Tensor, int]:
