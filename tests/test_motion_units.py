@@ -444,11 +444,11 @@ def test_a_track_that_jumps_onto_noise_does_not_take_a_far_object():
 
 
 def test_an_object_keeps_its_track_as_it_turns_while_a_small_one_hides_in_it():
-    # A disc goes right, then turns down at window 10, over a small still object seen in
-    # windows 4-8 and unseen from then: inside the disc's region in windows 11-15, which are
-    # shared. Predicted from its last own sighting (window 10), the disc's track went on right
-    # and the small one's, nearer, took the disc (`blobs`, docs/motion.md); predicted from its
-    # last sighting, shared too, the disc's track keeps the disc.
+    # A disc goes right, then turns down at window 10, over a small still object seen in windows 4-8
+    # and unseen from then: inside the disc's region in windows 11-15, which are shared. Predicted
+    # from its last own sighting (window 10), the disc's track went on right and the small one's,
+    # nearer, took the disc (`blobs`, docs/experiments/objects.md); predicted from its last
+    # sighting, shared too, the disc's track keeps the disc.
     shape = (160, 128)
     disc = [(16.0 + 4 * k, 50.0) if k <= 10 else (56.0, 50.0 + 4 * (k - 10)) for k in range(30)]
     per_window = [[_disc_blob(shape, k, disc[k], 14.0)] for k in range(30)]
@@ -534,10 +534,10 @@ def test_an_object_back_after_its_track_took_noise_at_the_border_is_one_track():
 
 
 def test_an_object_back_through_a_track_that_took_the_borders_noise_before_it_left_is_one():
-    # A disc leaves through the right border at window 13. Another track took noise on that
-    # border from window 10, while the disc was still in view, and then the disc coming back
-    # lower down from window 20. It comes back at its first sighting after the disc left: one
-    # object, without the noise (the demo's ball, one warm-up of eight; docs/motion.md).
+    # A disc leaves through the right border at window 13. Another track took noise on that border
+    # from window 10, while the disc was still in view, and then the disc coming back lower down
+    # from window 20. It comes back at its first sighting after the disc left: one object, without
+    # the noise (the demo's ball, one warm-up of eight; docs/experiments/objects.md).
     shape = (96, 128)
     gone = Track({k: _disc_blob(shape, k, (76.0 + 4 * k, 40.0), 10.0) for k in range(14)})
     noise = {k: _disc_blob(shape, k, (126.0, 70.0 + k), 4.0, contrast=12.0) for k in range(10, 14)}
@@ -552,9 +552,9 @@ def test_an_object_back_through_a_track_that_took_the_borders_noise_before_it_le
 
 
 def test_an_object_back_after_its_track_took_faint_noise_to_the_end_is_one_track():
-    # A disc leaves through the right border at window 13; its track takes five faint regions
-    # after that, on the border and then across the image, to the last window, where the disc's
-    # return ends too (the demo's ball, one warm-up of eight; docs/motion.md). Its exit is the
+    # A disc leaves through the right border at window 13; its track takes five faint regions after
+    # that, on the border and then across the image, to the last window, where the disc's return
+    # ends too (the demo's ball, one warm-up of eight; docs/experiments/objects.md). Its exit is the
     # last sighting after which what it took is no object by itself: joined there, noise out.
     shape = (96, 128)
     seen = {k: _disc_blob(shape, k, (76.0 + 4 * k, 40.0), 10.0) for k in range(14)}
@@ -574,10 +574,11 @@ def test_an_object_back_after_its_track_took_faint_noise_to_the_end_is_one_track
 
 
 def test_an_object_back_after_its_track_took_noise_at_the_border_it_left_by_is_one_track():
-    # A disc leaves through the right border at window 14. Unseen for two windows, its track
-    # takes two faint regions on that border (the static model's error there), then the disc
-    # coming back lower down from window 21 (the demo's ball, one warm-up of eight;
-    # docs/motion.md). The track is cut where it left: the noise is dropped, the return joined.
+    # A disc leaves through the right border at window 14. Unseen for two windows, its track takes
+    # two faint regions on that border (the static model's error there), then the disc coming back
+    # lower down from window 21 (the demo's ball, one warm-up of eight;
+    # docs/experiments/objects.md). The track is cut where it left: the noise is dropped, the return
+    # joined.
     shape = (96, 128)
     per_window = [[] for _ in range(30)]
     for k in range(15):

@@ -153,7 +153,7 @@ class ObjectMotion(nn.Module):
         """Squared distance of the paths from their starting values, averaged over the objects:
         translations in object radii beyond ``FREE`` of them summed over the knots (a mean lets
         one knot stray), rotations in radians averaged over the knots (held per knot, a turn is
-        refined less); docs/motion.md, "The track prior per knot"."""
+        refined less); docs/experiments/objects.md, "The track prior per knot"."""
         scale = self.radii.clamp_min(1e-6)[:, None, None]
         off = (self.translations - self.prior_translations) / scale
         beyond = (torch.sqrt((off**2).sum(-1) + DIST_EPS) - FREE).clamp_min(0.0)

@@ -58,7 +58,8 @@ def despiked(
     of each other) put on the line between its neighbours: a stray region (a piece of the object,
     or another's) taken for a few windows. A first or last run of at most ``longest`` past a jump,
     each a ``piece`` [F] (bool: ``partial``, not cut by the border), is held at the nearest other:
-    nothing beyond it comes back (docs/motion.md, "A sighting that jumps off and straight back")."""
+    nothing beyond it comes back (docs/experiments/objects.md, "A sighting that jumps off and
+    straight back")."""
     step = step_lengths(windows, centres)
     if step.size < 2:
         return centres.astype(np.float64, copy=True)
@@ -97,7 +98,8 @@ def hops(
     between two ends; the jump limit, px per window). A hop is over ``JUMP`` x the median step,
     at most ``coast`` + 1 windows and at least ``radius`` px long (ends at ±d with |d| >= radius
     lie 2|d| apart: a fast step is no hop), neither sighting ``cut`` [F] by the border (a cut
-    region's centre is the least sure; docs/motion.md, "Hops at the border are no ends")."""
+    region's centre is the least sure; docs/experiments/objects.md, "Hops at the border are no
+    ends")."""
     step, gap = step_lengths(windows, centres), np.diff(windows)
     limit = jump_limit(step)
     whole = ~cut[:-1] & ~cut[1:]

@@ -188,7 +188,7 @@ def in_view(
     ``radius`` on its path ``held`` [G,3] at ``knots`` [G] (µs) overlaps the image: to the
     nearest knot it is out of view at, so that it has faded in by the next. Not where its path
     keeps it in view all along: an object in view that long would have fired events
-    (docs/motion.md, "An object partly in view before its first sighting")."""
+    (docs/experiments/objects.md, "An object partly in view before its first sighting")."""
     data = views.data
     size, seen = np.array([data.width, data.height]), []
     for point, t_us in zip(held, knots.tolist()):
@@ -408,7 +408,8 @@ def off_their_line(
     ``outlined`` [F] (placed by a cut outline's arc) further off the Theil-Sen line through the
     other ``placed`` [F] ones within ``gap`` windows (three or more) than the object steps in a
     window (``jump_limit``), the furthest dropped first: there the background's events outweighed
-    a sliver's arc (docs/motion.md, "A ball's slivers read from its placed sightings")."""
+    a sliver's arc (docs/experiments/objects.md, "A ball's slivers read from its placed
+    sightings")."""
     placed, out = placed.copy(), np.zeros(len(centres), dtype=bool)
     at = np.flatnonzero(placed)
     if len(at) < 3:
@@ -438,7 +439,7 @@ def between_placed(
     """The ``centres`` [F,2] at ``times`` [F] (µs) and ``windows`` [F], each not ``placed`` [F]
     by an outline where the placed ones put it (``predicted``): between two, or, ``cut`` [F] by
     the border (going out or coming in), past two: a sliver's region is the least sure centre
-    (docs/motion.md, "A ball's slivers read from its placed sightings")."""
+    (docs/experiments/objects.md, "A ball's slivers read from its placed sightings")."""
     out, t = centres.copy(), times.astype(np.float64)
     for i in np.flatnonzero(~placed):
         line = predicted(centres, placed, t, windows, i, gap, bool(cut[i]))
@@ -485,8 +486,8 @@ def ends_turning(views: Views, track: Track, mc: MoverConfig) -> tuple[Track, Tu
     """The ``track`` and its ``turning``; where that shows no two ends, the track less its tail
     of at most ``mc.coast`` sightings after its last hop, and its turning, if that shows them:
     an end that stops firing leaves its track coasting onto one more "hop" that no two ends
-    explain (docs/motion.md, "A spinning card's two arms joined again"). Else, with one end,
-    the track ``on_its_line`` and its turning."""
+    explain (docs/experiments/objects.md, "A spinning card's two arms joined again"). Else,
+    with one end, the track ``on_its_line`` and its turning."""
     turn = turning(views, track, mc)
     if (turn[2] < 0).any():
         return track, turn

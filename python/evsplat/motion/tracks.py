@@ -172,8 +172,8 @@ def _gone(track: Track, s: MoverConfig) -> bool:
     """Whether ``track`` ends: unseen (nor hidden in another's region) for over ``s.coast``
     windows, or for two after a sighting the image border cuts to a sliver (``partial``). Then
     it left the image, and what comes next, the border's noise or its return, is a track of its
-    own, which ``_returns`` joins to it or drops (docs/motion.md, "A track that left ends in the
-    chaining")."""
+    own, which ``_returns`` joins to it or drops (docs/experiments/objects.md, "A track that left
+    ends in the chaining")."""
     if track.missed > s.coast:
         return True
     last = partial(track.areas, track.cut)[-1] and track.cut[-1]
@@ -373,7 +373,7 @@ def _resumes(gone: Track, back: Track, s: MoverConfig) -> bool:
     ``s.coast`` + 1 windows before, would be found had it coasted on: both clear of the border
     there, ``back``'s first region within ``gone``'s gate over the windows between. An object
     passing one that fires more can go unseen that long; within ``coast`` the chaining has
-    decided already (docs/motion.md, "An object lost inside the image")."""
+    decided already (docs/experiments/objects.md, "An object lost inside the image")."""
     a, b = max(gone.blobs), min(back.blobs)
     exit_, entry = gone.blobs[a], back.blobs[b]
     if b - a <= s.coast + 1 or touches_border(exit_.mask) or touches_border(entry.mask):

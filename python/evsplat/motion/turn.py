@@ -105,8 +105,8 @@ def steady(rates: np.ndarray, least: int) -> bool:
     ``least`` of them, their median over Student's t at ``STEADY_P`` (N - 1 degrees) standard
     errors off zero, the spread from their median absolute deviation (a few rates stray wildly).
     An object turning out of the image plane or growing nearer sharpens some windows by a
-    spurious in-plane turn of either sign (docs/motion.md, "The longer window's other edge, and a
-    turn whose windows disagree")."""
+    spurious in-plane turn of either sign (docs/experiments/objects.md, "The longer window's
+    other edge, and a turn whose windows disagree")."""
     if len(rates) < max(least, 2):
         return False
     median, spread = robust(rates)

@@ -2,7 +2,7 @@
 (sphere, box or card), size, depth, texture, path and turn, under a still or a hand-held camera,
 before a room of random colours. They are for measuring the motion module on scenes that none
 of its numbers were tuned on: each N is a new scene, never looked at before it is measured, and
-a change tuned on one must say so (docs/motion.md, "Drawn scenes").
+a change tuned on one must say so (docs/experiments/objects.md, "Drawn scenes").
 
 Every mover is its own object, at its own depth slot: slots are ``SLOT_M`` apart, more than any
 mover's radius, so the evaluation's depth tolerance (``evsplat.motion_metrics``) tells an

@@ -235,7 +235,7 @@ def watch() -> dict:
 def pair() -> dict:
     """A long checkered bar sliding diagonally down while it tilts, and a mottled ball behind
     it crossing the other way, green on a grey-green wall. Made held out; a rule was found on
-    it (docs/motion.md, "A faint spell of an object"), so it is tuned on now."""
+    it (docs/experiments/objects.md, "A faint spell of an object"), so it is tuned on now."""
 
     def bar_pose(t: float) -> np.ndarray:
         return trans(-0.55 + 1.6 * t, -0.35 + 0.7 * t, 2.7) @ rot("z", 0.4 + 1.5 * t)
@@ -271,8 +271,8 @@ def approach() -> dict:
     camera's events, as the wall does), and a ball coming toward the camera along its ray, so
     it grows (4.3 m to 2.7 m over the tiny variant's 0.6 s) while its bearing barely turns: it
     moves in the picture about as much as the camera's motion moves the wall. Made held out; a
-    rule was found on it (docs/motion.md, "A track's first or last regions beside its own
-    line"), so it is tuned on now."""
+    rule was found on it (docs/experiments/objects.md, "A track's first or last regions beside
+    its own line"), so it is tuned on now."""
 
     def ease(u: float) -> float:
         u = min(max(u, 0.0), 1.0)

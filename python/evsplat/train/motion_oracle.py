@@ -1,8 +1,9 @@
 """The simulator's true motion for the objects the seeding found (``mover.oracle``): for the
 built-in synthetic scenes only, an upper bound that tells the motion module's errors from the
-losses' (docs/motion.md, "The true motion as an oracle"). Each found object is matched to the
-true object nearest its centre at its reference time; its turn, its path or both are then that
-object's from the reference time on. A run's config.json says whether it was used."""
+losses' (docs/experiments/objects.md, "The true motion as an oracle"). Each found object is
+matched to the true object nearest its centre at its reference time; its turn, its path or both
+are then that object's from the reference time on. A run's config.json says whether it was
+used."""
 
 from __future__ import annotations
 
