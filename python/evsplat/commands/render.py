@@ -1,5 +1,6 @@
-"""`evsplat render RUN --times a:b:step --out DIR`: images and depth over time, and where
-the events saw anything (observed.png; ``evsplat.observed``)."""
+"""`evsplat render RUN --times a:b:step --out DIR`: images and depth over time, where the events
+saw anything (observed.png; ``evsplat.observed``) and, with ``--objects``, the pixels each moving
+object draws (``evsplat.object_output``)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from evsplat.data.event_store import EventStore
+    from evsplat.render import Renderer
     from evsplat.run_state import RunState
 
 HELP = "render a trained run at many times (PNG, depth EXR + colour-mapped PNG, MP4)"
@@ -62,6 +64,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="draw the pixels that saw no event as rendered (default: background grey, see "
         "observed.png)",
     )
+    parser.add_argument(
+        "--objects",
+        action="store_true",
+        help="also write each frame's moving objects: labels_N.png (0 none, k+1 the run's "
+        "object k; 8-bit grey) and objects_N.png (the frame, each object tinted as in track.png)"
+        "; with --video, objects.mp4",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -71,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from evsplat.data.poses import read_tum
     from evsplat.data.trajectory import Trajectory
     from evsplat.errors import EvsplatError
+    from evsplat.object_output import object_labels, tinted
     from evsplat.observed import masked, observed_map
     from evsplat.render import Renderer
     from evsplat.video import colour_depth
@@ -95,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
             + ("" if args.show_unobserved else "; the others are drawn background grey")
         )
         observed = None if args.show_unobserved else seen
-    frames = []
+    objects = _objects(args, renderer)
+    frames, tints = [], []
     for i, frac in enumerate(fractions):
         t_us = renderer.t_start_us + float(frac) * span
         c2w = fixed if fixed is not None else trajectory.pose(t_us)
@@ -110,10 +121,40 @@ def run(args: argparse.Namespace) -> int:
         write_png(args.out / f"depth_{i:05d}.png", colour_depth(depth))
         if args.video:
             frames.append((t_us, img, colour_depth(depth)))
+        if objects is not None:
+            labels = object_labels(renderer, t_us, c2w)
+            write_png(args.out / f"labels_{i:05d}.png", labels / 255.0)
+            tints.append(tinted(img, labels, objects))
+            write_png(args.out / f"objects_{i:05d}.png", tints[-1])
     print(f"rendered {len(fractions)} frames to {args.out}")
     if args.video:
         _write_videos(args, events, frames, span * _step(fractions))
+    if tints and args.video:
+        from evsplat.video import write_mp4
+
+        n = write_mp4(args.out / "objects.mp4", tints, args.fps)
+        print(f"wrote {args.out / 'objects.mp4'} ({n} frames)")
     return 0
+
+
+def _objects(args: argparse.Namespace, renderer: Renderer) -> np.ndarray | None:
+    """The objects' colours [K,3] when ``--objects`` asks for their labels (said so), else None."""
+    from matplotlib.colors import to_rgb
+
+    from evsplat.errors import EvsplatError
+    from evsplat.object_output import object_count
+    from evsplat.plots import TRACK_COLOURS
+
+    if not args.objects:
+        return None
+    k = object_count(renderer)
+    if k > 255:  # labels are 8-bit
+        raise EvsplatError(f"--objects: the run has {k} objects; labels_N.png hold at most 255")
+    names = ", ".join(
+        f"{i + 1} = object {i} ({TRACK_COLOURS[i % len(TRACK_COLOURS)]})" for i in range(k)
+    )
+    print(f"labels_N.png: 0 = no object, {names}" if k else "the run has no moving objects")
+    return np.array([to_rgb(TRACK_COLOURS[i % len(TRACK_COLOURS)]) for i in range(max(k, 1))])
 
 
 def _run_events(state: RunState) -> EventStore | None:
