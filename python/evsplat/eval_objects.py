@@ -1,6 +1,8 @@
 """`evsplat eval` per moving object: each object's PSNR on its own mask beside a flat grey
-image's, and its tracking (``evsplat.motion_metrics``: region error, Gaussians followed, path
-ratio) with its own mask, centre and radius (test/frames.json ``objects``, docs/dataset.md).
+image's, its tracking (``evsplat.motion_metrics``: region error, Gaussians followed, path
+ratio) with its own mask, centre and radius (test/frames.json ``objects``, docs/dataset.md), and
+its segmentation: the IoU of its mask with the pixels of the object the run found for it
+(``segmentation``).
 
 A dataset with one tracked object (written before per-object ground truth) is one object whose
 mask is the moving-object mask, so its numbers are those of the single-object evaluation.
@@ -11,10 +13,12 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from evsplat.data.images import read_exr, read_png
 from evsplat.metrics import psnr
 from evsplat.motion_metrics import TrackView, object_gaussians, track_object, track_region
+from evsplat.object_output import object_count, object_labels
 
 if TYPE_CHECKING:
     from evsplat.data.dataset import Dataset
@@ -67,6 +71,42 @@ def pooled_margin(
     return psnr(scored[0], truth) - psnr(scored[1], truth)
 
 
+def segmentation(renderer: Renderer, views_by_object: list[list[TrackView]]) -> list[dict]:
+    """Per true object (its test views, each with its mask), the found object it is matched to
+    and their IoU per test time it is in view and its mean. A found object's pixels are its
+    labels there (``object_output.object_labels``); true and found objects are matched one to
+    one (Hungarian) on that mean, so a found object that draws two true ones counts for one of
+    them, and a true object left without one (``object`` None) scores 0."""
+    found = object_count(renderer)
+    views = views_by_object[0]  # every object's views share the test times and poses
+    labels = [object_labels(renderer, v.time_us, v.c2w) for v in views]
+    iou = np.zeros((len(views_by_object), found, len(views)))
+    for j, object_views in enumerate(views_by_object):
+        for f, (view, drawn) in enumerate(zip(object_views, labels)):
+            for k in range(found):
+                mine = drawn == k + 1
+                union = (mine | view.mask).sum()
+                iou[j, k, f] = (mine & view.mask).sum() / union if union else 0.0
+    seen = np.array([[v.mask.any() for v in vs] for vs in views_by_object])  # [J,F]
+    # [J,K]: each pair's IoU, mean over the times the true object is in view
+    mean = np.stack(
+        [iou[j][:, s].mean(axis=1) if s.any() else np.zeros(found) for j, s in enumerate(seen)]
+    )
+    rows, cols = linear_sum_assignment(mean, maximize=True) if found else ([], [])
+    match = {int(j): int(k) for j, k in zip(rows, cols) if mean[j, k] > 0}
+    out = []
+    for j, object_views in enumerate(views_by_object):
+        k = match.get(j)
+        per_time = [
+            {"time_us": v.time_us, "iou": None if k is None else float(iou[j, k, f])}
+            for f, v in enumerate(object_views)
+            if seen[j, f]
+        ]
+        score = 0.0 if k is None else float(mean[j, k])
+        out.append({"object": k, "iou_mean": score, "per_time": per_time})
+    return out
+
+
 def evaluate_objects(
     renderer: Renderer,
     data: Dataset,
@@ -84,8 +124,9 @@ def evaluate_objects(
     if views_by_object is None:
         return [], why
     radii = {t.name: t.radius for t in data.tracks}
+    segments = segmentation(renderer, [views for _, views in views_by_object])
     out = []
-    for name, views in views_by_object:
+    for (name, views), segment in zip(views_by_object, segments):
         seen = [k for k, v in enumerate(views) if v.mask.any()]
         ours = [psnr(fitted[k], gts[k], views[k].mask) for k in seen]
         theirs = [psnr(flat[k], gts[k], views[k].mask) for k in seen]
@@ -103,6 +144,7 @@ def evaluate_objects(
                 "psnr_moving_margin": None if mean is None else mean - mean_flat,
                 "psnr_moving_margin_pooled": pooled,
                 "tracking": tracking | {"region": track_region(renderer, views, found)},
+                "segmentation": segment,
             }
         )
     return out, None
@@ -117,11 +159,11 @@ def _fmt(v: float | None, nd: int, sign: bool = False) -> str:
 def object_table(objects: list[dict]) -> list[str]:
     """Markdown: one row per object, its mask PSNR beside the flat image's and the margin (per
     image fit), the margin with the mask's pixels pooled, its region error (median px), test
-    times not drawn, and its path ratio."""
+    times not drawn, its path ratio, the found object matched to it and their mask IoU."""
     lines = [
         "| object | test times in view | PSNR on its mask | flat | margin | margin, pixels pooled "
-        "| track err (px) | not drawn | path ratio |",
-        "|---" + "|---:" * 8 + "|",
+        "| track err (px) | not drawn | path ratio | found as | mask IoU |",
+        "|---" + "|---:" * 10 + "|",
     ]
     for o in objects:
         tr, region = o["tracking"], o["tracking"]["region"]
@@ -135,6 +177,8 @@ def object_table(objects: list[dict]) -> list[str]:
             _fmt(region["error_px_median"], 2),
             str(region["not_drawn"]),
             _fmt(tr["path_ratio"], 3),
+            "none" if o["segmentation"]["object"] is None else str(o["segmentation"]["object"]),
+            _fmt(o["segmentation"]["iou_mean"], 3),
         ]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
