@@ -190,12 +190,15 @@ def test_one_found_object_drawing_two_true_ones_counts_for_one(crossing):
     # start): one of the two is matched to it, the other has no object and scores 0.
     data = load_dataset(crossing)
     renderer = found_as(PosedRenderer(data, *gaussians_on(["sphere", "box", "card"])), [0, 1, 1])
-    sphere, box, card = (o["segmentation"] for o in evaluate(renderer, data)["objects"])
+    result = evaluate(renderer, data)
+    sphere, box, card = (o["segmentation"] for o in result["objects"])
+    line = headline(result).split("mask IoU with the object found for it: ")[1]
+    assert line.startswith("sphere 0.") and ("box none" in line) != ("card none" in line)
     assert sphere["object"] == 0 and sphere["iou_mean"] > 0.55
     assert sorted([box["object"], card["object"]], key=str) == [1, None]
     left = box if box["object"] is None else card
     assert left["iou_mean"] == 0.0 and all(p["iou"] is None for p in left["per_time"])
-    json.dumps(evaluate(renderer, data)["objects"])  # the eval writes it as JSON
+    json.dumps(result["objects"])  # the eval writes it as JSON
 
 
 def test_a_run_without_objects_matches_none(crossing):

@@ -186,7 +186,8 @@ def object_table(objects: list[dict]) -> list[str]:
 
 def worst_object_headline(objects: list[dict]) -> str:
     """One line for several objects: the one with the smallest mask margin over the flat image,
-    then each object's region error and path ratio."""
+    then each object's region error and path ratio, then its mask IoU with the found object
+    matched to it ("none": no found object is left for it)."""
     scored = [o for o in objects if o["psnr_moving_margin"] is not None]
     parts = [f"{len(objects)} moving objects"]
     if scored:
@@ -201,4 +202,11 @@ def worst_object_headline(objects: list[dict]) -> str:
         for o in objects
     )
     parts.append(f"tracking (region error / path ratio): {each}")
+    matched = ", ".join(
+        f"{o['name']} {_fmt(o['segmentation']['iou_mean'], 2)}"
+        if o["segmentation"]["object"] is not None
+        else f"{o['name']} none"
+        for o in objects
+    )
+    parts.append(f"mask IoU with the object found for it: {matched}")
     return "; ".join(parts)
