@@ -22,6 +22,7 @@ from evsplat.model.motion import ObjectMotion
 from evsplat.object_output import TRACK_COLUMNS, object_labels, object_poses
 from evsplat.render import Renderer
 from evsplat.run_state import Camera, Poses, RunState
+from evsplat.video import read_mp4_frame
 
 W, H, F = 64, 48, 100.0  # image size (px) and focal length (px); the principal point central
 K = np.array([[F, 0.0, W / 2], [0.0, F, H / 2], [0.0, 0.0, 1.0]])
@@ -179,12 +180,15 @@ def test_export_tracks_and_render_objects_from_a_saved_run(tmp_path, renderer, c
     np.testing.assert_allclose(quarter[10:12], [24.0 + F * SLIDE / 4 / 2.0, 24.0], atol=1e-3)
 
     out = tmp_path / "frames"
-    assert main(["render", run, "--out", str(out), "--times", "0,0.75", "--objects"]) == 0
+    assert (
+        main(["render", run, "--out", str(out), "--times", "0,0.75", "--objects", "--video"]) == 0
+    )
     assert "1 = object 0 (lime), 2 = object 1 (magenta)" in capsys.readouterr().out
     for i, t_us in enumerate((0, 750_000)):
         got = np.round(read_png(out / f"labels_{i:05d}.png") * 255).astype(int)
         np.testing.assert_array_equal(got, object_labels(renderer, t_us, np.eye(4)))
         assert read_png(out / f"objects_{i:05d}.png").shape == (H, W, 3)
+    assert read_mp4_frame(out / "objects.mp4", 1).shape[2] == 3  # two frames, upscaled
 
 
 def test_export_takes_one_output(tmp_path, capsys):
