@@ -12,7 +12,13 @@ import torch
 from evsplat.data.dataset import load_dataset
 from evsplat.data.images import read_png
 from evsplat.data.simulator import simulate_dataset
-from evsplat.eval import evaluate, format_table, headline, write_track_plot
+from evsplat.eval import (
+    evaluate,
+    format_table,
+    headline,
+    write_segmentation_plot,
+    write_track_plot,
+)
 from evsplat.eval_objects import pooled_margin
 from evsplat.metrics import fit_log_linear, flat_fit, psnr
 from evsplat.model.gaussians import GaussianModel
@@ -169,7 +175,7 @@ def found_as(renderer: PosedRenderer, ids: list[int]) -> PosedRenderer:
     return renderer
 
 
-def test_each_true_object_is_matched_to_the_found_object_drawing_it(crossing):
+def test_each_true_object_is_matched_to_the_found_object_drawing_it(crossing, tmp_path):
     # Found in another order than the simulator lists them: the matching is by overlap.
     data = load_dataset(crossing)
     renderer = found_as(PosedRenderer(data, *gaussians_on(["sphere", "box", "card"])), [2, 0, 1])
@@ -182,7 +188,10 @@ def test_each_true_object_is_matched_to_the_found_object_drawing_it(crossing):
         # views at the border that band is up to 0.4 of the union (the sphere: 0.57-0.75)
         assert seg["iou_mean"] > 0.55, (o["name"], seg)
         assert len(seg["per_time"]) == o["in_view"]
-    assert "| found as | mask IoU |" in format_table(evaluate(renderer, data))
+    result = evaluate(renderer, data)
+    assert "| found as | mask IoU |" in format_table(result)
+    assert write_segmentation_plot(result, renderer, data, tmp_path / "segmentation.png")
+    assert (tmp_path / "segmentation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_one_found_object_drawing_two_true_ones_counts_for_one(crossing):

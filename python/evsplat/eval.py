@@ -24,7 +24,8 @@ from evsplat.event_prediction import event_headline, format_event_table, predict
 from evsplat.intensity import LUMA
 from evsplat.metrics import DISPLAY_GAMMA, Lpips, fit_log_linear, flat_fit, psnr, ssim, to_display
 from evsplat.motion_metrics import PERCENTILES
-from evsplat.plots import plot_track
+from evsplat.object_output import object_labels
+from evsplat.plots import plot_segmentation, plot_track
 from evsplat.render import Renderer
 
 SCORE_KEYS = ("psnr", "psnr_flat", "ssim", "lpips", "psnr_moving", "psnr_moving_flat")
@@ -298,11 +299,36 @@ def write_track_plot(result: dict, data: Dataset, out: Path) -> bool:
     return True
 
 
+def write_segmentation_plot(result: dict, renderer: Renderer, data: Dataset, out: Path) -> bool:
+    """Draw ``out`` (segmentation.png): at each test time, every true object's outline and the
+    pixels of the found object matched to it (``eval_objects.segmentation``); False (nothing
+    drawn) when the objects were not scored."""
+    objects = result.get("objects") or []
+    if not objects:
+        return False
+    frames = data.test_frames
+    truths = [
+        [mask2d(read_png(f.objects[j].mask_path) > 0.5) for f in frames]
+        for j in range(len(objects))
+    ]
+    plot_segmentation(
+        [read_png(f.rgb_path) for f in frames],
+        [f.time_us for f in frames],
+        truths,
+        [object_labels(renderer, f.time_us, f.c2w) for f in frames],
+        [o["segmentation"]["object"] for o in objects],
+        [o["name"] for o in objects],
+        out,
+        title=f"{data.meta.get('scene', data.root.name)}: moving objects as segmented",
+    )
+    return True
+
+
 def evaluate_run(run_dir: Path, data_dir: Path, out_dir: Path | None = None) -> dict:
     """Evaluate a run folder on a dataset folder; writes eval.json, eval.md and (with a
-    tracked object) track.png atomically. The test frames are scored where the dataset has
-    them; the event prediction (``evsplat.event_prediction``) where the run held windows out
-    or there are no test frames."""
+    tracked object) track.png and segmentation.png atomically. The test frames are scored where
+    the dataset has them; the event prediction (``evsplat.event_prediction``) where the run held
+    windows out or there are no test frames."""
     renderer, state = Renderer.from_run(run_dir)
     data = load_dataset(data_dir)
     result = evaluate(renderer, data) if data.test_frames else {}
@@ -314,4 +340,5 @@ def evaluate_run(run_dir: Path, data_dir: Path, out_dir: Path | None = None) -> 
     write_text_atomic(out / "eval.json", json.dumps(result, indent=2))
     write_text_atomic(out / "eval.md", format_table(result))
     write_track_plot(result, data, out / "track.png")
+    write_segmentation_plot(result, renderer, data, out / "segmentation.png")
     return result

@@ -171,3 +171,55 @@ def _frame_view(ax, px: np.ndarray, w: int, h: int) -> None:
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(hi[1], lo[1])  # image rows grow downwards
     ax.set_facecolor("0.85")
+
+
+def plot_segmentation(
+    images: list[np.ndarray],
+    times_us: list[int],
+    truths: list[list[np.ndarray]],
+    labels: list[np.ndarray],
+    found_for: list[int | None],
+    names: list[str],
+    out: Path,
+    title: str = "",
+) -> None:
+    """One panel per test time: the ground truth ``images`` (linear, shown at display gamma)
+    with each true object's mask (``truths[j][f]``) outlined in its colour and the pixels of
+    the found object matched to it (``found_for[j]``; ``labels[f]`` holds found object k as
+    k + 1) filled in that colour; found objects matched to none are filled white."""
+    from matplotlib.colors import to_rgb
+    from scipy import ndimage
+
+    from evsplat.metrics import to_display
+
+    plt = _pyplot()
+    colours = [np.array(to_rgb(TRACK_COLOURS[j % len(TRACK_COLOURS)])) for j in range(len(names))]
+    owner = {k: colours[j] for j, k in enumerate(found_for) if k is not None}
+    fig, axes = plt.subplots(1, len(images), figsize=(2.2 * len(images), 2.6), squeeze=False)
+    for f, (image, ax) in enumerate(zip(images, axes[0])):
+        shown = np.clip(to_display(image), 0, 1)
+        shown = np.repeat(shown, 3, axis=-1) if shown.shape[-1] == 1 else shown[..., :3].copy()
+        for k in np.unique(labels[f][labels[f] > 0]) - 1:
+            drawn = labels[f] == k + 1
+            shown[drawn] = 0.5 * shown[drawn] + 0.5 * owner.get(int(k), np.ones(3))
+        for j, masks in enumerate(truths):
+            edge = masks[f] & ~ndimage.binary_erosion(masks[f])
+            shown[edge] = colours[j]
+        ax.imshow(shown, interpolation="nearest")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(f"t = {times_us[f] / 1e6:.3f} s", fontsize=8)
+    legend = ", ".join(
+        f"{name} ({TRACK_COLOURS[j % len(TRACK_COLOURS)]}): "
+        + ("no object found for it" if k is None else f"object {k}")
+        for j, (name, k) in enumerate(zip(names, found_for))
+    )
+    fig.suptitle(
+        (title + "\n" if title else "")
+        + "true outlines; the pixels of the object found for each, filled (white: none's)\n"
+        + legend,
+        fontsize=8,
+    )
+    fig.tight_layout()
+    write_atomic(out, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    plt.close(fig)

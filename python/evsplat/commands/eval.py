@@ -8,8 +8,8 @@ import argparse
 from pathlib import Path
 
 HELP = (
-    "score a trained run on a dataset's held-out test frames (table, JSON and, with a tracked "
-    "object, track.png)"
+    "score a trained run on a dataset's held-out test frames (table, JSON and, with tracked "
+    "objects, track.png and segmentation.png)"
 )
 
 
@@ -28,6 +28,7 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(result), end="")
     print(headline(result))
     out = args.out or args.run
-    written = ["eval.json", "eval.md"] + (["track.png"] if result.get("tracking") else [])
+    pictures = ["track.png", "segmentation.png"] if result.get("objects") else []
+    written = ["eval.json", "eval.md", *pictures]
     print("written: " + ", ".join(str(out / name) for name in written))
     return 0
