@@ -142,6 +142,10 @@ def test_a_single_object_dataset_has_one_object_row(crossing):
     table = format_table(result)
     assert "track err (px) |" in table.splitlines()[2] and table.count("| ball |") == 1
     assert headline(result).startswith("moving object: PSNR")
+    # no Gaussians and no found objects: nothing is matched to the ball
+    assert headline(result).endswith(
+        "mask IoU with the object found for it: no object found for it"
+    )
 
 
 def test_the_pooled_margin_counts_each_mask_pixel_once():

@@ -253,9 +253,9 @@ def _frames_table(result: dict) -> str:
 
 
 def headline(result: dict) -> str:
-    """One line: the moving object's PSNR against the flat image's, and the tracking error
-    (with several objects, the worst object's mask margin and each one's tracking); the event
-    prediction where it was scored."""
+    """One line: the moving object's PSNR against the flat image's, the tracking error and the
+    mask IoU with the object found for it (with several objects, the worst object's mask margin
+    and each one's tracking and IoU); the event prediction where it was scored."""
     events = result.get("event_prediction")
     parts = [] if events is None else [event_headline(events)]
     if "frames" not in result:
@@ -276,6 +276,10 @@ def headline(result: dict) -> str:
             f"{_fmt(tr['rigid_error_px_median'], 1)} px), path ratio "
             f"{_fmt(tr['path_ratio'], 2)} (1 = moves with the object)"
         )
+    if objects:
+        seg = objects[0]["segmentation"]
+        found = "no object found for it" if seg["object"] is None else f"{seg['iou_mean']:.2f}"
+        parts.append(f"mask IoU with the object found for it: {found}")
     return "; ".join(parts) or "no moving object in the test frames"
 
 
