@@ -19,13 +19,19 @@ import torch
 from evsplat.data.atomic import write_text_atomic
 from evsplat.data.dataset import Dataset, load_dataset
 from evsplat.data.images import read_png
-from evsplat.eval_objects import evaluate_objects, mask2d, object_table, worst_object_headline
+from evsplat.eval_objects import (
+    evaluate_objects,
+    mask2d,
+    object_mask,
+    object_table,
+    worst_object_headline,
+)
 from evsplat.event_prediction import event_headline, format_event_table, predict_events
 from evsplat.intensity import LUMA
 from evsplat.metrics import DISPLAY_GAMMA, Lpips, fit_log_linear, flat_fit, psnr, ssim, to_display
 from evsplat.motion_metrics import PERCENTILES
-from evsplat.object_output import object_labels
-from evsplat.plots import plot_segmentation, plot_track
+from evsplat.object_output import object_count, object_labels, tinted
+from evsplat.plots import plot_segmentation, plot_track, track_colour
 from evsplat.render import Renderer
 
 SCORE_KEYS = ("psnr", "psnr_flat", "ssim", "lpips", "psnr_moving", "psnr_moving_flat")
@@ -305,21 +311,29 @@ def write_track_plot(result: dict, data: Dataset, out: Path) -> bool:
 
 def write_segmentation_plot(result: dict, renderer: Renderer, data: Dataset, out: Path) -> bool:
     """Draw ``out`` (segmentation.png): at each test time, every true object's outline and the
-    pixels of the found object matched to it (``eval_objects.segmentation``); False (nothing
-    drawn) when the objects were not scored."""
+    pixels of the found object matched to it (``eval_objects.segmentation``) tinted in its
+    colour, white where a found object is matched to none; False (nothing drawn) when the
+    objects were not scored."""
     objects = result.get("objects") or []
     if not objects:
         return False
+    matched = {o["segmentation"]["object"]: j for j, o in enumerate(objects)}
+    found = [matched.get(k) for k in range(object_count(renderer))]
+    colours = np.stack(
+        [np.ones(3) if j is None else track_colour(j) for j in found] or [np.ones(3)]
+    )
     frames = data.test_frames
-    truths = [
-        [mask2d(read_png(f.objects[j].mask_path) > 0.5) for f in frames]
-        for j in range(len(objects))
-    ]
     plot_segmentation(
-        [read_png(f.rgb_path) for f in frames],
+        [
+            tinted(
+                np.clip(to_display(read_png(f.rgb_path)), 0, 1),
+                object_labels(renderer, f.time_us, f.c2w),
+                colours,
+            )
+            for f in frames
+        ],
         [f.time_us for f in frames],
-        truths,
-        [object_labels(renderer, f.time_us, f.c2w) for f in frames],
+        [[object_mask(f.objects[j]) for f in frames] for j in range(len(objects))],
         [o["segmentation"]["object"] for o in objects],
         [o["name"] for o in objects],
         out,

@@ -22,12 +22,18 @@ from evsplat.object_output import object_count, object_labels
 
 if TYPE_CHECKING:
     from evsplat.data.dataset import Dataset
+    from evsplat.data.ground_truth import FrameObject
     from evsplat.render import Renderer
 
 
 def mask2d(mask: np.ndarray | None) -> np.ndarray | None:
     """A mask as [H,W] bool (a colour PNG mask has one channel per colour)."""
     return mask[..., 0] if mask is not None and mask.ndim == 3 else mask
+
+
+def object_mask(obj: FrameObject) -> np.ndarray:
+    """An object's [H,W] bool mask at a test frame (test/frames.json ``objects``)."""
+    return mask2d(read_png(obj.mask_path) > 0.5)
 
 
 def object_views(
@@ -47,7 +53,7 @@ def object_views(
             TrackView(
                 f.time_us,
                 f.c2w,
-                mask2d(read_png(f.objects[k].mask_path) > 0.5),
+                object_mask(f.objects[k]),
                 depth,
                 f.objects[k].centre,
                 None if drawn_depths is None else drawn_depths[j],

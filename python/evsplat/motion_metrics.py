@@ -93,6 +93,8 @@ OPACITY_MIN = 0.05  # a Gaussian fainter than this at t_k does not draw the obje
 DEPTH_TOLERANCE = 0.1  # behind-the-surface tolerance as a fraction of depth, radius unknown
 MIN_DEPTH = 1e-6  # camera z floor, so points behind a camera project finitely
 PERCENTILES = (50, 90, 99)
+#: A pixel is in what a set of Gaussians draws where they cover at least this share of it.
+COVER = 0.5
 REGION_MIN_COVER = 0.25  # the object set must cover this share of the mask's area to be drawn
 STILL_PX = 1.0  # a Gaussian whose centre moves less than a pixel over the test times holds still
 
@@ -227,7 +229,7 @@ def track_region(renderer: Renderer, views: Sequence[TrackView], found: ObjectGa
         error = None
         if area > 0:
             out = renderer.render(view.time_us, view.c2w, extra=feature)
-            region = (out.extra[..., 0] * out.alpha).double().numpy() >= 0.5
+            region = out.shares()[..., 0].double().numpy() >= COVER
             drawn = region.sum() >= REGION_MIN_COVER * area
             truth = centroid(view.mask)
             error = float(np.linalg.norm(centroid(region) - truth)) if drawn else np.inf

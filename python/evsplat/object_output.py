@@ -15,12 +15,10 @@ import numpy as np
 import torch
 
 from evsplat.data.trajectory import Trajectory
+from evsplat.motion_metrics import COVER
 from evsplat.raster import MAX_FEATURES
 from evsplat.render import Renderer
 
-#: A pixel is an object's where its Gaussians cover at least this share of it (the eval's
-#: region test, ``motion_metrics.track_region``); the nearest such object wins where two overlap.
-COVER = 0.5
 TRACK_COLUMNS = "time_us,object,visible,x,y,z,qw,qx,qy,qz,u,v,depth"
 
 
@@ -74,9 +72,10 @@ def object_poses(renderer: Renderer, t_us: float, trajectory: Trajectory) -> lis
 
 @torch.no_grad()
 def object_labels(renderer: Renderer, t_us: float, c2w: np.ndarray) -> np.ndarray:
-    """int32 [H,W]: per pixel, 1 + the index of the object drawn there (``COVER``), 0 for
-    none. Each object's coverage is rendered through the whole scene, so what hides an object
-    (the scene or a nearer object) hides its label too."""
+    """int32 [H,W]: per pixel, 1 + the index of the object drawn there, 0 for none: the object
+    whose Gaussians cover the largest share of it, at least ``COVER`` (the eval's region rule).
+    Each object's coverage is rendered through the whole scene, so what hides an object (the
+    scene or a nearer object) hides its label too."""
     k = object_count(renderer)
     labels = np.zeros((renderer.height, renderer.width), np.int32)
     if k == 0:
@@ -88,8 +87,7 @@ def object_labels(renderer: Renderer, t_us: float, c2w: np.ndarray) -> np.ndarra
         which = torch.arange(first, min(first + per_render, k), device=ids.device)
         one_hot = (ids[:, None] == which[None]).float()
         out = renderer.render(t_us, c2w, extra=one_hot)
-        share = out.extra * out.alpha[..., None]  # [H,W,E]: each object's covered share
-        cover[first : first + len(which)] = share.permute(2, 0, 1).double().cpu().numpy()
+        cover[first : first + len(which)] = out.shares().permute(2, 0, 1).double().cpu().numpy()
     best = cover.argmax(axis=0)
     return np.where(cover.max(axis=0) >= COVER, best + 1, 0).astype(np.int32)
 

@@ -86,6 +86,18 @@ TRACK_MAX_OVERHANG = 0.5  # the view extends at most this fraction of the image 
 TRACK_COLOURS = ("lime", "magenta", "orange", "cyan", "red", "yellow", "deepskyblue", "white")
 
 
+def track_colour_name(i: int) -> str:
+    """Object ``i``'s colour name in every picture of objects (``TRACK_COLOURS``, cycled)."""
+    return TRACK_COLOURS[i % len(TRACK_COLOURS)]
+
+
+def track_colour(i: int) -> np.ndarray:
+    """Object ``i``'s colour as RGB in [0, 1] [3] (``track_colour_name``)."""
+    from matplotlib.colors import to_rgb
+
+    return np.array(to_rgb(track_colour_name(i)))
+
+
 def plot_track(
     image: np.ndarray,
     c2w: np.ndarray,
@@ -109,7 +121,7 @@ def plot_track(
     ax.imshow(shown, cmap="gray", extent=(0, w, h, 0), interpolation="nearest", vmin=0, vmax=1)
     drawn, summaries = [], []
     for n, (name, tracking, track) in enumerate(objects):
-        colour = TRACK_COLOURS[n % len(TRACK_COLOURS)]
+        colour = track_colour_name(n)
         drawn += _draw_object(ax, project, c2w, K, tracking, track, colour, name)
         err, ratio = tracking["error_px_median"], tracking["path_ratio"]
         region = tracking["region"]["error_px_median"]
@@ -177,40 +189,29 @@ def plot_segmentation(
     images: list[np.ndarray],
     times_us: list[int],
     truths: list[list[np.ndarray]],
-    labels: list[np.ndarray],
     found_for: list[int | None],
     names: list[str],
     out: Path,
     title: str = "",
 ) -> None:
-    """One panel per test time: the ground truth ``images`` (linear, shown at display gamma)
-    with each true object's mask (``truths[j][f]``) outlined in its colour and the pixels of
-    the found object matched to it (``found_for[j]``; ``labels[f]`` holds found object k as
-    k + 1) filled in that colour; found objects matched to none are filled white."""
-    from matplotlib.colors import to_rgb
+    """One panel per test time: ``images`` ([H,W,3] in [0, 1], the found objects' pixels
+    already tinted, ``object_output.tinted``) with each true object's mask (``truths[j][f]``)
+    outlined in its colour (``track_colour``); the legend names the found object matched to
+    each (``found_for[j]``)."""
     from scipy import ndimage
 
-    from evsplat.metrics import to_display
-
     plt = _pyplot()
-    colours = [np.array(to_rgb(TRACK_COLOURS[j % len(TRACK_COLOURS)])) for j in range(len(names))]
-    owner = {k: colours[j] for j, k in enumerate(found_for) if k is not None}
     fig, axes = plt.subplots(1, len(images), figsize=(2.2 * len(images), 2.6), squeeze=False)
     for f, (image, ax) in enumerate(zip(images, axes[0])):
-        shown = np.clip(to_display(image), 0, 1)
-        shown = np.repeat(shown, 3, axis=-1) if shown.shape[-1] == 1 else shown[..., :3].copy()
-        for k in np.unique(labels[f][labels[f] > 0]) - 1:
-            drawn = labels[f] == k + 1
-            shown[drawn] = 0.5 * shown[drawn] + 0.5 * owner.get(int(k), np.ones(3))
+        shown = image.copy()
         for j, masks in enumerate(truths):
-            edge = masks[f] & ~ndimage.binary_erosion(masks[f])
-            shown[edge] = colours[j]
+            shown[masks[f] & ~ndimage.binary_erosion(masks[f])] = track_colour(j)
         ax.imshow(shown, interpolation="nearest")
         ax.set_xticks([])
         ax.set_yticks([])
         ax.set_title(f"t = {times_us[f] / 1e6:.3f} s", fontsize=8)
     legend = ", ".join(
-        f"{name} ({TRACK_COLOURS[j % len(TRACK_COLOURS)]}): "
+        f"{name} ({track_colour_name(j)}): "
         + ("no object found for it" if k is None else f"object {k}")
         for j, (name, k) in enumerate(zip(names, found_for))
     )

@@ -33,6 +33,14 @@ class RenderOut:
     means: torch.Tensor  # [N,3] the deformed means that were rendered
     extra: torch.Tensor | None = None  # [H,W,E]
 
+    def shares(self) -> torch.Tensor:
+        """[H,W,E] the extra features composited (``extra`` before its alpha normalisation):
+        with features of 1 on some Gaussians and 0 on the rest, the share of each pixel they
+        cover."""
+        if self.extra is None:
+            raise ValueError("RenderOut.shares: rendered without extra features")
+        return self.extra * self.alpha[..., None]
+
 
 @dataclass
 class PendingRender:

@@ -21,6 +21,7 @@ import torch
 
 from evsplat.checkpoint import Upgrades, load_checkpoint, run_checkpoint, save_checkpoint
 from evsplat.config import TrainConfig
+from evsplat.data.trajectory import Trajectory
 from evsplat.errors import EvsplatError
 from evsplat.model.gaussians import clamped_to_softplus
 
@@ -53,6 +54,10 @@ class Poses:
 
     times_us: np.ndarray  # [P] int64
     c2w: np.ndarray  # [P,4,4] camera-to-world
+
+    def trajectory(self) -> Trajectory:
+        """The camera at any time between the poses (``data.trajectory``)."""
+        return Trajectory.fit(np.asarray(self.times_us), np.asarray(self.c2w))
 
 
 @dataclass

@@ -36,7 +36,7 @@ def picture(dataset: Path, out: Path, window_us: int = 10_000) -> None:
     from evsplat.data.dataset import load_dataset
     from evsplat.data.images import read_exr, read_png
     from evsplat.motion_metrics import project
-    from evsplat.plots import TRACK_COLOURS
+    from evsplat.plots import track_colour
 
     ds = load_dataset(dataset)
     f = ds.test_frames[len(ds.test_frames) // 2]
@@ -59,7 +59,7 @@ def picture(dataset: Path, out: Path, window_us: int = 10_000) -> None:
     fig.colorbar(im, ax=axes[2], fraction=0.046)
     ids = np.zeros((ds.height, ds.width, 3))
     for k, o in enumerate(f.objects):
-        colour = matplotlib.colors.to_rgb(TRACK_COLOURS[k % len(TRACK_COLOURS)])
+        colour = track_colour(k)
         ids[read_png(o.mask_path).reshape(ds.height, ds.width, -1)[..., 0] > 0.5] = colour
         path = project(np.stack([g.objects[k].centre for g in ds.test_frames]), f.c2w, ds.K)
         axes[3].plot(*path.T, "o-", color=colour, ms=3, lw=1, label=o.name)

@@ -8,8 +8,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 HELP = "export the Gaussians at a time as a standard 3DGS PLY, or the moving objects' tracks"
 TRACK_TIMES = "0:1:0.01"  # --tracks' times unless given: every hundredth of the sequence
 
@@ -88,13 +86,12 @@ def _tracks(args: argparse.Namespace) -> int:
     """The objects' poses at ``--times`` as CSV (``object_output.TRACK_COLUMNS``), atomically."""
     from evsplat.commands.render import parse_times
     from evsplat.data.atomic import write_text_atomic
-    from evsplat.data.trajectory import Trajectory
     from evsplat.object_output import TRACK_COLUMNS, object_count, object_poses
     from evsplat.render import Renderer
 
     fractions = parse_times(args.times or TRACK_TIMES)
     renderer, state = Renderer.from_run(args.run_dir)
-    trajectory = Trajectory.fit(np.asarray(state.poses.times_us), np.asarray(state.poses.c2w))
+    trajectory = state.poses.trajectory()
     span = renderer.t_end_us - renderer.t_start_us
     rows = [TRACK_COLUMNS]
     for frac in fractions:

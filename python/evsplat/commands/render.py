@@ -78,7 +78,6 @@ def run(args: argparse.Namespace) -> int:
 
     from evsplat.data.images import write_exr, write_png
     from evsplat.data.poses import read_tum
-    from evsplat.data.trajectory import Trajectory
     from evsplat.errors import EvsplatError
     from evsplat.object_output import object_labels, tinted
     from evsplat.observed import masked, observed_map
@@ -92,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     renderer, state = Renderer.from_run(args.run_dir)
     fractions = parse_times(args.times)
     span = renderer.t_end_us - renderer.t_start_us
-    trajectory = Trajectory.fit(np.asarray(state.poses.times_us), np.asarray(state.poses.c2w))
+    trajectory = state.poses.trajectory()
     fixed = read_tum(args.pose)[1][0] if args.pose is not None else None
     args.out.mkdir(parents=True, exist_ok=True)
     events = _run_events(state)
@@ -139,22 +138,18 @@ def run(args: argparse.Namespace) -> int:
 
 def _objects(args: argparse.Namespace, renderer: Renderer) -> np.ndarray | None:
     """The objects' colours [K,3] when ``--objects`` asks for their labels (said so), else None."""
-    from matplotlib.colors import to_rgb
-
     from evsplat.errors import EvsplatError
     from evsplat.object_output import object_count
-    from evsplat.plots import TRACK_COLOURS
+    from evsplat.plots import track_colour, track_colour_name
 
     if not args.objects:
         return None
     k = object_count(renderer)
     if k > 255:  # labels are 8-bit
         raise EvsplatError(f"--objects: the run has {k} objects; labels_N.png hold at most 255")
-    names = ", ".join(
-        f"{i + 1} = object {i} ({TRACK_COLOURS[i % len(TRACK_COLOURS)]})" for i in range(k)
-    )
+    names = ", ".join(f"{i + 1} = object {i} ({track_colour_name(i)})" for i in range(k))
     print(f"labels_N.png: 0 = no object, {names}" if k else "the run has no moving objects")
-    return np.array([to_rgb(TRACK_COLOURS[i % len(TRACK_COLOURS)]) for i in range(max(k, 1))])
+    return np.stack([track_colour(i) for i in range(max(k, 1))])
 
 
 def _run_events(state: RunState) -> EventStore | None:
