@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evsplat.bench.seeding import follow_score, nearest, partly_in_view, turn_error
+from evsplat.bench.seeding import (
+    Score,
+    follow_score,
+    nearest,
+    partly_in_view,
+    summary,
+    turn_error,
+)
 from evsplat.cli import main
 
 
@@ -69,6 +76,32 @@ def test_nothing_seeded_or_never_seen_scores_none():
     drawn = np.ones((1, len(truth)), dtype=bool)
     unseen = np.zeros(len(truth), dtype=bool)
     assert follow_score(*nearest(truth[None], drawn, truth), unseen)[:4] == ([], None, None, None)
+
+
+def _score(scene: str, setting: str, name: str, by: list[int], median: float | None) -> Score:
+    return Score(scene, setting, 2, name, by, median, median, median, 0.0, None, None, 1.0)
+
+
+def test_the_summary_counts_each_setting_over_all_scenes():
+    scores = [
+        # scene a: both true objects followed most by seeded object 0 (drawn as one)
+        _score("a", "defaults", "box", [0], 1.0),
+        _score("a", "defaults", "ball", [0, 1], 2.5),
+        # scene b: object 0 again, but of another scene; one true object never followed
+        _score("b", "defaults", "card", [0], 1.5),
+        _score("b", "defaults", "sphere", [], None),
+        _score("a", "mover.gate=2", "box", [0], 4.0),
+        _score("a", "mover.gate=2", "ball", [1], 0.5),
+    ]
+    header, rule, *rows = summary(scores)
+    assert header.startswith("| setting | true objects | within 1.5 px | within 3 px |")
+    assert rule.count("|") == header.count("|")
+    cells = [[c.strip() for c in row.strip("|").split("|")] for row in rows]
+    # setting, objects, <=1.5, <=3, by two or more, drawn as one, by none, median of medians
+    assert cells[0] == ["defaults", "4", "2", "3", "1", "2", "1", "2.0"]
+    assert cells[1] == ["mover.gate=2", "2", "1", "1", "0", "0", "0", "2.2"]
+    none_seen = summary([_score("c", "defaults", "box", [], None)])[2]
+    assert none_seen.strip("|").split("|")[-1].strip() == "-"
 
 
 def test_an_object_is_partly_in_view_where_its_centre_is_out_and_its_disc_over_the_image():
