@@ -256,3 +256,33 @@ def test_check_reports_the_provenance_of_a_converted_file(tmp_path, capsys):
     assert f"with evsplat {__version__} (format npz): 4,000 events written, 0 dropped" in text
     assert "ms index:" in text and "in the file" in text
     np.testing.assert_array_equal(read_events(out).t, ev.t)
+
+
+def _quiet_start(ball: Path, recorded_us: tuple[int, int] | None) -> None:
+    """The ball's events before 200 ms dropped (as a still camera sees a scene where nothing
+    moves until then), rewritten with or without the span the sensor recorded."""
+    ev = read_events(ball / "events.h5")
+    late = ev.slice(int(np.searchsorted(ev.t, 200_000)), len(ev))
+    write_events_h5(ball / "events.h5", late, recorded_us=recorded_us)
+
+
+def test_a_quiet_start_is_no_cut_recording_where_the_file_says_what_it_recorded(ball, capsys):
+    _quiet_start(ball, None)
+    assert main(["check", str(ball)]) == 2  # its first event at 200 ms: cut, as far as one knows
+    assert "shorter than the data's time range" in capsys.readouterr().err
+    _quiet_start(ball, (0, 600_000))
+    assert main(["check", str(ball)]) == 0
+    store = load_dataset(ball).events
+    assert store.recorded_us == (0, 600_000) and store.t_first_us >= 200_000
+
+
+def test_a_recorded_span_must_hold_the_events(ball, tmp_path):
+    ev = read_events(ball / "events.h5")
+    with pytest.raises(EvsplatError, match=r"outside the recorded span \[0, 500000\]"):
+        write_events_h5(tmp_path / "e.h5", ev, recorded_us=(0, 500_000))
+    assert not (tmp_path / "e.h5").exists()  # atomic: nothing half-written
+    with h5py.File(ball / "events.h5", "r+") as f:
+        f.attrs["recorded_us"] = np.array([300_000, 600_000], dtype=np.int64)
+    with pytest.raises(EvsplatError, match="does not hold the events") as e:
+        load_dataset(ball)
+    assert "\n" not in str(e.value) and "events.h5" in str(e.value)

@@ -246,12 +246,14 @@ COVERAGE_SLACK = 0.01
 
 
 def _coverage(c: _Checker, store: EventStore, t0: int, t1: int) -> None:
-    """The events must span meta.json's time range: training draws windows all over it, and
-    one past the recording's end would teach the model that nothing moved there."""
+    """The recording must span meta.json's time range: training draws windows all over it, and
+    one past the recording's end would teach the model that nothing moved there. Its span is
+    the one the file says it recorded (``recorded_us``: a quiet start has no events yet was
+    recorded), else its first and last events'."""
     if store.count == 0:
         return
     slack = max(MS, round(COVERAGE_SLACK * (t1 - t0)))
-    first, last = store.t_first_us, store.t_last_us
+    first, last = store.recorded_us or (store.t_first_us, store.t_last_us)
     if first <= t0 + slack and last >= t1 - slack:
         return
     c.fail(

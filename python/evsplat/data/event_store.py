@@ -92,12 +92,33 @@ def _absolute(t: np.ndarray, t_offset: int, src: str) -> np.ndarray:
     return t
 
 
+def _recorded(
+    f: h5py.File, source: str, first: int | None, last: int | None
+) -> tuple[int, int] | None:
+    """The file's ``recorded_us`` attribute as (start, end) µs, None without one; an error
+    where it is not two ordered integers holding every event."""
+    if "recorded_us" not in f.attrs:
+        return None
+    span = np.asarray(f.attrs["recorded_us"])
+    fix = "re-convert the file, or delete the attribute"
+    if span.shape != (2,) or not np.issubdtype(span.dtype, np.integer) or span[0] > span[1]:
+        raise EvsplatError(f"{source}: recorded_us {span.tolist()} is not [start, end] µs; {fix}")
+    start, end = int(span[0]), int(span[1])
+    if first is not None and last is not None and not start <= first <= last <= end:
+        raise EvsplatError(
+            f"{source}: recorded_us [{start}, {end}] does not hold the events at "
+            f"[{first}, {last}] µs; {fix}"
+        )
+    return start, end
+
+
 class EventStore:
     """An open HDF5 event file, read by time window. Use :func:`open_store`.
 
     Attributes: ``path``, ``count`` (events), ``t_first_us``/``t_last_us`` (None when empty),
-    ``width``/``height``, ``provenance`` (the file's provenance attributes, empty when none)
-    and ``index_source`` (where the index came from, in words)."""
+    ``recorded_us`` (the [start, end] µs the file says the sensor recorded, None when it does
+    not say), ``width``/``height``, ``provenance`` (the file's provenance attributes, empty
+    when none) and ``index_source`` (where the index came from, in words)."""
 
     def __init__(
         self,
@@ -128,6 +149,7 @@ class EventStore:
         prov = f.get("provenance")
         self.provenance = dict(prov.attrs) if isinstance(prov, h5py.Group) else {}
         check_index(self.ms_to_idx, self.origin, self.count, self.t_last_us, self.source)
+        self.recorded_us = _recorded(f, self.source, self.t_first_us, self.t_last_us)
 
     def close(self) -> None:
         self._file.close()

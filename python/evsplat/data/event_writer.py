@@ -3,8 +3,10 @@
 Layout (DSEC's, docs/dataset.md): ``events/x``, ``events/y`` (uint16), ``events/t`` (int64 µs
 relative to ``t_offset``), ``events/p`` (int8 ±1), chunked and compressed; the scalar
 ``t_offset`` (int64 µs: the first event's millisecond); ``ms_to_idx`` (uint64, see
-:mod:`evsplat.data.event_index`); ``width``/``height`` attributes on the file; and, for a
-converted recording, a ``provenance`` group whose attributes say where it came from.
+:mod:`evsplat.data.event_index`); ``width``/``height`` attributes on the file, and
+``recorded_us`` where the writer knows the span the sensor recorded (a quiet start has no
+events, yet it was recorded); and, for a converted recording, a ``provenance`` group whose
+attributes say where it came from.
 """
 
 from __future__ import annotations
@@ -117,12 +119,16 @@ def write_events(
     compression: str = DEFAULT_CODEC,
     chunk: int = CHUNK,
     provenance: Mapping[str, object] | None = None,
+    recorded_us: tuple[int, int] | None = None,
 ) -> int:
     """Writes the validated ``streams`` (in time order) to ``path`` as one event file with its
     millisecond index; returns the number of events. Atomic: an error (also one raised by
     ``streams``) leaves ``path`` as it was. ``provenance`` is read after the last stream, so
-    a caller may fill it in while streaming."""
+    a caller may fill it in while streaming. ``recorded_us``: the [start, end] µs the sensor
+    recorded, which must hold every event."""
     path = Path(path)
+    if recorded_us is not None and not recorded_us[0] <= recorded_us[1]:
+        raise EvsplatError(f"{path}: recorded span {recorded_us} must have start <= end")
     options = codecs()
     if compression not in options:
         raise EvsplatError(
@@ -136,6 +142,8 @@ def write_events(
         nonlocal written
         with h5py.File(tmp, "w") as f:
             f.attrs["width"], f.attrs["height"] = width, height
+            if recorded_us is not None:
+                f.attrs["recorded_us"] = np.array(recorded_us, dtype=np.int64)
             group = f.create_group("events")
             dtypes = {"x": np.uint16, "y": np.uint16, "t": np.int64, "p": np.int8}
             dsets = {
@@ -173,6 +181,13 @@ def write_events(
                     else:
                         dsets[k][written:] = values
                 written, last_t = n, int(ev.t[-1])
+                if recorded_us is not None and not (
+                    recorded_us[0] <= int(ev.t[0]) and last_t <= recorded_us[1]
+                ):
+                    raise EvsplatError(
+                        f"{ev.source}: events at {int(ev.t[0])}-{last_t} µs lie outside the "
+                        f"recorded span {list(recorded_us)} µs; widen the span or drop them"
+                    )
             for column in direct.values():
                 column.close()
             f["t_offset"] = np.int64(index.origin if index else 0)
@@ -192,6 +207,7 @@ def write_events_h5(
     compression: str = DEFAULT_CODEC,
     chunk: int = CHUNK,
     provenance: Mapping[str, object] | None = None,
+    recorded_us: tuple[int, int] | None = None,
 ) -> None:
     """Writes one stream as an event file (see :func:`write_events`); chunks never longer
     than the stream, so a small file stays small even uncompressed."""
@@ -204,4 +220,5 @@ def write_events_h5(
         compression=compression,
         chunk=chunk,
         provenance=provenance,
+        recorded_us=recorded_us,
     )

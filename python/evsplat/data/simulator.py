@@ -241,7 +241,8 @@ def simulate_dataset(
             cfg.seed,
             source=str(out / "events.h5"),
         )
-        write_events_h5(tmp / "events.h5", events)
+        # The sensor recorded the whole sequence: a still start makes no events, no cut.
+        write_events_h5(tmp / "events.h5", events, recorded_us=(0, scene.duration_us))
         pose_t = _times(scene.duration_us, 1e6 / MEASURED_POSE_HZ)
         write_tum(tmp / "poses.txt", pose_t, scene.c2w(pose_t))
         gt_t = _times(scene.duration_us, 1e6 / GT_POSE_HZ)
