@@ -19,7 +19,7 @@ from evsplat.eval import (
     write_segmentation_plot,
     write_track_plot,
 )
-from evsplat.eval_objects import pooled_margin
+from evsplat.eval_objects import frame_labels, pooled_margin
 from evsplat.metrics import fit_log_linear, flat_fit, psnr
 from evsplat.model.gaussians import GaussianModel
 from evsplat.model.motion import ObjectMotion
@@ -192,9 +192,10 @@ def test_each_true_object_is_matched_to_the_found_object_drawing_it(crossing, tm
         # views at the border that band is up to 0.4 of the union (the sphere: 0.57-0.75)
         assert seg["iou_mean"] > 0.55, (o["name"], seg)
         assert len(seg["per_time"]) == o["in_view"]
-    result = evaluate(renderer, data)
+    labels = frame_labels(renderer, data)
+    result = evaluate(renderer, data, labels)
     assert "| found as | mask IoU |" in format_table(result)
-    assert write_segmentation_plot(result, renderer, data, tmp_path / "segmentation.png")
+    assert write_segmentation_plot(result, renderer, data, labels, tmp_path / "segmentation.png")
     assert (tmp_path / "segmentation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -21,6 +21,7 @@ from evsplat.data.dataset import Dataset, load_dataset
 from evsplat.data.images import read_png
 from evsplat.eval_objects import (
     evaluate_objects,
+    frame_labels,
     mask2d,
     object_mask,
     object_table,
@@ -30,7 +31,7 @@ from evsplat.event_prediction import event_headline, format_event_table, predict
 from evsplat.intensity import LUMA
 from evsplat.metrics import DISPLAY_GAMMA, Lpips, fit_log_linear, flat_fit, psnr, ssim, to_display
 from evsplat.motion_metrics import PERCENTILES
-from evsplat.object_output import object_count, object_labels, tinted
+from evsplat.object_output import object_count, tinted
 from evsplat.plots import plot_segmentation, plot_track, track_colour
 from evsplat.render import Renderer
 
@@ -102,11 +103,12 @@ def summarise(rows: list[dict]) -> dict:
 
 
 @torch.no_grad()
-def evaluate(renderer: Renderer, data: Dataset) -> dict:
+def evaluate(renderer: Renderer, data: Dataset, labels: list[np.ndarray] | None = None) -> dict:
     """Scores under two colour-fit protocols (per image, as the paper; per sequence on display
     gamma, as EventNeRF's stricter one), each next to a flat grey image's, and per moving
-    object its mask PSNR and tracking (``evsplat.eval_objects``) where the dataset gives its
-    centre; ``tracking`` is the first object's, as with one tracked object."""
+    object its mask PSNR, tracking and segmentation (``evsplat.eval_objects``; ``labels``:
+    ``frame_labels``, rendered there when not given) where the dataset gives its centre;
+    ``tracking`` is the first object's, as with one tracked object."""
     lp = Lpips()
     frames = render_test_frames(renderer, data)
     renders, gts, masks = [], [], []
@@ -127,7 +129,7 @@ def evaluate(renderer: Renderer, data: Dataset) -> dict:
         for i, (row, g, m) in enumerate(zip(rows, gts, masks))
     ]
     depths = [fr["depth"] for fr in frames]
-    objects, why = evaluate_objects(renderer, data, fitted, flat, gts, depths)
+    objects, why = evaluate_objects(renderer, data, fitted, flat, gts, depths, labels)
     return {
         "frames": rows,
         "mean": summarise(rows),
@@ -309,11 +311,13 @@ def write_track_plot(result: dict, data: Dataset, out: Path) -> bool:
     return True
 
 
-def write_segmentation_plot(result: dict, renderer: Renderer, data: Dataset, out: Path) -> bool:
+def write_segmentation_plot(
+    result: dict, renderer: Renderer, data: Dataset, labels: list[np.ndarray], out: Path
+) -> bool:
     """Draw ``out`` (segmentation.png): at each test time, every true object's outline and the
-    pixels of the found object matched to it (``eval_objects.segmentation``) tinted in its
-    colour, white where a found object is matched to none; False (nothing drawn) when the
-    objects were not scored."""
+    pixels of the found object matched to it (``eval_objects.segmentation``, from the same
+    ``labels``) tinted in its colour, white where a found object is matched to none; False
+    (nothing drawn) when the objects were not scored."""
     objects = result.get("objects") or []
     if not objects:
         return False
@@ -325,12 +329,8 @@ def write_segmentation_plot(result: dict, renderer: Renderer, data: Dataset, out
     frames = data.test_frames
     plot_segmentation(
         [
-            tinted(
-                np.clip(to_display(read_png(f.rgb_path)), 0, 1),
-                object_labels(renderer, f.time_us, f.c2w),
-                colours,
-            )
-            for f in frames
+            tinted(np.clip(to_display(read_png(f.rgb_path)), 0, 1), drawn, colours)
+            for f, drawn in zip(frames, labels)
         ],
         [f.time_us for f in frames],
         [[object_mask(f.objects[j]) for f in frames] for j in range(len(objects))],
@@ -349,7 +349,8 @@ def evaluate_run(run_dir: Path, data_dir: Path, out_dir: Path | None = None) -> 
     windows out or there are no test frames."""
     renderer, state = Renderer.from_run(run_dir)
     data = load_dataset(data_dir)
-    result = evaluate(renderer, data) if data.test_frames else {}
+    labels = frame_labels(renderer, data)  # once, for the IoU and the picture
+    result = evaluate(renderer, data, labels) if data.test_frames else {}
     if state.heldout or not data.test_frames:
         lambda_ssim = state.config.loss.lambda_ssim
         result["event_prediction"] = predict_events(renderer, data, state.heldout, lambda_ssim)
@@ -358,5 +359,5 @@ def evaluate_run(run_dir: Path, data_dir: Path, out_dir: Path | None = None) -> 
     write_text_atomic(out / "eval.json", json.dumps(result, indent=2))
     write_text_atomic(out / "eval.md", format_table(result))
     write_track_plot(result, data, out / "track.png")
-    write_segmentation_plot(result, renderer, data, out / "segmentation.png")
+    write_segmentation_plot(result, renderer, data, labels, out / "segmentation.png")
     return result

@@ -77,16 +77,22 @@ def pooled_margin(
     return psnr(scored[0], truth) - psnr(scored[1], truth)
 
 
-def segmentation(renderer: Renderer, views_by_object: list[list[TrackView]]) -> list[dict]:
+def frame_labels(renderer: Renderer, data: Dataset) -> list[np.ndarray]:
+    """The found objects' labels (``object_output.object_labels``) at each test frame: the
+    eval's IoU and its picture read the same ones (no render where the run has no objects)."""
+    return [object_labels(renderer, f.time_us, f.c2w) for f in data.test_frames]
+
+
+def segmentation(
+    renderer: Renderer, views_by_object: list[list[TrackView]], labels: list[np.ndarray]
+) -> list[dict]:
     """Per true object (its test views, each with its mask), the found object it is matched to
     and their IoU per test time it is in view and its mean. A found object's pixels are its
-    labels there (``object_output.object_labels``); true and found objects are matched one to
+    ``labels`` there (``frame_labels``, one per view); true and found objects are matched one to
     one (Hungarian) on that mean, so a found object that draws two true ones counts for one of
     them, and a true object left without one (``object`` None) scores 0."""
     found = object_count(renderer)
-    views = views_by_object[0]  # every object's views share the test times and poses
-    labels = [object_labels(renderer, v.time_us, v.c2w) for v in views]
-    iou = np.zeros((len(views_by_object), found, len(views)))
+    iou = np.zeros((len(views_by_object), found, len(labels)))
     for j, object_views in enumerate(views_by_object):
         for f, (view, drawn) in enumerate(zip(object_views, labels)):
             for k in range(found):
@@ -120,17 +126,20 @@ def evaluate_objects(
     flat: list[np.ndarray],
     gts: list[np.ndarray],
     drawn_depths: list[np.ndarray],
+    labels: list[np.ndarray] | None = None,
 ) -> tuple[list[dict], str | None]:
     """Per moving object (test frames' order): PSNR of the colour-fitted renders ``fitted`` and
     of the flat images ``flat`` against ``gts`` on its mask, mean over the test frames where it
     is seen, their margin, the margin with its mask's pixels pooled over those frames (a frame
-    where it shows a few pixels at the border counts by its pixels, not as a whole view), and
-    its tracking; or [] and why tracking is not reported."""
+    where it shows a few pixels at the border counts by its pixels, not as a whole view), its
+    tracking and its segmentation (``labels``: ``frame_labels``, rendered here when not given);
+    or [] and why tracking is not reported."""
     views_by_object, why = object_views(data, drawn_depths)
     if views_by_object is None:
         return [], why
     radii = {t.name: t.radius for t in data.tracks}
-    segments = segmentation(renderer, [views for _, views in views_by_object])
+    labels = frame_labels(renderer, data) if labels is None else labels
+    segments = segmentation(renderer, [views for _, views in views_by_object], labels)
     out = []
     for (name, views), segment in zip(views_by_object, segments):
         seen = [k for k, v in enumerate(views) if v.mask.any()]
