@@ -137,6 +137,7 @@ class MoverConfig:
     windows: int = 48  # segmentation windows spread over the sequence
     window: float = 0.015  # their length, a fraction of the sequence (9 ms of 0.6 s)
     slow_window: float = 0.0  # a longer one at each for slow or small objects, e.g. 0.03 (0: none)
+    still_window: float = 0.05  # under a still camera, the longer one's length instead (0: none)
     pool: int = 3  # px box that averages the ESI's steps of C before the residual
     blur_px: float = 1.0  # spreads an object's edge events over its body (sigma, px)
     low: float = 3.0  # a region: residual above median + low robust sigmas (MAD) ...

@@ -61,27 +61,32 @@ class Seeded:
 
 @dataclass
 class Sightings:
-    """Per window: its middle time, regions, residual, and the rendered depth where opaque."""
+    """Per window: its middle time, regions, residual, and the rendered depth where opaque;
+    whether the camera stood still over them."""
 
     times_us: np.ndarray  # [W]
     blobs: list[list[Blob]]
     residual: list[np.ndarray]
     depth: list[np.ndarray]  # 0 where the render's alpha is not over ``OPAQUE``
+    still: bool
 
 
 @torch.no_grad()
 def sight(views: Views, mc: MoverConfig) -> Sightings:
     """Segment ``mc.windows`` short windows spread over the sequence against what the renderer
     draws (after the warm-up, the static model; later, everything found so far); with
-    ``mc.slow_window``, also a longer window about each middle, whose regions are added where
-    they are ``apart`` from the short window's."""
+    ``mc.slow_window`` (under a still camera ``mc.still_window``), also a longer window about
+    each middle, whose regions are added where they are ``apart`` from the short window's."""
     data = views.data
     least = floor(data.c_pos, data.c_neg, mc.pool)
     half = max(int(mc.window * (data.t_end_us - data.t_start_us)) // 2, 1)
     mids = np.linspace(data.t_start_us + half, data.t_end_us - half, mc.windows).astype(np.int64)
     windows = [(m, _clipped(views, m, half)) for m in mids.tolist()]
     windows = [(m, w) for m, w in windows if views.allowed(*w)]  # held out: unread
-    slow = max(int(mc.slow_window * (data.t_end_us - data.t_start_us)) // 2, half)
+    times = np.array([m for m, _ in windows], dtype=np.int64)
+    still = is_still(data.trajectory.pose(times.astype(np.float64)))
+    length = mc.still_window if still else mc.slow_window
+    slow = max(int(length * (data.t_end_us - data.t_start_us)) // 2, half)
     blobs, residuals, depth = [], [], []
     for mid, window in windows:
         residual, found, kept, end = _segment(views, mid, window, mc, least)
@@ -92,8 +97,7 @@ def sight(views: Views, mc: MoverConfig) -> Sightings:
         blobs.append(kept)
         residuals.append(residual)
         depth.append(np.where(end.alpha.cpu().numpy() > OPAQUE, end.depth.cpu().numpy(), 0.0))
-    times = np.array([m for m, _ in windows], dtype=np.int64)
-    return Sightings(times, blobs, residuals, depth)
+    return Sightings(times, blobs, residuals, depth, still)
 
 
 def _clipped(views: Views, mid: int, half: int) -> tuple[int, int]:
@@ -621,8 +625,7 @@ def seed_objects(
     before and each Gaussian's; only new objects are seeded then, and the motion holds all."""
     data = views.data
     sightings = sight(views, mc)
-    seen_from = data.trajectory.pose(sightings.times_us.astype(np.float64))  # [W,4,4]
-    still = is_still(seen_from)
+    still = sightings.still
     tracks = chain(sightings.blobs, mc, still)
     energy = [blurred(r, mc.blur_px) for r in sightings.residual]
     tracks = [align(t, energy, mc.align) for t in tracks]
@@ -715,7 +718,7 @@ def seed_objects(
         stats |= {f"object{first + k}_{name}": float(v) for name, v in numbers.items()}
         references_us[first + k] = t_ref
     if still:
-        c2w = seen_from[0]  # the camera's one pose
+        c2w = data.trajectory.pose(float(sightings.times_us[0]))  # the camera's one pose
         footprint = views.renderer.render(int(sightings.times_us[0]), c2w).meta["radii"]
         drawn = footprint.cpu().numpy().reshape(-1) > 0
         z = project(model.means.detach().cpu().numpy().astype(np.float64), c2w, data.K)[1]
