@@ -1,5 +1,6 @@
 """The objects' seeding on the simulator's scenes, against the ground truth it knows: the ball's
-track and its seeded Gaussians' path against the ball's true centre, and nothing in `still`."""
+track and its seeded Gaussians' path against the ball's true centre, nothing in `still`, and a
+slow card's track under a still camera against its true path."""
 
 from __future__ import annotations
 
@@ -136,22 +137,26 @@ def _alone(renderer, rows: np.ndarray, t: float, pose: np.ndarray) -> np.ndarray
         logits.copy_(kept)
 
 
-def test_a_sphere_turning_in_place_before_a_still_camera_is_followed(tiny_scene, tmp_path):
-    # drawn-44: a still camera; a sphere moving 0.7 px per window spacing and another turning in
-    # place, whose events make no region in one short window. Not a scene the window was set on.
-    trainer = _warmed_up(tiny_scene("drawn-44"), tmp_path / "run")
+def test_a_slow_card_before_a_still_camera_is_followed(tiny_scene, tmp_path):
+    # drawn-115: a still camera and one checkered card sliding at 1.2 px per window spacing and
+    # turning; its events make no region in one short window. Held out when the longer window
+    # was chosen (docs/experiments/objects.md, "Evidence summed over more time").
+    trainer = _warmed_up(tiny_scene("drawn-115"), tmp_path / "run")
     data, mc = trainer.data, trainer.cfg.mover
-    turning = next(t for t in data.tracks if np.ptp(t.centres, axis=0).max() < 1e-9)
+    (card,) = data.tracks
     pose = data.trajectory.pose(float(data.t_start_us))  # the one pose
-    truth = _project(turning.centres[:1], pose, data.K)[0]
 
     def nearest_track_px(config: MoverConfig) -> float:
         sightings = sight(trainer.views, config)
         assert sightings.still
-        tracks = chain(sightings.blobs, config, sightings.still)
-        off = [np.median(np.linalg.norm(t.centres - truth, axis=1)) for t in tracks]
-        return float(min(off, default=np.inf))
+        off = []
+        for track in chain(sightings.blobs, config, sightings.still):
+            t = track.times_us
+            truth = np.stack([np.interp(t, card.times_us, card.centres[:, j]) for j in range(3)], 1)
+            seen = np.linalg.norm(track.centres - _project(truth, pose, data.K), axis=1)
+            off.append(float(np.median(seen)))
+        return min(off, default=np.inf)
 
-    # Oracle: the simulator's centre; the sphere's radius is 10 px.
+    # Oracle: the simulator's path; the card reaches 12 px from its centre.
     assert nearest_track_px(mc) < 3.0
     assert nearest_track_px(replace(mc, still_window=0.0)) > 10.0

@@ -230,6 +230,23 @@ def test_a_slow_faint_object_is_found_by_a_longer_window_and_a_fast_one_only_onc
     assert np.linalg.norm(added.centre - slow[0]) < 1.0
 
 
+def test_a_slow_objects_two_edges_only_a_longer_window_shows_are_one_region():
+    # Where the short window shows nothing, a slow object's leading and trailing edges are two
+    # regions of the longer window (the DAVIS346 sample's third car, 12 px apart, radii 4.4 and
+    # 3.3): within ``SEPARATE`` x their radii they are one, centred between them by area; a
+    # region farther off is another object.
+    shape = (96, 96)
+    leading, trailing = (
+        _disc_blob(shape, 0, (40.0, 48.0), 5.0),
+        _disc_blob(shape, 0, (56.0, 48.0), 5.0),
+    )
+    other = _disc_blob(shape, 0, (84.0, 48.0), 5.0)
+    one, another = apart([leading, trailing, other], [])
+    assert np.allclose(one.centre, (48.0, 48.0)) and one.area == leading.area + trailing.area
+    assert (one.mask == (leading.mask | trailing.mask)).all()
+    assert another is other
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_a_slow_objects_other_edge_in_a_longer_window_is_no_second_object(seed):
     # A large disc (radius 19 px) crawling right at 0.12 px/ms over a background whose step to it

@@ -62,16 +62,29 @@ def apart(more: list[Blob], found: list[Blob]) -> list[Blob]:
     """The regions ``more`` (a longer window's) that overlap none of ``found`` (the short
     window's about the same middle, before ``made_by_events``) and lie over ``SEPARATE`` x the two
     radii from each one's centre: what only the longer window shows, as over it an object smears
-    and a slow one fires at both edges where the short window sees one."""
-    if not found:
-        return more
-    taken = np.any([b.mask for b in found], axis=0)
-    return [
-        b
-        for b in more
-        if not (b.mask & taken).any()
-        and all(np.hypot(*(b.centre - f.centre)) > SEPARATE * (b.radius + f.radius) for f in found)
-    ]
+    and a slow one fires at both edges where the short window sees one. Two of them within that
+    of each other are such edges of one object, united."""
+    out: list[Blob] = []
+    for b in more:
+        if any((b.mask & f.mask).any() or _near(b, f) for f in found):
+            continue
+        j = next((j for j, o in enumerate(out) if _near(b, o)), None)
+        if j is None:
+            out.append(b)
+        else:
+            out[j] = union(out[j], b)
+    return out
+
+
+def _near(a: Blob, b: Blob) -> bool:
+    """Whether ``a``'s and ``b``'s centres lie within ``SEPARATE`` x their summed radii."""
+    return bool(np.hypot(*(a.centre - b.centre)) <= SEPARATE * (a.radius + b.radius))
+
+
+def union(a: Blob, b: Blob) -> Blob:
+    """One region of two pieces of one object in one window."""
+    centre = (a.area * a.centre + b.area * b.centre) / (a.area + b.area)
+    return Blob(a.t_us, centre, a.mask | b.mask, a.area + b.area, max(a.contrast, b.contrast))
 
 
 def robust(x: np.ndarray) -> tuple[float, float]:
@@ -136,8 +149,8 @@ def _joined(pieces: list[tuple[np.ndarray, float]], join: float) -> list[tuple]:
         if j is None:
             i += 1
             continue
-        union = (mask | parts[j][0], max(parts[i][1], parts[j][1]), parts[i][2] + parts[j][2])
-        parts, i = [p for k, p in enumerate(parts) if k not in (i, j)] + [union], 0
+        merged = (mask | parts[j][0], max(parts[i][1], parts[j][1]), parts[i][2] + parts[j][2])
+        parts, i = [p for k, p in enumerate(parts) if k not in (i, j)] + [merged], 0
     return parts
 
 

@@ -12,7 +12,7 @@ from scipy.optimize import linear_sum_assignment
 
 from evsplat.config import MoverConfig
 from evsplat.motion.border import borders, in_image, touches_border, uncut
-from evsplat.motion.segment import Blob
+from evsplat.motion.segment import Blob, union
 
 UNASSIGNED = 1e9  # cost of a pair outside the gate
 #: A step over twice the track's median is not its own motion (docs/motion.md, "Tuning numbers").
@@ -214,7 +214,7 @@ def _split(live: list[Track], blobs: list[Blob], k: int, s: MoverConfig) -> list
         for part in blob.parts:
             near = min(groups, key=lambda n: np.linalg.norm(blob.parts[n].centre - part.centre))
             groups[near].append(part)
-        out += [functools.reduce(_union, parts) for parts in groups.values()]
+        out += [functools.reduce(union, parts) for parts in groups.values()]
     return out
 
 
@@ -303,7 +303,7 @@ def _absorb(home: Track, track: Track) -> None:
     """``track``'s sightings added to ``home``'s: per shared window one region (the masks'
     union); its hidden windows where ``home`` has none."""
     for k, blob in track.blobs.items():
-        home.blobs[k] = blob if k not in home.blobs else _union(home.blobs[k], blob)
+        home.blobs[k] = blob if k not in home.blobs else union(home.blobs[k], blob)
     home.hidden |= {k: b for k, b in track.hidden.items() if k not in home.blobs}
 
 
@@ -380,12 +380,6 @@ def _resumes(gone: Track, back: Track, s: MoverConfig) -> bool:
         return False
     guess, reach = _gate(gone, b, s, b - a)
     return _in_gate(float(np.linalg.norm(entry.centre - guess)), reach, entry, s)
-
-
-def _union(a: Blob, b: Blob) -> Blob:
-    """One region of two pieces of one object in one window."""
-    centre = (a.area * a.centre + b.area * b.centre) / (a.area + b.area)
-    return Blob(a.t_us, centre, a.mask | b.mask, a.area + b.area, max(a.contrast, b.contrast))
 
 
 def on_its_line(track: Track, s: MoverConfig) -> Track:
