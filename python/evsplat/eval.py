@@ -25,6 +25,7 @@ from evsplat.eval_objects import (
     mask2d,
     object_mask,
     object_table,
+    unscored,
     worst_object_headline,
 )
 from evsplat.event_prediction import event_headline, format_event_table, predict_events
@@ -349,7 +350,8 @@ def evaluate_run(run_dir: Path, data_dir: Path, out_dir: Path | None = None) -> 
     windows out or there are no test frames."""
     renderer, state = Renderer.from_run(run_dir)
     data = load_dataset(data_dir)
-    labels = frame_labels(renderer, data)  # once, for the IoU and the picture
+    # Once, for the IoU and the picture; neither is made where the objects are not scored.
+    labels = frame_labels(renderer, data) if unscored(data) is None else []
     result = evaluate(renderer, data, labels) if data.test_frames else {}
     if state.heldout or not data.test_frames:
         lambda_ssim = state.config.loss.lambda_ssim

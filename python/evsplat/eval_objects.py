@@ -36,16 +36,25 @@ def object_mask(obj: FrameObject) -> np.ndarray:
     return mask2d(read_png(obj.mask_path) > 0.5)
 
 
+def unscored(data: Dataset) -> str | None:
+    """Why the dataset's moving objects cannot be scored, None where they can."""
+    frames = data.test_frames
+    if not frames or any(not f.objects for f in frames):
+        return "the dataset gives no object_centre per test frame (docs/dataset.md)"
+    if any(o.mask_path is None for f in frames for o in f.objects):
+        return "the dataset gives no moving-object mask per test frame"
+    return None
+
+
 def object_views(
     data: Dataset, drawn_depths: list[np.ndarray] | None = None
 ) -> tuple[list[tuple[str, list[TrackView]]] | None, str | None]:
     """Per moving object, its name and the test frames as its tracking views (with the model's
     rendered depth of each, when given); or None and why tracking is not reported."""
+    why = unscored(data)
+    if why is not None:
+        return None, why
     frames = data.test_frames
-    if not frames or any(not f.objects for f in frames):
-        return None, "the dataset gives no object_centre per test frame (docs/dataset.md)"
-    if any(o.mask_path is None for f in frames for o in f.objects):
-        return None, "the dataset gives no moving-object mask per test frame"
     depths = [read_exr(f.depth_path) for f in frames]
     out = []
     for k, obj in enumerate(frames[0].objects):
