@@ -764,6 +764,39 @@ def test_turn_rate_recovers_the_spin_of_a_translating_textured_card():
     assert abs(found) < 1.0
 
 
+def test_a_slow_turn_in_place_is_read_in_the_held_window_from_events_at_whole_pixels():
+    # A textured disc held in place turning at -3 rad/s, a 0.6 s sequence: in a short (30 ms)
+    # window its marks move at most 0.9 px. The sensor gives each event its pixel, so with no
+    # motion every unwarped vote lands on one pixel and no turn looks the sharpest. An object
+    # held in place (its centres still) is read in ``held_window`` windows, its events spread
+    # within their pixels: the rate it was made with (the oracle).
+    rng = np.random.default_rng(4)
+    rate, centre = -3.0, np.array([48.0, 44.0])
+    marks = rng.uniform(-11.0, 11.0, size=(400, 2))
+    marks = np.repeat(marks[np.linalg.norm(marks, axis=1) < 11.0], 120, axis=0)
+    t_us = rng.integers(0, 600_000, size=len(marks))
+    order = np.argsort(t_us)  # the events in time order, each mark's spread over the sequence
+    marks, t_us = marks[order], t_us[order]
+    angle = rate * t_us * 1e-6
+    turned = np.stack([np.cos(angle) * marks[:, 0] - np.sin(angle) * marks[:, 1],
+                       np.sin(angle) * marks[:, 0] + np.cos(angle) * marks[:, 1]], 1)  # fmt: skip
+    pixel = np.floor(centre + turned).astype(np.int64)
+    p = np.where(rng.random(len(t_us)) < 0.5, 1, -1)
+
+    def read(t0, t1, most):
+        i0, i1 = np.searchsorted(t_us, [t0, t1])
+        return SimpleNamespace(x=pixel[i0:i1, 0], y=pixel[i0:i1, 1], t=t_us[i0:i1], p=p[i0:i1])
+
+    data = SimpleNamespace(t_start_us=0, t_end_us=600_000, events=SimpleNamespace(read=read))
+    views = SimpleNamespace(data=data, allowed=lambda t0, t1: True, hot=None)
+    windows = range(6, 43)  # 12.5 ms apart, clear of the sequence's ends
+    track = Track({k: _disc_blob((96, 96), k * 12_500, centre, 13.0) for k in windows})
+    held = seed.turn_rates(views, track, MoverConfig(held_window=0.2))
+    assert seed.turned(held).all() and abs(np.median(held) - rate) < 0.3
+    short = seed.turn_rates(views, track, MoverConfig(held_window=0.0))
+    assert abs(np.nanmedian(short)) < 1.0  # read in short windows: no turn, or a weak one
+
+
 def test_a_sighting_that_jumps_off_and_straight_back_is_read_from_its_neighbours():
     # An object sliding 2 px per window (windows 0-19, one missed) and wobbling by up to half a
     # pixel; at window 8 its track took a region 28 px off (a piece of it, or of another).
@@ -1348,7 +1381,7 @@ def test_a_turn_seen_in_a_few_windows_is_not_held_across_those_that_show_none(mo
     clear = {0, 20_000, 380_000}  # the windows whose events a turn sharpens
     now = []
 
-    def carried(views, t_us, half_us, velocity):  # 60 events on the region's centre
+    def carried(views, t_us, half_us, velocity, spread=False):  # 60 events on the region's centre
         now.append(t_us)
         xy = np.tile(track.blobs[t_us // 20_000].centre, (60, 1))
         return (xy, np.zeros(60), np.ones(60), xy) if events or t_us in clear else None
@@ -1384,7 +1417,7 @@ def test_an_elongated_objects_turn_that_its_events_do_not_sharpen_is_read_from_i
     )
     views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=600_000))
 
-    def carried(views, t_us, half_us, velocity):
+    def carried(views, t_us, half_us, velocity, spread=False):
         xy = np.tile(centres[t_us // 20_000], (60, 1))
         return xy, np.zeros(60), np.ones(60), xy
 
@@ -1421,7 +1454,7 @@ def test_a_turn_whose_windows_disagree_in_sign_is_no_turn(monkeypatch):
                      [24.3, -10.8, 4.7, -5.7, -7.4, -11.8]))  # fmt: skip
     now = []
 
-    def carried(views, t_us, half_us, velocity):
+    def carried(views, t_us, half_us, velocity, spread=False):
         now.append(t_us)
         xy = np.tile(track.blobs[t_us // 20_000].centre, (60, 1))
         return xy, np.zeros(60), np.ones(60), xy

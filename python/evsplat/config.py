@@ -159,6 +159,7 @@ class MoverConfig:
     turn: bool = True  # estimate each object's in-plane turn from its events
     sphere: bool = True  # a round object's turn about three axes, from its outline (needs turn)
     turn_window: float = 0.05  # the turn's windows, a fraction of the sequence
+    held_window: float = 0.2  # theirs for an object held in place in the image (0: as others')
     turn_min_gain: float = 0.05  # a turn is used where it sharpens the warped events this much
     turn_min_events: int = 50  # ... from at least this many of the object's events
     turn_min_windows: int = 3  # ... in at least this many windows

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
+from scipy import stats
 
 from evsplat.config import MoverConfig
 from evsplat.model.densify import set_rows
@@ -245,11 +246,13 @@ def smear(
 
 
 def carried(
-    views: Views, t_us: int, half_us: int, velocity: np.ndarray
+    views: Views, t_us: int, half_us: int, velocity: np.ndarray, spread: bool = False
 ) -> tuple[np.ndarray, ...] | None:
     """(pixel centres [E,2], seconds from ``t_us`` [E], polarity [E], the centres carried back
     to ``t_us`` by the image ``velocity`` [2] px/s) of the events within ``half_us`` of it,
-    the hot pixels' left out; None beyond the data or where held out."""
+    the hot pixels' left out; None beyond the data or where held out. ``spread``: each event
+    anywhere in its pixel, not at its centre (where nothing carries them off whole pixels, their
+    votes there make no turn the sharpest)."""
     data = views.data
     t0, t1 = max(t_us - half_us, data.t_start_us), min(t_us + half_us, data.t_end_us)
     if t1 <= t0 or not views.allowed(t0, t1):
@@ -257,23 +260,23 @@ def carried(
     ev = data.events.read(t0, t1, TURN_WINDOW_EVENTS)
     keep = slice(None) if views.hot is None else ~views.hot.cpu().numpy()[ev.y, ev.x]
     dt = (ev.t[keep] - t_us) * 1e-6
-    xy = np.stack([ev.x[keep], ev.y[keep]], 1).astype(np.float64) + 0.5
+    xy = np.stack([ev.x[keep], ev.y[keep]], 1).astype(np.float64)
+    xy += np.random.default_rng(t_us).random(xy.shape) if spread else 0.5
     return xy, dt, ev.p[keep], xy - velocity[None] * dt[:, None]
 
 
 def turn_rates(views: Views, track: Track, mc: MoverConfig) -> np.ndarray:
     """The object's turn rate (rad/s) at each sighting: ``turn.turn_rate`` on the events of a
-    ``mc.turn_window`` window that its region holds, carried back by its image velocity; 0
+    window that its region holds (``reading``), carried back by its image velocity; 0
     where the turn sharpens them by less than ``mc.turn_min_gain`` (a turn not seen is no turn,
     not an unknown one), NaN where fewer than ``mc.turn_min_events`` are in it; 0 in every
     window where the turns shown are not ``turn.steady``."""
-    half_us, top = turn_window(views, mc)
     times, centres = track.times_us, track.centres
-    velocity = np.gradient(centres, times * 1e-6, axis=0) if len(times) > 1 else 0.0 * centres
+    half_us, top, velocity, held = reading(views, track, centres, mc)
     out = np.full(len(times), np.nan)
     for i, k in enumerate(sorted(track.blobs)):
         mask = track.blobs[k].mask
-        got = carried(views, int(times[i]), half_us, velocity[i])
+        got = carried(views, int(times[i]), half_us, velocity[i], held)
         if got is None:
             continue
         xy, dt, p, back = got
@@ -294,12 +297,31 @@ def turned(rates: np.ndarray) -> np.ndarray:
     return np.isfinite(rates) & (rates != 0)
 
 
-def turn_window(views: Views, mc: MoverConfig) -> tuple[int, float]:
-    """(half the turn's window, µs; the fastest turn sought, rad/s: at one radian per window an
-    edge's events smear over the whole object)."""
+def turn_window(views: Views, length: float) -> tuple[int, float]:
+    """(half the turn's window of ``length`` (of the sequence), µs; the fastest turn sought,
+    rad/s: at one radian per window an edge's events smear over the whole object)."""
     data = views.data
-    half_us = max(int(mc.turn_window * (data.t_end_us - data.t_start_us)) // 2, 1)
+    half_us = max(int(length * (data.t_end_us - data.t_start_us)) // 2, 1)
     return half_us, 1.0 / (2 * half_us * 1e-6)
+
+
+def reading(
+    views: Views, track: Track, centres: np.ndarray, mc: MoverConfig
+) -> tuple[int, float, np.ndarray, bool]:
+    """How a track's turn is read: (half its windows, µs; the fastest turn sought, rad/s; the
+    image velocity [F,2] px/s of its ``centres`` [F,2]; whether it is held in place). An object
+    whose centres' Theil-Sen line moves under a pixel over a ``mc.held_window`` is held: its
+    turn, maybe too slow to show in a short window, is read in that longer one (as fast turns as
+    in a short one), unmoved, its events ``carried`` ``spread``."""
+    times = track.times_us * 1e-6
+    half_us, top = turn_window(views, mc.turn_window)
+    held_us = turn_window(views, mc.held_window)[0]
+    if mc.held_window > 0 and len(times) >= 2:
+        speed = np.hypot(*(stats.theilslopes(centres[:, j], times)[0] for j in range(2)))
+        if speed * 2 * held_us * 1e-6 < 1.0:
+            return held_us, top, np.zeros_like(centres), True
+    velocity = np.gradient(centres, times, axis=0) if len(times) > 1 else 0.0 * centres
+    return half_us, top, velocity, False
 
 
 @dataclass
@@ -322,13 +344,12 @@ def sphere_turn(
     outline is no steady ring (not round) or too few sightings show it."""
     if not (mc.turn and mc.sphere):
         return None
-    data, (half_us, top) = views.data, turn_window(views, mc)
+    data, (half_us, top, velocity, held) = views.data, reading(views, track, middle, mc)
     times, radius = track.times_us, track.radius
-    velocity = np.gradient(middle, times * 1e-6, axis=0)
     fits = []
     for i, k in enumerate(sorted(track.blobs)):
         got = None if touches_border(track.blobs[k].mask) else carried(  # a cut outline: no ring
-            views, int(times[i]), half_us, velocity[i])  # fmt: skip
+            views, int(times[i]), half_us, velocity[i], held)  # fmt: skip
         if got is None:
             continue
         _, dt, p, back = got
@@ -359,7 +380,7 @@ def sphere_turn(
         centres[f[0]], placed[f[0]] = middle[f[0]] + f[4], True
     ringed, unplaced = placed.copy(), centres.copy()
     for i in np.flatnonzero(~placed):  # ... or its outline's arc
-        got = carried(views, int(times[i]), half_us, velocity[i])
+        got = carried(views, int(times[i]), half_us, velocity[i], held)
         if got is None:
             continue
         off = got[3] - centres[i]
@@ -479,7 +500,9 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
             clear = track.clear
             masks = [track.blobs[k].mask for k in clear]
             at = np.searchsorted(ks, clear)
-            rate = axis_rate(times[at], masks, mc.turn_min_windows, turn_window(views, mc)[1])
+            rate = axis_rate(
+                times[at], masks, mc.turn_min_windows, turn_window(views, mc.turn_window)[1]
+            )
             if rate is not None:
                 rates = np.full(len(ks), rate)
                 found = (*found[:2], rate * (times - min(times)) * 1e-6)
