@@ -17,7 +17,15 @@ from evsplat.config import MoverConfig
 from evsplat.model.motion import BEHIND, FREE, ObjectMotion, quat_multiply, rotvec_to_quat
 from evsplat.motion import border, seed
 from evsplat.motion.align import align
-from evsplat.motion.paths import despiked, hops, steadied, turn_angles, turns, two_ends
+from evsplat.motion.paths import (
+    circling,
+    despiked,
+    hops,
+    steadied,
+    turn_angles,
+    turns,
+    two_ends,
+)
 from evsplat.motion.seed import (
     between_placed,
     ends_offset,
@@ -797,6 +805,36 @@ def test_a_slow_turn_in_place_is_read_in_the_held_window_from_events_at_whole_pi
     assert abs(np.nanmedian(short)) < 1.0  # read in short windows: no turn, or a weak one
 
 
+def test_a_piece_going_round_a_held_object_gives_its_centre_and_turn():
+    # A card held in place turning at 7.5 rad/s (3.7 rad over the track), seen only at one tip
+    # 14 px from its centre (the other hidden): the tip's region wobbles by up to 1 px. The
+    # circle its centres lie on gives the card's centre and rate (the oracle: what the track was
+    # drawn from); the seeded shape adds the tip mirrored through that centre, its other end.
+    rng = np.random.default_rng(2)
+    windows = np.arange(40)
+    t_us = 100_000 + windows * 12_500
+    centre, rate = np.array([50.0, 40.0]), 7.5
+    angle = 0.3 + rate * (t_us - t_us[0]) * 1e-6
+    tips = centre + 14.0 * np.stack([np.cos(angle), np.sin(angle)], 1)
+    tips += rng.uniform(-1.0, 1.0, tips.shape)
+    found = circling(t_us, tips, 5.0, 4)
+    assert found is not None
+    assert np.linalg.norm(found[0] - centre) < 0.5 and abs(found[2] - rate) < 0.2
+    assert np.allclose(found[1], angle - angle[0], atol=0.15)
+    # An object crossing with a sway, one sitting still and too short a track: no circle.
+    sway = np.stack([10.0 + 1.8 * windows, 40.0 + 3.0 * np.sin(windows / 6.0)], 1)
+    assert circling(t_us, sway, 5.0, 4) is None
+    assert circling(t_us, centre + rng.uniform(-1.0, 1.0, tips.shape), 5.0, 4) is None
+    assert circling(t_us[:7], tips[:7], 5.0, 4) is None
+    track = Track(
+        {int(k): _disc_blob((96, 96), int(t), c, 4.0) for k, t, c in zip(windows, t_us, tips)}
+    )
+    mask = seed.shape(track, 0, np.tile(centre, (40, 1)), np.zeros(40), np.zeros(40))
+    other = _disc((96, 96), 2.0 * centre - tips[0], 4.0)
+    assert mask[track.blobs[0].mask].all() and mask[other].mean() > 0.9
+    assert mask.sum() < 2.2 * track.blobs[0].mask.sum()
+
+
 def test_a_sighting_that_jumps_off_and_straight_back_is_read_from_its_neighbours():
     # An object sliding 2 px per window (windows 0-19, one missed) and wobbling by up to half a
     # pixel; at window 8 its track took a region 28 px off (a piece of it, or of another).
@@ -1377,7 +1415,8 @@ def test_a_turn_seen_in_a_few_windows_is_not_held_across_those_that_show_none(mo
     # events, nothing is known there and the rate is carried.
     windows = np.arange(20)
     track = _tip_track(np.array([20.0, 40.0]), np.zeros(2), windows, np.ones(20), (1, 0))
-    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=400_000))
+    moving = SimpleNamespace(pose=_camera_sliding(1.0))  # a hand-held camera's scene
+    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=400_000, trajectory=moving))
     clear = {0, 20_000, 380_000}  # the windows whose events a turn sharpens
     now = []
 
@@ -1415,7 +1454,8 @@ def test_an_elongated_objects_turn_that_its_events_do_not_sharpen_is_read_from_i
             )
         }
     )
-    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=600_000))
+    moving = SimpleNamespace(pose=_camera_sliding(1.0))  # a hand-held camera's scene
+    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=600_000, trajectory=moving))
 
     def carried(views, t_us, half_us, velocity, spread=False):
         xy = np.tile(centres[t_us // 20_000], (60, 1))
@@ -1449,7 +1489,8 @@ def test_a_turn_whose_windows_disagree_in_sign_is_no_turn(monkeypatch):
     # in-plane turns of +24, -11, +5, -6, -7 and -12 rad/s; the others by none.
     windows = np.arange(12)
     track = _tip_track(np.array([20.0, 40.0]), np.zeros(2), windows, np.ones(12), (1, 0))
-    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=240_000))
+    moving = SimpleNamespace(pose=_camera_sliding(1.0))  # a hand-held camera's scene
+    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=240_000, trajectory=moving))
     shown = dict(zip([20_000, 60_000, 100_000, 140_000, 180_000, 220_000],
                      [24.3, -10.8, 4.7, -5.7, -7.4, -11.8]))  # fmt: skip
     now = []

@@ -3,9 +3,17 @@ beyond its sightings (a still object makes no events; one out of view is hidden,
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from scipy import stats
 
 from evsplat.motion.tracks import filled, jump_limit, partial, step_lengths
+from evsplat.motion.turn import one_way
+
+# A piece going round an object held in place keeps its distance from the centre within this x
+# the circle's radius (median absolute deviation; docs/motion.md, "Tuning numbers").
+ROUND = 0.25
 
 
 def turn_angles(
@@ -134,6 +142,30 @@ def two_ends(
     moved = step_lengths(windows, middle)  # a hop left: a jump of the centre's own steps
     left = (moved[hop] > jump_limit(moved)).any()
     return none if left or np.linalg.norm(d) < radius else (middle, end, angles)
+
+
+def circling(
+    times_us: np.ndarray, centres: np.ndarray, radius: float, least: int
+) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """(the centre [2]; turn angles [F], rad from the first sighting; the rate, rad/s) of an
+    object held in place that shows one piece going round its centre (a turning card's tip, the
+    other hidden), or None: its ``centres`` [F] (at least 2 x ``least``) at ``times_us`` on a
+    circle (the algebraic fit) of at least ``radius`` (the piece lies off the centre), within
+    ``ROUND`` of it, sweeping half a turn or more (which pins the centre), ``turn.one_way``."""
+    if len(centres) < 2 * least:
+        return None
+    c = centres.astype(np.float64)
+    fit = np.linalg.lstsq(np.c_[2 * c, np.ones(len(c))], (c**2).sum(1), rcond=None)[0]
+    centre = fit[:2]
+    reach = math.sqrt(max(float(fit[2] + centre @ centre), 0.0))
+    off = np.linalg.norm(c - centre, axis=1)
+    if reach < radius or np.median(np.abs(off - np.median(off))) > ROUND * reach:
+        return None
+    angles = np.unwrap(np.arctan2(c[:, 1] - centre[1], c[:, 0] - centre[0]))
+    t = (times_us - times_us[0]) * 1e-6
+    if np.ptp(angles) < np.pi or not one_way(angles, t):
+        return None
+    return centre, angles - angles[0], float(stats.theilslopes(angles, t)[0])
 
 
 def _about_centre(

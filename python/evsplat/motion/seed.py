@@ -19,7 +19,15 @@ from evsplat.model.motion import BEHIND, ObjectMotion, knot_times_us
 from evsplat.motion import sphere
 from evsplat.motion.align import align
 from evsplat.motion.border import in_image, touches_border
-from evsplat.motion.paths import despiked, hops, steadied, turn_angles, turns, two_ends
+from evsplat.motion.paths import (
+    circling,
+    despiked,
+    hops,
+    steadied,
+    turn_angles,
+    turns,
+    two_ends,
+)
 from evsplat.motion.segment import (
     Blob,
     apart,
@@ -216,16 +224,21 @@ def shape(
 ) -> np.ndarray:
     """[H,W] bool: the object's pixels at its ``i``-th sighting, its region there; with two ends
     (``paths.two_ends``: centres ``middle``, ``end``), also the other end's clearest region clear
-    of the border, carried there by its turn ``seen`` (rad) about its centre."""
+    of the border, carried there by its turn ``seen`` (rad) about its centre; with one end seen
+    going round (``end`` 0), also the region through the centre, as a card's other end."""
     blobs = [track.blobs[k] for k in sorted(track.blobs)]
     mask = blobs[i].mask.copy()
-    other = [j for j, b in enumerate(blobs) if end[j] != end[i] and not touches_border(b.mask)]
-    if not other:
-        return mask
-    j = max(other, key=lambda j: blobs[j].contrast)
-    ys, xs = np.nonzero(blobs[j].mask)
-    uv = (np.stack([xs, ys], 1) + 0.5 - middle[j]) @ turns(seen[i] - seen[j]).T
-    px = np.floor(uv + middle[i]).astype(np.int64)
+    if (end == 0).all():
+        ys, xs = np.nonzero(mask)
+        uv = 2.0 * middle[i] - (np.stack([xs, ys], 1) + 0.5)
+    else:
+        other = [j for j, b in enumerate(blobs) if end[j] != end[i] and not touches_border(b.mask)]
+        if not other:
+            return mask
+        j = max(other, key=lambda j: blobs[j].contrast)
+        ys, xs = np.nonzero(blobs[j].mask)
+        uv = (np.stack([xs, ys], 1) + 0.5 - middle[j]) @ turns(seen[i] - seen[j]).T + middle[i]
+    px = np.floor(uv).astype(np.int64)
     px = px[in_image(px, mask.shape)]
     mask[px[:, 1], px[:, 0]] = True
     return mask
@@ -480,7 +493,8 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
     """(``turn_rates`` [F]; ``paths.two_ends``' centres [F,2], ends [F] and turn angles [F], rad
     from the first sighting, 0 with no turn shown; with two ends, from a steady turn; with one,
     where ``mc.turn_axes`` and its regions' long axes show a steady turn, ``turn.axis_rate``
-    at every sighting)."""
+    at every sighting; under a still camera, a track ``paths.circling``: its circle's centre,
+    ends 0 (one end seen going round) and the angles about it)."""
     ks, times = np.array(sorted(track.blobs)), track.times_us
     rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
     used, shown, seen = np.isfinite(rates), turned(rates), np.zeros(len(ks))
@@ -506,6 +520,12 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
             if rate is not None:
                 rates = np.full(len(ks), rate)
                 found = (*found[:2], rate * (times - min(times)) * 1e-6)
+        # Under a still camera, where the regions are the objects' own: a piece going round.
+        still = mc.turn and is_still(views.data.trajectory.pose(times.astype(np.float64)))
+        ring = circling(times, centres, radius, mc.min_windows) if still else None
+        if ring is not None:
+            rates = np.full(len(ks), ring[2])
+            found = (np.tile(ring[0], (len(ks), 1)), np.zeros(len(ks)), ring[1])
     return rates, *found
 
 

@@ -149,11 +149,16 @@ def axis_rate(
     off = (angle - line + 0.5 * np.pi) % np.pi - 0.5 * np.pi  # about the line
     if robust(off)[1] > AXIS_SPREAD:
         return None
-    unwrapped, half = line + off, len(t) // 2
+    unwrapped = line + off
+    return float(stats.theilslopes(unwrapped, t)[0]) if one_way(unwrapped, t) else None
+
+
+def one_way(angles: np.ndarray, t: np.ndarray) -> bool:
+    """Whether unwrapped ``angles`` [F] (rad) at times ``t`` [F] (s) turn steadily one way: each
+    half's Theil-Sen slope has a (1 - ``STEADY_P``) interval off zero on the same side."""
+    half = len(t) // 2
     bounds = [  # each half's slope interval (low, high)
-        stats.theilslopes(unwrapped[part], t[part], alpha=1.0 - STEADY_P)[2:]
+        stats.theilslopes(angles[part], t[part], alpha=1.0 - STEADY_P)[2:]
         for part in (slice(None, half), slice(half, None))
     ]
-    if not (all(low > 0 for low, _ in bounds) or all(high < 0 for _, high in bounds)):
-        return None
-    return float(stats.theilslopes(unwrapped, t)[0])
+    return all(low > 0 for low, _ in bounds) or all(high < 0 for _, high in bounds)
