@@ -1415,8 +1415,7 @@ def test_a_turn_seen_in_a_few_windows_is_not_held_across_those_that_show_none(mo
     # events, nothing is known there and the rate is carried.
     windows = np.arange(20)
     track = _tip_track(np.array([20.0, 40.0]), np.zeros(2), windows, np.ones(20), (1, 0))
-    moving = SimpleNamespace(pose=_camera_sliding(1.0))  # a hand-held camera's scene
-    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=400_000, trajectory=moving))
+    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=400_000))
     clear = {0, 20_000, 380_000}  # the windows whose events a turn sharpens
     now = []
 
@@ -1454,8 +1453,7 @@ def test_an_elongated_objects_turn_that_its_events_do_not_sharpen_is_read_from_i
             )
         }
     )
-    moving = SimpleNamespace(pose=_camera_sliding(1.0))  # a hand-held camera's scene
-    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=600_000, trajectory=moving))
+    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=600_000))
 
     def carried(views, t_us, half_us, velocity, spread=False):
         xy = np.tile(centres[t_us // 20_000], (60, 1))
@@ -1489,8 +1487,7 @@ def test_a_turn_whose_windows_disagree_in_sign_is_no_turn(monkeypatch):
     # in-plane turns of +24, -11, +5, -6, -7 and -12 rad/s; the others by none.
     windows = np.arange(12)
     track = _tip_track(np.array([20.0, 40.0]), np.zeros(2), windows, np.ones(12), (1, 0))
-    moving = SimpleNamespace(pose=_camera_sliding(1.0))  # a hand-held camera's scene
-    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=240_000, trajectory=moving))
+    views = SimpleNamespace(data=SimpleNamespace(t_start_us=0, t_end_us=240_000))
     shown = dict(zip([20_000, 60_000, 100_000, 140_000, 180_000, 220_000],
                      [24.3, -10.8, 4.7, -5.7, -7.4, -11.8]))  # fmt: skip
     now = []

@@ -493,8 +493,7 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
     """(``turn_rates`` [F]; ``paths.two_ends``' centres [F,2], ends [F] and turn angles [F], rad
     from the first sighting, 0 with no turn shown; with two ends, from a steady turn; with one,
     where ``mc.turn_axes`` and its regions' long axes show a steady turn, ``turn.axis_rate``
-    at every sighting; under a still camera, a track ``paths.circling``: its circle's centre,
-    ends 0 (one end seen going round) and the angles about it)."""
+    at every sighting)."""
     ks, times = np.array(sorted(track.blobs)), track.times_us
     rates = turn_rates(views, track, mc) if mc.turn else np.full(len(ks), np.nan)
     used, shown, seen = np.isfinite(rates), turned(rates), np.zeros(len(ks))
@@ -520,13 +519,20 @@ def turning(views: Views, track: Track, mc: MoverConfig) -> Turning:
             if rate is not None:
                 rates = np.full(len(ks), rate)
                 found = (*found[:2], rate * (times - min(times)) * 1e-6)
-        # Under a still camera, where the regions are the objects' own: a piece going round.
-        still = mc.turn and is_still(views.data.trajectory.pose(times.astype(np.float64)))
-        ring = circling(times, centres, radius, mc.min_windows) if still else None
-        if ring is not None:
-            rates = np.full(len(ks), ring[2])
-            found = (np.tile(ring[0], (len(ks), 1)), np.zeros(len(ks)), ring[1])
     return rates, *found
+
+
+def going_round(track: Track, turn: Turning, mc: MoverConfig) -> Turning:
+    """``turn``, or for an object with one end whose track is ``paths.circling`` (under a still
+    camera, where the regions are the objects' own): the circle's rate, its centre, ends 0 (one
+    end seen going round) and the angles about it."""
+    ring = None
+    if mc.turn and not (turn[2] < 0).any():
+        ring = circling(track.times_us, track.centres, track.radius, mc.min_windows)
+    if ring is None:
+        return turn
+    n = len(track.blobs)
+    return np.full(n, ring[2]), np.tile(ring[0], (n, 1)), np.zeros(n), ring[1]
 
 
 def ends_turning(views: Views, track: Track, mc: MoverConfig) -> tuple[Track, Turning]:
@@ -675,6 +681,7 @@ def seed_objects(
     if known is not None:
         tracks = [t for t in tracks if not known_object(t, known[0], views)]
     found = joined_ends(tracks, views, mc)
+    found = [(t, going_round(t, turn, mc) if still else turn) for t, turn in found]
     tracks = [t for t, _ in found]
     moving = float(np.mean([len(b) > 0 for b in sightings.blobs]))
     stats = {"objects": float(len(tracks)), "windows_with_motion": moving}
