@@ -11,6 +11,7 @@ import torch
 
 from evsplat.config import MoverConfig, preset
 from evsplat.data.dataset import load_dataset
+from evsplat.model.motion import BEHIND
 from evsplat.motion.seed import sight
 from evsplat.motion.tracks import chain
 from evsplat.projection import project
@@ -41,6 +42,7 @@ def test_the_balls_seeded_gaussians_follow_its_true_path(tiny_scene, tmp_path):
     renderer, data = trainer.renderer, trainer.data
     ids = renderer.object_id
     assert ids is not None and torch.equal(renderer.static_mask, ids < 0)
+    assert float(renderer.motion.behind) == 0.0  # a moving camera: behind it is the scene's
     track = data.track
     errors, nearest, truth_px, times = [], [], [], []
     with torch.no_grad():
@@ -112,6 +114,7 @@ def test_a_still_cameras_objects_are_not_veiled_by_the_scene(tiny_scene, tmp_pat
     logged = trainer.seed_objects()
     assert logged["objects"] >= 1 and logged["moved_behind"] > 0
     renderer, data = trainer.renderer, trainer.data
+    assert float(renderer.motion.behind) == BEHIND  # no parallax placed what lies behind them
     ids = renderer.object_id.cpu().numpy()
     pose = data.trajectory.pose(float(data.t_start_us))  # the one pose
     _, z = project(renderer.model.means.detach().double().numpy(), pose, data.K)

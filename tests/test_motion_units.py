@@ -1215,18 +1215,19 @@ def test_the_space_an_object_passes_through_or_hides_holds_only_the_scenes_gauss
     # One object of radius 0.3 centred at the origin, sliding along x by 2 m over knots at
     # t = 0, 0.25, ..., 1 and in view over [0.25, 0.75] only: its path in view runs from
     # x = 0.5 to x = 1.5, seen from a camera 4 m in front of it (z = -4), so the space it
-    # hides runs BEHIND radii (0.6 m) behind it, to z = 0.6, and the space that would hide it
-    # is the cone from the camera to its disc. A second object, always in view, stays at
-    # (0, 5, 0).
+    # hides runs BEHIND radii (0.6 m) behind it, to z = 0.6 (as under a still camera), and the
+    # space that would hide it is the cone from the camera to its disc. A second object, always
+    # in view, stays at (0, 5, 0).
     slide = torch.zeros(2, 5, 3)
     slide[0, :, 0] = torch.linspace(0.0, 2.0, 5)
-    motion = ObjectMotion(
+    paths = (
         torch.tensor([[0.0, 0.0, 0.0], [0.0, 5.0, 0.0]]),
         torch.tensor([0.3, 0.3]),
         slide,
         torch.zeros(2, 5, 3),
         torch.tensor([[0.25, 0.75], [-float("inf"), float("inf")]]),
     )
+    motion = ObjectMotion(*paths, behind=BEHIND)
     eyes = slide[0] + torch.tensor([0.0, 0.0, -4.0])  # the camera follows it: rays along z
     reach = BEHIND * 0.3
     means = torch.tensor(
@@ -1249,6 +1250,12 @@ def test_the_space_an_object_passes_through_or_hides_holds_only_the_scenes_gauss
     swept = motion.swept(means, object_id, eyes)
     want = [True, False, True, False, True, True, False, True, False, False, True, False]
     assert swept.tolist() == want
+    # Nothing behind it (as under a moving camera): the point behind it is the scene's.
+    want[5] = False
+    assert ObjectMotion(*paths).swept(means, object_id, eyes).tolist() == want
+    # A checkpoint written before the reach was kept swept BEHIND radii behind.
+    old = {k: v for k, v in ObjectMotion(*paths).state().items() if k != "behind"}
+    assert ObjectMotion.from_state(old).swept(means, object_id, eyes).tolist() == swept.tolist()
 
 
 def test_an_object_is_visible_only_inside_its_span():

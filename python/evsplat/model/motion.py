@@ -18,7 +18,8 @@ ANGLE_EPS = 1e-6  # below this angle (rad) the half-angle terms take their Taylo
 FREE = 0.25
 DIST_EPS = 1e-12  # keeps the distance's gradient finite where a knot is at its seeded place
 #: How far behind an object (radii) the warm-up's smear of it reaches along the rays: where the
-#: seeding takes it (``motion.seed.smear``) and where it is pruned later (``swept``).
+#: seeding takes it (``motion.seed.smear``) and, under a still camera, where it is pruned later
+#: (``swept``).
 BEHIND = 2.0
 SWEPT_ROWS = 16_384  # rows per batch in ``swept``: [rows, segments, 3] stays tens of MB
 
@@ -49,7 +50,8 @@ def quat_multiply(a: Tensor, b: Tensor) -> Tensor:
 class ObjectMotion(nn.Module):
     """K objects' rigid paths on G shared knots over normalised time [0, 1]: ``centres`` [K,3]
     (world, at the reference time), ``radii`` [K] (world, the track prior's length scale), and
-    ``translations``, ``rotvecs`` [K,G,3] (parameters), their starting values ``prior_*``."""
+    ``translations``, ``rotvecs`` [K,G,3] (parameters), their starting values ``prior_*``;
+    ``behind``: how far behind them (radii) the space they hide is ``swept``."""
 
     def __init__(
         self,
@@ -59,6 +61,7 @@ class ObjectMotion(nn.Module):
         rotvecs: Tensor,
         spans: Tensor | None = None,
         fade: float = 0.0,
+        behind: float = 0.0,
     ):
         super().__init__()
         k, g = translations.shape[:2]
@@ -73,6 +76,7 @@ class ObjectMotion(nn.Module):
         spans = torch.tensor([[-inf, inf]] * k) if spans is None else spans.float().clone()
         self.register_buffer("spans", spans)
         self.register_buffer("fade", torch.tensor(float(fade)))
+        self.register_buffer("behind", torch.tensor(float(behind)))
         self.translations = nn.Parameter(translations.float().clone())
         self.rotvecs = nn.Parameter(rotvecs.float().clone())
         self.register_buffer("prior_translations", translations.float().clone())
@@ -119,7 +123,7 @@ class ObjectMotion(nn.Module):
         """[N] bool: the scene's rows (``object_id`` -1) whose centre ``means`` [N,3] lies in
         the space an object passes through while in view (within its radius of its path) or
         hides from the camera (within its radius of the ray from the camera's centre at each
-        knot, ``eyes`` [G,3], through its centre, from there to ``BEHIND`` radii behind it) or
+        knot, ``eyes`` [G,3], through its centre, from there to ``behind`` radii behind it) or
         would hide it (the cone from the camera's centre there to its disc): the warm-up spreads
         an object's events there as static Gaussians, which, left, draw a trail along its path."""
         knots = torch.linspace(0.0, 1.0, self.translations.shape[1], device=means.device)
@@ -129,7 +133,8 @@ class ObjectMotion(nn.Module):
         ):
             path = centre + trans  # [G,3]
             ray = path - eyes
-            back = path + BEHIND * radius * ray / ray.norm(dim=-1, keepdim=True).clamp_min(DIST_EPS)
+            ray = ray / ray.norm(dim=-1, keepdim=True).clamp_min(DIST_EPS)
+            back = path + self.behind * radius * ray
             seen = (knots >= start) & (knots <= end)
             pair = seen[:-1] & seen[1:]  # the path between two knots in view
             eye = eyes[seen]
@@ -174,5 +179,6 @@ class ObjectMotion(nn.Module):
     def from_state(cls, state: dict[str, Tensor]) -> ObjectMotion:
         names = ("centres", "radii", "translations", "rotvecs", "spans")
         motion = cls(*(state[k] for k in names), float(state["fade"]))
-        motion.load_state_dict(state)
+        # Checkpoints written before ``behind`` was kept swept ``BEHIND`` radii behind.
+        motion.load_state_dict({"behind": torch.tensor(BEHIND)} | state)
         return motion

@@ -776,7 +776,12 @@ def seed_objects(
         moved = behind_objects(model, optimizer, object_id < 0, back, c2w, data.K, drawn)
         stats["moved_behind"] = float(moved)
     parts = (centres, radii, shifts, rotvecs, spans)  # faded in and out over a window spacing
-    motion = ObjectMotion(*(torch.from_numpy(np.array(p)) for p in parts), fade=1 / mc.windows)
+    # Under a moving camera the space an object hides is the surface behind it, placed there by
+    # parallax; under a still one nothing places it, and what the warm-up left on the object's
+    # rays behind it is swept too (docs/experiments/objects.md, "The space behind an object").
+    behind = BEHIND if still else 0.0
+    tensors = (torch.from_numpy(np.array(p)) for p in parts)
+    motion = ObjectMotion(*tensors, fade=1 / mc.windows, behind=behind)
     device = model.means.device
     motion = motion.to(device) if known is None else known[0].joined(motion)
     return Seeded(stats, motion, torch.from_numpy(object_id).to(device), references_us)
