@@ -778,7 +778,8 @@ def seed_objects(
     parts = (centres, radii, shifts, rotvecs, spans)  # faded in and out over a window spacing
     # Under a moving camera the space an object hides is the surface behind it, placed there by
     # parallax; under a still one nothing places it, and what the warm-up left on the object's
-    # rays behind it is swept too (docs/experiments/objects.md, "The space behind an object").
+    # rays behind it is swept too (docs/experiments/objects.md, "The space behind an object,
+    # swept under a still camera only").
     behind = BEHIND if still else 0.0
     tensors = (torch.from_numpy(np.array(p)) for p in parts)
     motion = ObjectMotion(*tensors, fade=1 / mc.windows, behind=behind)
