@@ -8,7 +8,23 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evsplat.motion.sphere import CONTRAST, is_round, on_outline, ring, rotvecs, sphere_rate
+from evsplat.motion.sphere import (
+    CONTRAST,
+    distances,
+    is_round,
+    on_outline,
+    ring,
+    rotvecs,
+    sphere_rate,
+)
+
+
+def test_distances_are_numpys_norms_to_the_bit():
+    rng = np.random.default_rng(4)
+    points, centres = rng.normal(0, 20, (500, 2)), rng.normal(0, 5, (70, 2))
+    expected = np.linalg.norm(points[None] - centres[:, None], axis=-1)
+    assert np.array_equal(distances(points, centres), expected)
+    assert np.array_equal(distances(points[::3], centres), expected[:, ::3])  # strided points
 
 
 def test_ring_finds_a_balls_outline_among_its_inner_events():

@@ -40,7 +40,15 @@ from evsplat.motion.seed import (
 )
 from evsplat.motion.segment import Blob, _blob, apart, floor, made_by_events, pooled, regions
 from evsplat.motion.tracks import Track, _rejoined, beside_line, chain, partial
-from evsplat.motion.turn import STEADY_P, WindowEvents, axis_rate, long_axis, steady, turn_rate
+from evsplat.motion.turn import (
+    STEADY_P,
+    WindowEvents,
+    axis_rate,
+    long_axis,
+    steady,
+    turn_rate,
+    warped_variance,
+)
 from evsplat.projection import back_project, project, project_points, world_to_camera
 
 SEGMENT = MoverConfig(pool=3, blur_px=1.0, low=3.0, high=9.0, close_px=2, min_area_px=12, join=0.5)
@@ -770,6 +778,31 @@ def test_turn_rate_recovers_the_spin_of_a_translating_textured_card():
     still = WindowEvents(centre + marks + velocity * dt[:, None], dt, ev.p)
     found, _ = turn_rate(still, centre, velocity, 1.0 / 0.03, (96, 96))
     assert abs(found) < 1.0
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_warped_variance_is_the_whole_images_variance_of_the_bilinear_votes(dtype):
+    # Oracle: each polarity's image of bilinear votes drawn over the whole sensor with numpy,
+    # votes off the image dropped; events near and across its border, one batch wholly off it.
+    rng = np.random.default_rng(5)
+    h, w, e = 70, 90, 400
+    x = torch.tensor(rng.uniform(-3.0, 20.0, size=(3, e)) + [[0.0], [70.0], [500.0]], dtype=dtype)
+    y = torch.tensor(rng.uniform(-2.0, 12.0, size=(3, e)) + [[0.0], [58.0], [0.0]], dtype=dtype)
+    p = np.where(rng.random(e) < 0.4, 1, -1)
+    expected = []
+    for xs, ys in zip(x.double().numpy(), y.double().numpy()):
+        images = np.zeros((2, h, w))
+        x0, y0 = np.floor(xs), np.floor(ys)
+        for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
+            vote = (1 - abs(xs - x0 - dx)) * (1 - abs(ys - y0 - dy))
+            xi, yi = (x0 + dx).astype(int), (y0 + dy).astype(int)
+            on = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+            np.add.at(images, ((p[on] > 0).astype(int), yi[on], xi[on]), vote[on])
+        expected.append(images.var(ddof=1))
+    got = warped_variance(x, y, p, (h, w))
+    tol = 1e-12 if dtype == torch.float64 else 1e-6
+    assert np.allclose(got, expected, rtol=tol, atol=0.0)
+    assert got[2] == 0.0
 
 
 def test_a_slow_turn_in_place_is_read_in_the_held_window_from_events_at_whole_pixels():

@@ -30,6 +30,20 @@ FRONT = 0.9  # of the ring's radius: events nearer its outline have no one depth
 MAX_EVENTS = 1500  # the turn's contrast and a cut outline read at most this many events
 GRIDS = ((8.0, 4), (24.0, 2), (72.0, 2))  # nested grids: step (top rate / this), half width
 STEP_US = 1000  # the turn's integration step
+# The ring search's centres at a time: whole, a large object's [centres, events] arrays outgrow
+# the caches (docs/experiments/objects.md, "The seeding's searches drawn over their events").
+BLOCK = 64
+
+
+def distances(points: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """[C,E] distances of ``points`` [E,2] from ``centres`` [C,2]: ``np.linalg.norm``'s values (the
+    same sums of squares) without its [C,E,2] array."""
+    dx = np.subtract.outer(centres[:, 0], np.ascontiguousarray(points[:, 0]))
+    dy = np.subtract.outer(centres[:, 1], np.ascontiguousarray(points[:, 1]))
+    dx *= dx
+    dy *= dy
+    dx += dy
+    return np.sqrt(dx, out=dx)
 
 
 def ring(off: np.ndarray, radius: float) -> tuple[np.ndarray, float, float] | None:
@@ -41,13 +55,9 @@ def ring(off: np.ndarray, radius: float) -> tuple[np.ndarray, float, float] | No
     reach = int(np.ceil(0.5 * radius))
     shifts = np.arange(-reach, reach + 1, dtype=np.float64)
     centres = np.stack(np.meshgrid(shifts, shifts), -1).reshape(-1, 2)  # [C,2]
-    dist = np.linalg.norm(off[None] - centres[:, None], axis=-1)  # [C,E]
     radii = np.arange(*(np.round(np.array(RADII) * radius / BIN_PX)), dtype=np.int64)  # bins
     edge = radii[-1] + int(3 * RING_PX / BIN_PX) + 1
-    bins = np.minimum((dist / BIN_PX).astype(np.int64), edge)
-    rows = np.arange(len(centres))[:, None] * (edge + 1)  # one histogram per centre, at once
-    counts = np.bincount((rows + bins).ravel(), minlength=len(centres) * (edge + 1))
-    counts = counts.reshape(len(centres), edge + 1)  # [C,bins]
+    counts = _histograms(off, centres, int(edge))  # [C,bins]
     below = np.concatenate([np.zeros((len(centres), 1)), np.cumsum(counts, 1)], 1)  # d < bin
 
     def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # events a <= d/BIN_PX < b
@@ -61,6 +71,19 @@ def ring(off: np.ndarray, radius: float) -> tuple[np.ndarray, float, float] | No
     if r in (0, len(radii) - 1):
         return None
     return centres[c], float(radii[r] * BIN_PX), float(on_ring[c, r] / max(sides[c, r], EPS))
+
+
+def _histograms(off: np.ndarray, centres: np.ndarray, edge: int) -> np.ndarray:
+    """[C, edge + 1] counts of the events at ``off`` [E,2] by their distance from each of
+    ``centres`` [C,2], in ``BIN_PX`` bins, the last one all beyond; ``BLOCK`` centres at a time."""
+    out = []
+    for block in np.split(centres, range(BLOCK, len(centres), BLOCK)):
+        scaled = distances(off, block)
+        scaled /= BIN_PX
+        bins = np.minimum(scaled, edge, out=scaled).astype(np.int64)
+        bins += np.arange(len(block))[:, None] * (edge + 1)  # one histogram per centre, at once
+        out.append(np.bincount(bins.ravel(), minlength=len(block) * (edge + 1)))
+    return np.concatenate(out).reshape(len(centres), edge + 1)
 
 
 def _thinned(n: int) -> np.ndarray:
@@ -85,7 +108,7 @@ def on_outline(
         centres = best + np.stack(np.meshgrid(shifts, shifts), -1).reshape(-1, 2)  # [C,2]
         points = centres[:, None] + rim[None]
         seen = ((points >= lo) & (points < hi)).all(-1).mean(1)  # [C] of the circle in view
-        gap = np.abs(np.linalg.norm(off[None] - centres[:, None], axis=-1) - rho)  # [C,E]
+        gap = np.abs(distances(off, centres) - rho)  # [C,E]
         on = (gap < RING_PX).sum(1) / (2 * RING_PX)
         sides = ((gap >= RING_PX) & (gap < 3 * RING_PX)).sum(1) / (4 * RING_PX)
         score = np.where(seen >= SEEN, (on - 0.5 * sides) / np.maximum(seen, EPS), -np.inf)

@@ -59,15 +59,22 @@ def warped_variance(x: torch.Tensor, y: torch.Tensor, p: np.ndarray, shape: tupl
     fx, fy = x - x0, y - y0
     channel = torch.from_numpy((p > 0).astype(np.int64))
     r = x.shape[0]
-    images = torch.zeros(r, 2, h + 2, w + 2, dtype=x.dtype)
+    # Only the box the votes fall in is drawn (an object's events cover a small part of a
+    # sensor); the whole images' variance follows from its sums, the rest of them being zeros.
+    left, top = max(int(x0.min()), 0), max(int(y0.min()), 0)
+    bw, bh = max(min(int(x0.max()) + 2, w) - left, 0), max(min(int(y0.max()) + 2, h) - top, 0)
+    images = torch.zeros(r, 2, bh + 2, bw + 2, dtype=x.dtype)
     flat = images.view(r, -1)
     for dx, dy, weight in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
                            (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):  # fmt: skip
-        # A one-pixel frame takes the votes that fall off the image (clamped into it).
-        xi = (x0 + dx + 1).clamp(0, w + 1).long()
-        yi = (y0 + dy + 1).clamp(0, h + 1).long()
-        flat.scatter_add_(1, channel[None] * (h + 2) * (w + 2) + yi * (w + 2) + xi, weight)
-    return images[:, :, 1:-1, 1:-1].reshape(r, -1).var(dim=1).numpy()
+        # A one-pixel frame takes the votes that fall off the box, so off the image.
+        xi = (x0 + dx + 1 - left).clamp(0, bw + 1).long()
+        yi = (y0 + dy + 1 - top).clamp(0, bh + 1).long()
+        flat.scatter_add_(1, channel[None] * (bh + 2) * (bw + 2) + yi * (bw + 2) + xi, weight)
+    inside = images[:, :, 1:-1, 1:-1].double()
+    n = 2 * h * w
+    total, squares = inside.sum((1, 2, 3)), (inside * inside).sum((1, 2, 3))
+    return ((squares - total * total / n) / max(n - 1, 1)).numpy()
 
 
 def vertex(line: np.ndarray, i: int) -> float:
