@@ -121,13 +121,13 @@ def regions(residual: np.ndarray, t_us: int, s: MoverConfig, least: float = 0.0)
         grown = ndimage.binary_closing(np.pad(hot, pad, mode="edge"), structure=disc)
         hot = ndimage.binary_fill_holes(grown)[pad:-pad, pad:-pad]
     labels, count = ndimage.label(hot, structure=np.ones((3, 3), dtype=bool))
-    index = np.arange(1, count + 1)
-    peak = ndimage.maximum(energy, labels, index)
-    area = ndimage.sum(np.ones_like(energy), labels, index)
+    peak = np.full(count + 1, -np.inf)  # per label, in one pass (ndimage.maximum sorts the image)
+    np.maximum.at(peak, labels.ravel(), energy.ravel())
+    area = np.bincount(labels.ravel(), minlength=count + 1)
     kept = [
-        (labels == k, float((top - med) / sigma))
-        for k, top, size in zip(index, peak, area)
-        if size >= s.min_area_px and top >= med + s.high * sigma
+        (labels == k, float((peak[k] - med) / sigma))
+        for k in range(1, count + 1)
+        if area[k] >= s.min_area_px and peak[k] >= med + s.high * sigma
     ]
     blobs = []
     for mask, c, pieces in _joined(kept, s.join):
