@@ -57,7 +57,7 @@ def ring(off: np.ndarray, radius: float) -> tuple[np.ndarray, float, float] | No
     centres = np.stack(np.meshgrid(shifts, shifts), -1).reshape(-1, 2)  # [C,2]
     radii = np.arange(*(np.round(np.array(RADII) * radius / BIN_PX)), dtype=np.int64)  # bins
     edge = radii[-1] + int(3 * RING_PX / BIN_PX) + 1
-    counts = _histograms(off, centres, int(edge))  # [C,bins]
+    counts = histograms(off, centres, int(edge))  # [C,bins]
     below = np.concatenate([np.zeros((len(centres), 1)), np.cumsum(counts, 1)], 1)  # d < bin
 
     def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # events a <= d/BIN_PX < b
@@ -73,7 +73,7 @@ def ring(off: np.ndarray, radius: float) -> tuple[np.ndarray, float, float] | No
     return centres[c], float(radii[r] * BIN_PX), float(on_ring[c, r] / max(sides[c, r], EPS))
 
 
-def _histograms(off: np.ndarray, centres: np.ndarray, edge: int) -> np.ndarray:
+def histograms(off: np.ndarray, centres: np.ndarray, edge: int) -> np.ndarray:
     """[C, edge + 1] counts of the events at ``off`` [E,2] by their distance from each of
     ``centres`` [C,2], in ``BIN_PX`` bins, the last one all beyond; ``BLOCK`` centres at a time."""
     out = []
