@@ -46,6 +46,8 @@ SKIPS = {
     r"^evsplat bench decode\b": "20 M events per format (tests/test_bench_decode.py runs it small)",
     r"^evsplat bench seeding\b": "a warm-up per scene and setting, minutes "
     "(tests/test_bench_seeding.py runs it on one scene)",
+    r"^evsplat bench turn\b": "whole-sensor baselines at 1280x720, tens of seconds "
+    "(tests/test_bench_turn.py runs it small)",
     r"--device cuda\b|^evsplat bench gpu\b": "needs a CUDA GPU",
     r"^evsplat simulate (?!.*--tiny)": "a full-size scene: minutes of simulation (`--tiny` runs)",
 }
