@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+import pytest
+
 from evsplat.bench import turn
 
 
@@ -17,3 +19,12 @@ def test_bench_turn_prints_every_row_and_the_searches_agree(capsys):
     assert "| turn images, 40x30 |" in out and "| turn images, 160x120 |" in out
     assert "| ring histograms, 81 centres |" in out
     assert out.count("| True |") == 3
+
+
+def test_a_size_that_is_not_width_by_height_is_a_one_line_error(capsys):
+    parser = argparse.ArgumentParser(prog="evsplat bench turn")
+    turn.add_arguments(parser)
+    with pytest.raises(SystemExit) as stop:
+        parser.parse_args(["--sizes", "96x96,10"])
+    assert stop.value.code == 2
+    assert "'10' is not WIDTHxHEIGHT" in capsys.readouterr().err

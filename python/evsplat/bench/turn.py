@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from evsplat.bench.events import best_of
+from evsplat.commands.simulate import image_size
 from evsplat.motion import sphere
 from evsplat.motion.turn import GRID, WindowEvents, warped_variance
 
@@ -23,7 +24,10 @@ HELP = "the seeding's turn searches (warped-event images, ring histograms) vs th
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--sizes", default="96x96,346x260,1280x720", help="sensor sizes, comma-separated WxH"
+        "--sizes",
+        type=lambda text: [image_size(t) for t in text.split(",")],
+        default="96x96,346x260,1280x720",
+        help="sensor sizes, comma-separated WIDTHxHEIGHT",
     )
     parser.add_argument("--events", type=int, default=20_000, help="the disc's events")
     parser.add_argument("--radius", type=float, default=30.0, help="the disc's radius, px")
@@ -91,8 +95,7 @@ def warped(ev: WindowEvents, centre: np.ndarray) -> tuple[torch.Tensor, torch.Te
 def run(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(args.seed)
     rows = []
-    for size in args.sizes.split(","):
-        w, h = (int(v) for v in size.lower().split("x"))
+    for w, h in args.sizes:
         centre = np.array([w / 2, h / 2])
         ev = disc_events(rng, args.events, args.radius, centre)
         x, y = warped(ev, centre)

@@ -11,7 +11,8 @@ import time
 HELP = "render a built-in synthetic scene and simulate an event camera; writes a dataset folder"
 
 
-def _size(text: str) -> tuple[int, int]:
+def image_size(text: str) -> tuple[int, int]:
+    """WIDTHxHEIGHT as (width, height); an argparse type."""
     m = re.fullmatch(r"(\d+)x(\d+)", text.strip())
     if not m:
         raise argparse.ArgumentTypeError(f"'{text}' is not WIDTHxHEIGHT (e.g. 400x400)")
@@ -56,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--size",
-        type=_size,
+        type=image_size,
         default=None,
         help="image size WIDTHxHEIGHT (default: the scene's, 400x400 or 600x400)",
     )
