@@ -27,4 +27,4 @@ def test_a_size_that_is_not_width_by_height_is_a_one_line_error(capsys):
     with pytest.raises(SystemExit) as stop:
         parser.parse_args(["--sizes", "96x96,10"])
     assert stop.value.code == 2
-    assert "'10' is not WIDTHxHEIGHT" in capsys.readouterr().err
+    assert "'96x96,10' is not WIDTHxHEIGHT" in capsys.readouterr().err

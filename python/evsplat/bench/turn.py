@@ -10,22 +10,30 @@ Each row checks that both give the same numbers and prints their times, measured
 from __future__ import annotations
 
 import argparse
+import re
 
 import numpy as np
 import torch
 
 from evsplat.bench.events import best_of
-from evsplat.commands.simulate import image_size
 from evsplat.motion import sphere
 from evsplat.motion.turn import GRID, WindowEvents, warped_variance
 
 HELP = "the seeding's turn searches (warped-event images, ring histograms) vs their whole forms"
 
 
+def sizes(text: str) -> list[tuple[int, int]]:
+    """Comma-separated WIDTHxHEIGHT as [(width, height)]; an argparse type."""
+    found = [re.fullmatch(r"(\d+)x(\d+)", part.strip()) for part in text.split(",")]
+    if not all(found):
+        raise argparse.ArgumentTypeError(f"'{text}' is not WIDTHxHEIGHT,... (e.g. 96x96,346x260)")
+    return [(int(m.group(1)), int(m.group(2))) for m in found if m]
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--sizes",
-        type=lambda text: [image_size(t) for t in text.split(",")],
+        type=sizes,
         default="96x96,346x260,1280x720",
         help="sensor sizes, comma-separated WIDTHxHEIGHT",
     )

@@ -11,8 +11,7 @@ import time
 HELP = "render a built-in synthetic scene and simulate an event camera; writes a dataset folder"
 
 
-def image_size(text: str) -> tuple[int, int]:
-    """WIDTHxHEIGHT as (width, height); an argparse type."""
+def _size(text: str) -> tuple[int, int]:
     m = re.fullmatch(r"(\d+)x(\d+)", text.strip())
     if not m:
         raise argparse.ArgumentTypeError(f"'{text}' is not WIDTHxHEIGHT (e.g. 400x400)")
@@ -57,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--size",
-        type=image_size,
+        type=_size,
         default=None,
         help="image size WIDTHxHEIGHT (default: the scene's, 400x400 or 600x400)",
     )
