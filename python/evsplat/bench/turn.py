@@ -17,7 +17,10 @@ import torch
 
 from evsplat.bench.events import best_of
 from evsplat.motion import sphere
-from evsplat.motion.turn import GRID, WindowEvents, warped_variance
+from evsplat.motion.turn import GRID, WindowEvents, carried_back, warped_variance
+
+SLIDE = np.array([300.0, 0.0])  # px/s, the disc's image velocity
+RATES = np.linspace(-33.0, 33.0, GRID)  # rad/s, the turn rates tried
 
 HELP = "the seeding's turn searches (warped-event images, ring histograms) vs their whole forms"
 
@@ -73,7 +76,7 @@ def whole_array_histograms(off: np.ndarray, centres: np.ndarray, edge: int) -> n
 def disc_events(
     rng: np.random.Generator, n: int, radius: float, centre: np.ndarray
 ) -> WindowEvents:
-    """``n`` events of a textured disc at ``centre`` turning at 8 rad/s and sliding at 300 px/s
+    """``n`` events of a textured disc at ``centre`` turning at 8 rad/s and sliding at ``SLIDE``
     over 9 ms, in pixel-centre coordinates."""
     marks = (
         radius
@@ -84,20 +87,8 @@ def disc_events(
     turn = 8.0 * dt
     turned = np.stack([np.cos(turn) * marks[:, 0] - np.sin(turn) * marks[:, 1],
                        np.sin(turn) * marks[:, 0] + np.cos(turn) * marks[:, 1]], 1)  # fmt: skip
-    xy = np.floor(centre + turned + np.array([300.0, 0.0]) * dt[:, None]) + 0.5
+    xy = np.floor(centre + turned + SLIDE * dt[:, None]) + 0.5
     return WindowEvents(xy, dt, np.where(rng.random(n) < 0.5, 1, -1))
-
-
-def warped(ev: WindowEvents, centre: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-    """The events carried back over ``GRID`` turn rates about ``centre`` and by their slide, as
-    ``turn.iwe_variance`` does: (x, y) [R,E] px."""
-    rates = torch.linspace(-33.0, 33.0, GRID, dtype=torch.float64)
-    xy = torch.from_numpy(ev.xy - centre - np.array([300.0, 0.0]) * ev.dt[:, None])
-    angle = -rates[:, None] * torch.from_numpy(ev.dt)[None]
-    cos, sin = torch.cos(angle), torch.sin(angle)
-    x = cos * xy[:, 0] - sin * xy[:, 1] + float(centre[0]) - 0.5
-    y = sin * xy[:, 0] + cos * xy[:, 1] + float(centre[1]) - 0.5
-    return x, y
 
 
 def run(args: argparse.Namespace) -> int:
@@ -106,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     for w, h in args.sizes:
         centre = np.array([w / 2, h / 2])
         ev = disc_events(rng, args.events, args.radius, centre)
-        x, y = warped(ev, centre)
+        x, y = carried_back(ev, centre, SLIDE, RATES)
         same = np.allclose(
             warped_variance(x, y, ev.p, (h, w)),
             whole_sensor_variance(x, y, ev.p, (h, w)),

@@ -41,13 +41,22 @@ def iwe_variance(
     shape: tuple[int, int],
 ) -> np.ndarray:
     """Variance of the IWE [R] for each turn rate ``rates`` [R] (rad/s, x towards y), events
-    carried back to dt = 0 by the image ``velocity`` [2] (px/s) and the turn about ``centre``."""
+    ``carried_back`` by the image ``velocity`` [2] (px/s) and the turn about ``centre``."""
+    return warped_variance(*carried_back(ev, centre, velocity, rates), ev.p, shape)
+
+
+def carried_back(
+    ev: WindowEvents, centre: np.ndarray, velocity: np.ndarray, rates: np.ndarray
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(x, y) [R,E] px (pixel centres at whole numbers) of the events carried back to dt = 0 by
+    the image ``velocity`` [2] (px/s) and each turn rate of ``rates`` [R] (rad/s) about
+    ``centre``."""
     xy = torch.from_numpy(ev.xy - centre - velocity[None] * ev.dt[:, None])  # [E,2]
     angle = -torch.from_numpy(rates)[:, None] * torch.from_numpy(ev.dt)[None]  # [R,E]
     cos, sin = torch.cos(angle), torch.sin(angle)
     x = cos * xy[:, 0] - sin * xy[:, 1] + float(centre[0]) - 0.5
     y = sin * xy[:, 0] + cos * xy[:, 1] + float(centre[1]) - 0.5
-    return warped_variance(x, y, ev.p, shape)
+    return x, y
 
 
 def warped_variance(x: torch.Tensor, y: torch.Tensor, p: np.ndarray, shape: tuple) -> np.ndarray:
